@@ -1,0 +1,19 @@
+"""spidersim: a causal block-diagram simulator for servomechanisms and robot arms.
+
+Quick use::
+
+    import spidersim
+    d = spidersim.load("diagrams/servo.yaml", set={"motor.R": 1.2})
+    r = d.simulate(t_end=0.5)
+    r.t, r["motor.w"], r.stats
+"""
+from . import blocks  # noqa: F401  (registers the block library)
+from .diagram.model import Diagram, load, loads
+from .errors import (AlgebraicLoopError, BlockTypeError, DiagramError, IntegrationError,
+                     ParameterError, SpidersimError, WiringError)
+from .solver.result import Result
+
+__version__ = "0.1.0"
+__all__ = ["Diagram", "load", "loads", "Result", "SpidersimError", "DiagramError",
+           "BlockTypeError", "ParameterError", "WiringError", "AlgebraicLoopError",
+           "IntegrationError"]

@@ -1,0 +1,10 @@
+"""The block library. Importing this package registers every block type.
+
+See :mod:`spidersim.blocks.base` for the contract a block implements.
+"""
+from . import continuous, controllers, electromechanical, mathops, nonlinear, routing, sources
+from .base import REGISTRY, Block, Dim, Event, FromInputs, Mode, Param, Port, State, lookup
+
+__all__ = ["REGISTRY", "Block", "Dim", "Event", "FromInputs", "Mode", "Param", "Port", "State",
+           "lookup", "continuous", "controllers", "electromechanical", "mathops", "nonlinear",
+           "routing", "sources"]

@@ -1,0 +1,499 @@
+"""The Block base class and the declarations every block makes at class level.
+
+Contract for block implementers
+-------------------------------
+1. Subclass :class:`Block`; the class name (or ``type_name``) is the YAML type name.
+2. Declare ``parameters`` (:class:`Param`), ``inputs`` and ``outputs`` (:class:`Port`),
+   continuous ``states`` (:class:`State`) and discrete ``modes`` (:class:`Mode`) as dicts at
+   class level. The loader, ``spidersim blocks`` and the contract tests read them without
+   making an instance.
+3. Declare for each output the inputs it depends on *directly* (``Port.feedthrough``): a tuple
+   of input names, or a callable ``f(params) -> tuple`` when it depends on a parameter (that
+   parameter must then be ``structural``). A contract test probes every block numerically and
+   fails when an output moves with an undeclared input.
+4. Write the equations as static methods with the declared names as arguments; the compiler
+   binds each name to a slice of the flat arrays:
+
+   ``output(t, <states>, <inputs>, <params>, <modes>, <outputs>)``
+       writes every output port in place. It may be called more than once per evaluation
+       (once per group of outputs that the schedule needs early); it must be pure.
+   ``derivative(t, <states>, <inputs>, <params>, <modes>, der_<state>...)``
+       writes the time derivative of every state into ``der_<state>``.
+   ``next_time(t, <params>, <modes>) -> float``
+       time of the block's next *time event* (``inf`` for none): the integrator stops there.
+   ``time_event(t, <states>, <inputs>, <params>, <modes>)``
+       applied at that time; may change the block's own modes and states only.
+
+   An output port with the same name and size as a state *is* that state: no kernel writes
+   it and it has no feedthrough (``DCMotor.w``). Ports, states and modes arrive as 1-D float arrays of their declared size (a scalar port
+   is ``u[0]``); real parameters as floats (scalar) or arrays (vector, matrix); ``int`` and
+   ``bool`` parameters as constants; ``str`` parameters are structural and not passed. The
+   functions must be numba-compilable, allocation-free (write loops, not array expressions)
+   and must never clip a state or integrate by hand: discontinuities are events.
+5. Optional class methods: ``derive(params) -> dict`` for numeric parameters computed from the
+   user's (e.g. a state-space realisation of a transfer function), ``check(params)`` for
+   cross-parameter validation (raise ``ValueError`` with a message), and
+   ``kernel_source(params, kernel) -> str`` for kernels whose argument list depends on a
+   structural parameter (e.g. a sum with N inputs), ``input_names(params)`` for such blocks.
+"""
+from __future__ import annotations
+
+import difflib
+import importlib
+import inspect
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import BlockTypeError, ParameterError
+
+REQUIRED = object()
+
+#: name -> Block subclass; filled by ``Block.__init_subclass__``.
+REGISTRY: dict[str, type["Block"]] = {}
+
+
+@dataclass(frozen=True)
+class Dim:
+    """A size computed from parameters: ``text`` for the docs, ``fn(params) -> int``."""
+
+    text: str
+    fn: Callable[[dict], int]
+
+
+@dataclass(frozen=True)
+class Param:
+    """Declaration of a block parameter.
+
+    Parameters
+    ----------
+    default : float, list, str or REQUIRED
+    unit : str
+        SI unit in Modelica notation (``"N.m"``, ``"rad/s"``, ``"1"`` for dimensionless).
+    shape : () or str or int or tuple
+        ``()`` scalar; ``"*"`` 1-D of any length (a scalar is accepted as length 1);
+        an int, a parameter name or a :class:`Dim` for a 1-D size; a 2-tuple of those for a
+        matrix.
+    gt, ge, lt, le : float, optional
+        Bounds applied to every element.
+    kind : {"real", "int", "bool", "str"}
+        ``int``, ``bool`` and ``str`` parameters are structural: their values are part of the
+        compiled code, and changing them recompiles.
+    choices : tuple, optional
+        Allowed values of a ``str`` parameter.
+    structural : bool
+        A ``real`` parameter that decides structure (e.g. an inductance whose zero makes a
+        port feedthrough).
+    """
+
+    default: Any = REQUIRED
+    unit: str = "1"
+    doc: str = ""
+    shape: Any = ()
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    kind: str = "real"
+    choices: tuple | None = None
+    structural: bool = False
+
+    @property
+    def is_structural(self):
+        return self.structural or self.kind != "real"
+
+
+@dataclass(frozen=True)
+class Port:
+    """Declaration of an input or output port.
+
+    ``size``: an int, a parameter name, a :class:`Dim`, ``"@u"`` (same size as input ``u``;
+    outputs only) or ``None`` (inputs only: take the size of whatever is connected).
+    ``feedthrough`` (outputs only): the inputs this output depends on directly, or a callable
+    of the parameters returning them, or ``"all"``.
+    ``optional`` (inputs only): an unconnected optional input reads zeros.
+    """
+
+    unit: str = "1"
+    size: Any = 1
+    doc: str = ""
+    feedthrough: Any = ()
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class FromInputs:
+    """An output size computed from the input sizes: ``fn(params, sizes) -> int``."""
+
+    text: str
+    fn: Callable[[dict, dict], int]
+
+
+@dataclass(frozen=True)
+class State:
+    """A continuous state. ``initial``: number, parameter name or callable(params) -> array."""
+
+    unit: str = "1"
+    size: Any = 1
+    initial: Any = 0.0
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Mode:
+    """A discrete (mode) state, a float array changed only by events."""
+
+    size: Any = 1
+    initial: Any = 0.0
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Event:
+    """A zero-crossing event: ``direction`` +1 rising, -1 falling, 0 either."""
+
+    direction: int = 0
+    doc: str = ""
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return f"{v:g}"
+    return str(v)
+
+
+class Block:
+    """Base class of every block; see the module docstring for the contract."""
+
+    type_name: str = ""
+    category: str = "misc"
+    parameters: dict[str, Param] = {}
+    inputs: dict[str, Port] = {}
+    outputs: dict[str, Port] = {}
+    states: dict[str, State] = {}
+    modes: dict[str, Mode] = {}
+    events: dict[str, Event] = {}
+
+    def __init_subclass__(cls, abstract=False, **kw):
+        super().__init_subclass__(**kw)
+        if abstract:
+            return
+        name = cls.__dict__.get("type_name") or cls.__name__
+        cls.type_name = name
+        if name in REGISTRY and REGISTRY[name] is not cls:
+            raise RuntimeError(f"block type {name!r} registered twice")
+        REGISTRY[name] = cls
+
+    # ---------------------------------------------------------------- interface
+    @classmethod
+    def input_names(cls, params):
+        """Input port names for these parameters (override for variable-arity blocks)."""
+        return list(cls.inputs)
+
+    @classmethod
+    def input_decl(cls, name):
+        """Port declaration of input ``name`` (variable-arity blocks share one)."""
+        return cls.inputs[name]
+
+    @classmethod
+    def output_names(cls, params):
+        """Output port names for these parameters (override for variable-arity blocks)."""
+        return list(cls.outputs)
+
+    @classmethod
+    def output_decl(cls, name):
+        return cls.outputs[name]
+
+    @classmethod
+    def check_sizes(cls, params, sizes):
+        """Validation once port sizes are known (``sizes``: port name -> int); raise
+        ``ValueError`` with a message."""
+
+    @classmethod
+    def derive(cls, params) -> dict:
+        """Numeric parameters computed from the user's; passed to kernels by name."""
+        return {}
+
+    @classmethod
+    def check(cls, params):
+        """Cross-parameter validation; raise ``ValueError`` with a message."""
+
+    @classmethod
+    def has_kernel(cls, kernel):
+        return callable(cls.__dict__.get(kernel)) or any(
+            callable(getattr(b, "__dict__", {}).get(kernel)) for b in cls.__mro__[1:-1]
+            if b is not Block)
+
+    @classmethod
+    def kernel_source(cls, params, kernel) -> str | None:
+        """Source text of a kernel specialised to structural parameters, or None."""
+        return None
+
+    @classmethod
+    def kernel_args(cls, kernel, params):
+        """Argument names of ``kernel`` (from its signature or specialised source)."""
+        src = cls.kernel_source(params, kernel)
+        if src is not None:
+            ns = {}
+            exec(compile(src, f"<{cls.type_name}.{kernel}>", "exec"), {"math": math}, ns)
+            fn = ns[kernel]
+        else:
+            fn = getattr(cls, kernel)
+        return list(inspect.signature(fn).parameters)
+
+    # ---------------------------------------------------------------- parameters
+    @classmethod
+    def validate_params(cls, given: dict, lines: dict | None = None, where=None):
+        """Check names, types, shapes and bounds; return a dict of normalised values.
+
+        ``given`` maps names to evaluated values; ``where(name) -> (file, line)`` locates
+        them for error messages. Raises :class:`ParameterError`.
+        """
+        where = where or (lambda name: (None, None))
+        for name in given:
+            if name not in cls.parameters:
+                near = difflib.get_close_matches(name, list(cls.parameters), n=3)
+                hint = f"; did you mean {', '.join(repr(n) for n in near)}?" if near else ""
+                known = ", ".join(cls.parameters) or "none"
+                f, l = where(name)
+                raise ParameterError(
+                    f"unknown parameter '{name}' for type {cls.type_name}{hint} "
+                    f"(parameters: {known})", file=f, line=l)
+        out = {}
+        for name, decl in cls.parameters.items():
+            if name in given:
+                value = given[name]
+            elif decl.default is REQUIRED:
+                f, l = where(None)
+                raise ParameterError(
+                    f"missing parameter '{name}' of type {cls.type_name} "
+                    f"[{decl.unit}]: {decl.doc}", file=f, line=l)
+            else:
+                value = decl.default
+            out[name] = cls._normalise(name, decl, value, out, where)
+        try:
+            cls.check(out)
+        except ValueError as exc:
+            f, l = where(None)
+            raise ParameterError(str(exc), file=f, line=l) from None
+        return out
+
+    @classmethod
+    def _normalise(cls, name, decl, value, known, where):
+        f, l = where(name)
+
+        def fail(msg):
+            raise ParameterError(f"parameter '{name}' {msg}", file=f, line=l)
+
+        if decl.kind == "str":
+            if not isinstance(value, str):
+                fail(f"must be a string, got {value!r}")
+            if decl.choices and value not in decl.choices:
+                near = difflib.get_close_matches(value, decl.choices, n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                fail(f"must be one of {', '.join(decl.choices)}, got '{value}'{hint}")
+            return value
+        if decl.kind == "bool":
+            if isinstance(value, bool):
+                return value
+            if isinstance(value, (int, float)) and value in (0, 1):
+                return bool(value)
+            fail(f"must be true or false, got {value!r}")
+        if isinstance(value, str):
+            fail(f"must be a number, got the string '{value}'")
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            fail(f"must be numeric, got {value!r}")
+        if decl.kind == "int":
+            if arr.ndim != 0 or not float(arr).is_integer():
+                fail(f"must be an integer, got {value!r}")
+            cls._bounds(decl, arr, fail)
+            return int(arr)
+        if np.any(np.isnan(arr)):
+            fail(f"must not be NaN, got {value!r}")
+        shape = decl.shape
+        if shape == ():
+            if arr.ndim != 0:
+                if arr.size == 1:
+                    arr = arr.reshape(())
+                else:
+                    fail(f"must be a scalar, got an array of shape {arr.shape}")
+            cls._bounds(decl, arr, fail)
+            return float(arr)
+        if shape == "*" or not isinstance(shape, tuple):
+            arr = np.atleast_1d(arr)
+            if arr.ndim != 1:
+                fail(f"must be a 1-D list, got shape {arr.shape}")
+            if shape != "*":
+                n = cls._dim(shape, known)
+                if arr.size == 1 and n != 1:
+                    arr = np.full(n, arr[0])
+                if arr.size != n:
+                    fail(f"must have {n} elements ({shape}), got {arr.size}")
+            if arr.size == 0:
+                fail("must not be empty")
+        else:
+            if arr.ndim == 0:
+                arr = arr.reshape(1, 1)
+            if arr.ndim == 1:
+                arr = arr.reshape(1, -1) if shape[0] == 1 else arr.reshape(-1, 1)
+            if arr.ndim != 2:
+                fail(f"must be a matrix (list of rows), got shape {arr.shape}")
+            for k, d in enumerate(shape):
+                if d != "*":
+                    n = cls._dim(d, known)
+                    if arr.shape[k] != n:
+                        fail(f"must have {n} {'rows' if k == 0 else 'columns'} ({d}), "
+                             f"got shape {arr.shape}")
+        cls._bounds(decl, arr, fail)
+        return np.ascontiguousarray(arr, dtype=float)
+
+    @staticmethod
+    def _bounds(decl, arr, fail):
+        a = np.asarray(arr)
+        for attr, op, word in (("gt", np.greater, ">"), ("ge", np.greater_equal, ">="),
+                               ("lt", np.less, "<"), ("le", np.less_equal, "<=")):
+            lim = getattr(decl, attr)
+            if lim is not None and not np.all(op(a, lim)):
+                bad = a if a.ndim == 0 else a[~op(a, lim)][0]
+                fail(f"must be {word} {_fmt(lim)}, got {_fmt(float(bad))}")
+
+    @staticmethod
+    def _dim(spec, params):
+        if isinstance(spec, int):
+            return spec
+        if isinstance(spec, Dim):
+            return int(spec.fn(params))
+        if isinstance(spec, str) and spec in params:
+            v = params[spec]
+            return int(v) if np.ndim(v) == 0 else int(np.size(v))
+        raise RuntimeError(f"size {spec!r} cannot be resolved")
+
+    @classmethod
+    def size_of(cls, spec, params):
+        """Resolve a size declaration to an int; ``None`` for inherited sizes."""
+        if spec is None or isinstance(spec, FromInputs) or (
+                isinstance(spec, str) and spec.startswith("@")):
+            return None
+        return cls._dim(spec, params)
+
+    @classmethod
+    def feedthrough_of(cls, out_name, params):
+        ft = cls.output_decl(out_name).feedthrough
+        if callable(ft):
+            ft = ft(params)
+        names = cls.input_names(params)
+        if ft == "all":
+            return tuple(names)
+        return tuple(ft)
+
+    @classmethod
+    def initial_value(cls, decl, size, params):
+        """Initial value of a state or mode as an array of ``size``."""
+        init = decl.initial
+        if callable(init):
+            v = init(params)
+        elif isinstance(init, str):
+            v = params[init]
+        else:
+            v = init
+        v = np.asarray(v, dtype=float).ravel()
+        if v.size == 1 and size != 1:
+            v = np.full(size, v[0])
+        if v.size != size:
+            raise ParameterError(f"initial value of size {v.size} for a state of size {size}")
+        return v
+
+    # ---------------------------------------------------------------- docs
+    @classmethod
+    def describe(cls) -> str:
+        """Documentation generated from the declarations (``spidersim blocks TYPE``)."""
+        lines = [f"{cls.type_name}  ({cls.category})", ""]
+        doc = inspect.cleandoc(cls.__doc__ or "")
+        lines += ["  " + ln for ln in doc.splitlines()] + [""]
+
+        def size_text(s):
+            if isinstance(s, (Dim, FromInputs)):
+                return s.text
+            if s is None:
+                return "inherited"
+            if isinstance(s, str) and s.startswith("@"):
+                return f"size of {s[1:]}"
+            return str(s)
+
+        if cls.parameters:
+            lines.append("  Parameters:")
+            for n, p in cls.parameters.items():
+                dflt = "required" if p.default is REQUIRED else f"default {p.default!r}"
+                shape = "" if p.shape == () else f", shape {p.shape}"
+                bnds = [f"{w} {_fmt(getattr(p, a))}" for a, w in
+                        (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
+                        if getattr(p, a) is not None]
+                extra = f", {' and '.join(bnds)}" if bnds else ""
+                ch = f", one of {'|'.join(p.choices)}" if p.choices else ""
+                kind = "" if p.kind == "real" else f" {p.kind}"
+                lines.append(f"    {n} [{p.unit}]{kind} ({dflt}{shape}{extra}{ch}): {p.doc}")
+        for title, ports in (("Inputs", cls.inputs), ("Outputs", cls.outputs)):
+            if ports:
+                lines.append(f"  {title}:")
+                for n, p in ports.items():
+                    ft = ""
+                    if title == "Outputs":
+                        f = p.feedthrough
+                        ft = ("; feedthrough depends on parameters" if callable(f) else
+                              f"; direct feedthrough from {', '.join(f)}" if f else "")
+                    opt = ", optional: zero when unconnected" if p.optional else ""
+                    lines.append(f"    {n} [{p.unit}] (size {size_text(p.size)}{opt}{ft}): "
+                                 f"{p.doc}")
+        if cls.states:
+            lines.append("  States:")
+            for n, s in cls.states.items():
+                lines.append(f"    {n} [{s.unit}] (size {size_text(s.size)}, initial "
+                             f"{s.initial if not callable(s.initial) else 'computed'}): {s.doc}")
+        if cls.modes:
+            lines.append("  Modes:")
+            for n, m in cls.modes.items():
+                lines.append(f"    {n} (size {size_text(m.size)}): {m.doc}")
+        if cls.events:
+            lines.append("  Events:")
+            for n, e in cls.events.items():
+                d = {1: "rising", -1: "falling", 0: "either"}[e.direction]
+                lines.append(f"    {n} ({d}): {e.doc}")
+        return "\n".join(lines)
+
+
+def lookup(type_name, file=None, line=None, extra=()):
+    """The Block class registered as ``type_name``; suggests near names when unknown."""
+    cls = REGISTRY.get(type_name)
+    if cls is None:
+        names = list(REGISTRY) + list(extra)
+        near = difflib.get_close_matches(type_name, names, n=3, cutoff=0.5)
+        if not near:
+            near = [n for n in names if n.lower().startswith(str(type_name).lower()[:3])][:3]
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        raise BlockTypeError(f"unknown block type '{type_name}'{hint} "
+                             f"(`spidersim blocks` lists them)", file=file, line=line)
+    return cls
+
+
+_JIT_CACHE: dict = {}
+
+
+def load_kernel(module: str, cls_name: str, kernel: str, jit: bool):
+    """The kernel ``kernel`` of block class ``module:cls_name``, numba-compiled if ``jit``.
+
+    Used by generated diagram modules; one dispatcher per kernel per process, cached on disk.
+    """
+    key = (module, cls_name, kernel, jit)
+    fn = _JIT_CACHE.get(key)
+    if fn is None:
+        cls = getattr(importlib.import_module(module), cls_name)
+        fn = getattr(cls, kernel)
+        if jit:
+            import numba
+            fn = numba.njit(cache=True, nogil=True)(fn)
+        _JIT_CACHE[key] = fn
+    return fn

@@ -1,0 +1,146 @@
+"""Linear continuous-time blocks: integrator, state space and transfer function."""
+import numpy as np
+
+from .base import Block, Dim, Param, Port, State
+
+
+class Integrator(Block):
+    """``dx/dt = u``, ``y = x`` with initial value ``x0`` (scalar or one per element)."""
+
+    category = "continuous"
+    parameters = {"x0": Param(0.0, doc="initial value (scalar or one per element)", shape="*")}
+    inputs = {"u": Port(size=None, doc="rate")}
+    outputs = {"y": Port(size="@u", doc="integral of u")}
+    states = {"x": State(size="@u", initial="x0", doc="integral of u")}
+
+    @classmethod
+    def check_sizes(cls, params, sizes):
+        n = len(params["x0"])
+        if n not in (1, sizes["u"]):
+            raise ValueError(f"parameter 'x0' has {n} elements but input 'u' has size "
+                             f"{sizes['u']}")
+
+    @staticmethod
+    def output(t, x, y):
+        for i in range(y.size):
+            y[i] = x[i]
+
+    @staticmethod
+    def derivative(t, u, der_x):
+        for i in range(der_x.size):
+            der_x[i] = u[i]
+
+
+def _ss_derivative(t, x, u, A, B, der_x):
+    n = x.size
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += A[i, j] * x[j]
+        for k in range(u.size):
+            acc += B[i, k] * u[k]
+        der_x[i] = acc
+
+
+def _ss_output(t, x, u, C, D, y):
+    for i in range(y.size):
+        acc = 0.0
+        for j in range(x.size):
+            acc += C[i, j] * x[j]
+        for k in range(u.size):
+            acc += D[i, k] * u[k]
+        y[i] = acc
+
+
+class StateSpace(Block):
+    """Linear state space ``dx/dt = A x + B u``, ``y = C x + D u``.
+
+    ``D`` is structural: where it is non-zero the output is direct feedthrough of the input,
+    so changing it between zero and non-zero changes the schedule (and recompiles).
+    """
+
+    category = "continuous"
+    parameters = {
+        "A": Param(doc="state matrix (n x n)", shape=("*", "*")),
+        "B": Param(doc="input matrix (n x m)", shape=("*", "*")),
+        "C": Param(doc="output matrix (p x n)", shape=("*", "*")),
+        "D": Param(0.0, doc="feedthrough matrix (p x m); 0 for none", shape=("*", "*"),
+                   structural=True),
+        "x0": Param(0.0, doc="initial state (scalar or n values)", shape="*"),
+    }
+    inputs = {"u": Port(size=Dim("columns of B", lambda p: p["B"].shape[1]), doc="input")}
+    outputs = {"y": Port(size=Dim("rows of C", lambda p: p["C"].shape[0]),
+                         feedthrough=lambda p: ("u",) if np.any(p["D"] != 0) else (),
+                         doc="output")}
+    states = {"x": State(size=Dim("rows of A", lambda p: p["A"].shape[0]), initial="x0",
+                         doc="state vector")}
+
+    @classmethod
+    def check(cls, params):
+        A, B, C, D = (params[k] for k in "ABCD")
+        n = A.shape[0]
+        if A.shape != (n, n):
+            raise ValueError(f"A must be square, got shape {A.shape}")
+        if B.shape[0] != n:
+            raise ValueError(f"B must have {n} rows (as A), got shape {B.shape}")
+        if C.shape[1] != n:
+            raise ValueError(f"C must have {n} columns (as A), got shape {C.shape}")
+        if D.shape == (1, 1) and D[0, 0] == 0:
+            params["D"] = np.zeros((C.shape[0], B.shape[1]))
+        elif D.shape != (C.shape[0], B.shape[1]):
+            raise ValueError(f"D must have shape {(C.shape[0], B.shape[1])}, got {D.shape}")
+        if len(params["x0"]) not in (1, n):
+            raise ValueError(f"x0 must have 1 or {n} elements, got {len(params['x0'])}")
+
+    derivative = staticmethod(_ss_derivative)
+    output = staticmethod(_ss_output)
+
+
+class TransferFunction(Block):
+    """SISO transfer function ``Y(s)/U(s) = num(s)/den(s)``, coefficients in descending
+    powers of s, realised in controllable canonical form (zero initial state).
+
+    It must be proper (``len(num) <= len(den)``); it has direct feedthrough when
+    ``len(num) == len(den)``.
+    """
+
+    category = "continuous"
+    parameters = {
+        "num": Param(doc="numerator coefficients, highest power first", shape="*"),
+        "den": Param(doc="denominator coefficients, highest power first", shape="*"),
+    }
+    inputs = {"u": Port(doc="input")}
+    outputs = {"y": Port(feedthrough=lambda p: ("u",) if len(p["num"]) == len(p["den"])
+                         else (), doc="output")}
+    states = {"x": State(size=Dim("len(den) - 1", lambda p: len(p["den"]) - 1),
+                         doc="controllable canonical state")}
+
+    @classmethod
+    def check(cls, params):
+        num, den = params["num"], params["den"]
+        if den[0] == 0:
+            raise ValueError("the leading coefficient of 'den' must not be 0")
+        if len(num) > len(den):
+            raise ValueError(f"improper transfer function: num has degree {len(num) - 1}, "
+                             f"den has degree {len(den) - 1}")
+
+    @classmethod
+    def derive(cls, params):
+        """Controllable canonical form: first row of A is ``-a1..-an`` (den/den[0])."""
+        den = params["den"] / params["den"][0]
+        n = len(den) - 1
+        num = np.zeros(n + 1)
+        num[n + 1 - len(params["num"]):] = params["num"] / params["den"][0]
+        A = np.zeros((n, n))
+        if n:
+            A[0, :] = -den[1:]
+            A[1:, :-1] = np.eye(n - 1)
+        B = np.zeros((n, 1))
+        if n:
+            B[0, 0] = 1.0
+        C = (num[1:] - den[1:] * num[0]).reshape(1, n)
+        D = np.array([[num[0]]])
+        return {"A": A, "B": B, "C": C, "D": D}
+
+    derivative = staticmethod(_ss_derivative)
+    output = staticmethod(_ss_output)

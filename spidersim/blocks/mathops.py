@@ -1,0 +1,112 @@
+"""Element-wise math: gain, sum with signs, product and quotient."""
+from .base import Block, Param, Port
+
+
+class Gain(Block):
+    """``y = k * u`` element-wise; ``k`` a scalar or one value per element."""
+
+    category = "math"
+    parameters = {"k": Param(1.0, doc="gain (scalar or one per element)", shape="*")}
+    inputs = {"u": Port(size=None, doc="input")}
+    outputs = {"y": Port(size="@u", feedthrough=("u",), doc="k * u")}
+
+    @classmethod
+    def check_sizes(cls, params, sizes):
+        n = len(params["k"])
+        if n not in (1, sizes["u"]):
+            raise ValueError(f"parameter 'k' has {n} elements but input 'u' has size "
+                             f"{sizes['u']} (use one gain or one per element)")
+
+    @staticmethod
+    def output(t, k, u, y):
+        nk = k.size
+        for i in range(y.size):
+            y[i] = k[i if nk > 1 else 0] * u[i]
+
+
+def _arity_names(params, key):
+    return [f"u{i + 1}" for i in range(len(params[key]))]
+
+
+class _Nary(Block, abstract=True):
+    """Shared machinery of blocks with one input per character of a string parameter."""
+
+    key = ""
+    symbols = ""
+
+    @classmethod
+    def check(cls, params):
+        s = params[cls.key]
+        bad = [c for c in s if c not in cls.symbols]
+        if not s or bad:
+            raise ValueError(f"parameter '{cls.key}' must be a non-empty string of "
+                             f"'{cls.symbols}' characters, got '{s}'")
+
+    @classmethod
+    def input_names(cls, params):
+        return _arity_names(params, cls.key)
+
+    @classmethod
+    def input_decl(cls, name):
+        return cls.inputs["u1"]
+
+    @classmethod
+    def check_sizes(cls, params, sizes):
+        names = cls.input_names(params)
+        got = {n: sizes[n] for n in names}
+        if len(set(got.values())) > 1:
+            raise ValueError("all inputs must have the same size, got "
+                             + ", ".join(f"{n}: {s}" for n, s in got.items()))
+
+    @classmethod
+    def kernel_source(cls, params, kernel):
+        if kernel != "output":
+            return None
+        names = cls.input_names(params)
+        return (f"def output(t, {', '.join(names)}, y):\n"
+                f"    for i in range(y.size):\n"
+                f"        y[i] = {cls.expression(params[cls.key], names)}\n")
+
+
+class Sum(_Nary):
+    """``y = s1 u1 + s2 u2 + ...`` with the signs given as a string such as ``"+-"``.
+
+    The inputs are named ``u1 .. uN``, N = len(signs).
+    """
+
+    category = "math"
+    key, symbols = "signs", "+-"
+    parameters = {"signs": Param("++", kind="str", doc="one sign per input, e.g. '+-+'")}
+    inputs = {"u1": Port(size=None, doc="inputs u1 .. uN, one per sign")}
+    outputs = {"y": Port(size="@u1", feedthrough="all", doc="signed sum")}
+
+    @staticmethod
+    def expression(signs, names):
+        return " ".join(f"{s} {n}[i]" for s, n in zip(signs, names))
+
+    @staticmethod
+    def output(t, u1, u2, y):
+        for i in range(y.size):
+            y[i] = u1[i] + u2[i]
+
+
+class Product(_Nary):
+    """``y = u1 * u2 / u3 ...`` element-wise, operators given as a string such as ``"**/"``.
+
+    The first character applies to ``u1`` (``/`` gives its reciprocal).
+    """
+
+    category = "math"
+    key, symbols = "ops", "*/"
+    parameters = {"ops": Param("**", kind="str", doc="one operator per input, e.g. '**/'")}
+    inputs = {"u1": Port(size=None, doc="inputs u1 .. uN, one per operator")}
+    outputs = {"y": Port(size="@u1", feedthrough="all", doc="product")}
+
+    @staticmethod
+    def expression(ops, names):
+        return "1.0" + "".join(f" {o} {n}[i]" for o, n in zip(ops, names))
+
+    @staticmethod
+    def output(t, u1, u2, y):
+        for i in range(y.size):
+            y[i] = u1[i] * u2[i]

@@ -1,0 +1,1 @@
+"""YAML -> spec -> flat diagram -> port graph -> schedule -> generated code."""

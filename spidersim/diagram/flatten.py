@@ -1,0 +1,257 @@
+"""Flatten a diagram: instantiate subsystems recursively into dotted block instances.
+
+Parameter scoping: a diagram's ``parameters`` are evaluated in order, each expression seeing
+the ones before it. For a subsystem instance, the instance's entries (evaluated in the
+parent's scope) replace the subsystem file's defaults, and the subsystem's blocks see only
+the subsystem's parameters. Overrides (``--set``) address ``name`` (a top-level parameter),
+``block.param`` or ``sub.block.param`` / ``sub.param`` through any depth of nesting.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..blocks.base import REGISTRY, Block, lookup
+from ..errors import DiagramError, ParameterError, WiringError
+from .expr import ExprError, evaluate
+from .spec import Address, DiagramSpec, parse_file
+
+
+@dataclass
+class Instance:
+    """One primitive block of the flat diagram."""
+
+    path: str
+    cls: type
+    params: dict
+    file: str
+    line: int
+    param_lines: dict = field(default_factory=dict)
+
+
+@dataclass
+class FlatConn:
+    """``src`` output (path, port, start, stop) feeding ``dst`` input (path, port)."""
+
+    src: tuple
+    dst: tuple
+    file: str
+    line: int
+    text: str
+
+
+@dataclass
+class Flat:
+    blocks: dict                 # path -> Instance
+    conns: list                  # FlatConn
+    subsystem_instances: dict    # path -> file
+
+
+def _eval_value(value, scope, decl, file, line, what):
+    """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay."""
+    if decl is not None and decl.kind == "str":
+        return value
+    try:
+        if isinstance(value, str):
+            return evaluate(value, scope)
+        if isinstance(value, list):
+            return [_eval_value(v, scope, None, file, line, what) for v in value]
+        if isinstance(value, bool) or value is None or isinstance(value, (int, float)):
+            if value is None:
+                raise ExprError("no value given (empty entry)")
+            return value
+        raise ExprError(f"unsupported value {value!r}")
+    except ExprError as exc:
+        raise ParameterError(f"{what}: {exc}", file=file, line=line) from None
+
+
+def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
+    """Evaluate the diagram's parameters in order, with instance values ``given``."""
+    scope = {}
+    for name, raw in spec.parameters.items():
+        if name in given:
+            scope[name] = given[name]
+            continue
+        scope[name] = _eval_value(raw, scope, None, spec.file, spec.param_lines.get(name),
+                                  f"parameter '{prefix}{name}'")
+    unknown = [k for k in given if k not in spec.parameters]
+    return scope, unknown
+
+
+def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
+    """Flatten the top-level ``spec`` with ``overrides`` (dotted path -> value)."""
+    overrides = dict(overrides or {})
+    used = set()
+    top_given = {}
+    for k, v in overrides.items():
+        if "." not in k:
+            if k not in spec.parameters:
+                import difflib
+                near = difflib.get_close_matches(k, list(spec.parameters), n=3)
+                hint = f"; did you mean {', '.join(near)}?" if near else ""
+                raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
+                                     file=spec.file)
+            top_given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
+            used.add(k)
+    # override values that are expressions are evaluated with the top-level scope
+    scope0, _ = eval_parameters(spec, top_given, "")
+    for k, v in list(top_given.items()):
+        scope0[k] = v
+    flat = Flat({}, [], {})
+    sub_overrides = {k: v for k, v in overrides.items() if "." in k}
+    _instantiate(spec, "", scope0, sub_overrides, flat, [os.path.abspath(spec.file)], used,
+                 top=True)
+    missing = [k for k in overrides if k not in used]
+    if missing:
+        raise ParameterError(f"--set {missing[0]}: no such block parameter or subsystem "
+                             f"parameter (write block.param, e.g. motor.R)", file=spec.file)
+    return flat
+
+
+def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False,
+                 full_prefix_for_set=""):
+    """Add the blocks of ``spec`` under ``prefix``; return (in_map, out_map)."""
+    sub_specs = {}
+    local_subs = {}  # instance name -> (in_map, out_map)
+    for bname, b in spec.blocks.items():
+        path = prefix + bname
+        set_key = full_prefix_for_set + bname
+        own = {}  # overrides addressed to this block: param -> value
+        deeper = {}
+        for k, v in overrides.items():
+            head, _, rest = k.partition(".")
+            if head == bname:
+                if "." in rest:
+                    deeper[rest] = (k, v)
+                else:
+                    own[rest] = (k, v)
+        if b.type in spec.subsystems:
+            sub_file = spec.subsystems[b.type]
+            if os.path.abspath(sub_file) in stack:
+                chain = " -> ".join(os.path.basename(s) for s in stack + [sub_file])
+                raise DiagramError(f"subsystem type '{b.type}' includes itself ({chain})",
+                                   file=spec.file, line=b.line)
+            if sub_file not in sub_specs:
+                if not os.path.isfile(sub_file):
+                    raise DiagramError(f"subsystem file for type '{b.type}' not found: "
+                                       f"{sub_file}", file=spec.file,
+                                       line=spec.subsystem_lines.get(b.type))
+                sub_specs[sub_file] = parse_file(sub_file)
+            sub = sub_specs[sub_file]
+            given = {}
+            for pname, raw in b.params.items():
+                if pname not in sub.parameters:
+                    import difflib
+                    near = difflib.get_close_matches(pname, list(sub.parameters), n=3)
+                    hint = f"; did you mean {', '.join(near)}?" if near else ""
+                    raise ParameterError(
+                        f"unknown parameter '{pname}' for subsystem type '{b.type}'{hint} "
+                        f"(parameters: {', '.join(sub.parameters) or 'none'})",
+                        file=spec.file, line=b.param_lines.get(pname), block=path)
+                given[pname] = _eval_value(raw, scope, None, spec.file,
+                                           b.param_lines.get(pname), f"parameter '{pname}'")
+            for pname, (key, v) in own.items():
+                if pname in sub.parameters:
+                    given[pname] = _eval_value(v, scope, None, spec.file, None, f"--set {key}")
+                    used.add(key)
+                # else: may be a block of the subsystem addressed without param (error later)
+            sub_scope, _ = eval_parameters(sub, given, path + ".")
+            sub_over = {k: v for k, (key, v) in deeper.items()}
+            keymap = {k: key for k, (key, v) in deeper.items()}
+            sub_used = set()
+            maps = _instantiate(sub, path + ".", sub_scope, sub_over, flat,
+                                stack + [os.path.abspath(sub_file)], sub_used)
+            used.update(keymap[k] for k in sub_used if k in keymap)
+            local_subs[bname] = maps
+            flat.subsystem_instances[path] = sub_file
+            continue
+        cls = lookup(b.type, spec.file, b.line, extra=list(spec.subsystems))
+        values = {}
+        for pname, raw in b.params.items():
+            decl = cls.parameters.get(pname)
+            values[pname] = _eval_value(raw, scope, decl, spec.file, b.param_lines.get(pname),
+                                        f"parameter '{pname}'")
+        for pname, (key, v) in own.items():
+            decl = cls.parameters.get(pname)
+            if decl is None:
+                raise ParameterError(f"--set {key}: block type {cls.type_name} has no "
+                                     f"parameter '{pname}' (parameters: "
+                                     f"{', '.join(cls.parameters)})", block=path)
+            if decl.kind == "str" and isinstance(v, str):
+                values[pname] = v
+            else:
+                values[pname] = _eval_value(v, scope, decl, spec.file, None, f"--set {key}")
+            used.add(key)
+        if deeper:
+            k = next(iter(deeper.values()))[0]
+            raise ParameterError(f"--set {k}: '{path}' is a {cls.type_name} block, not a "
+                                 f"subsystem", block=path)
+
+        def where(name, _b=b):
+            return spec.file, (_b.param_lines.get(name) if name else _b.line)
+
+        try:
+            params = cls.validate_params(values, where=where)
+        except ParameterError as exc:
+            exc.block = path
+            raise
+        if path in flat.blocks:
+            raise DiagramError(f"duplicate block path '{path}'", file=spec.file, line=b.line)
+        flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines))
+
+    # resolve local addresses into flat ones
+    def resolve_src(a: Address, line):
+        if a.block in local_subs:
+            out_map = local_subs[a.block][1]
+            if a.port not in out_map:
+                raise WiringError(
+                    f"subsystem instance '{prefix}{a.block}' has no output '{a.port}' "
+                    f"(outputs: {', '.join(out_map) or 'none'})", file=spec.file, line=line)
+            path, port, s0, s1 = out_map[a.port]
+            if a.start is not None:
+                base = s0 or 0
+                return (path, port, base + a.start, base + a.stop)
+            return (path, port, s0, s1)
+        _check_block(a, line)
+        return (prefix + a.block, a.port, a.start, a.stop)
+
+    def resolve_dst(a: Address, line):
+        if a.block in local_subs:
+            in_map = local_subs[a.block][0]
+            if a.port not in in_map:
+                raise WiringError(
+                    f"subsystem instance '{prefix}{a.block}' has no input '{a.port}' "
+                    f"(inputs: {', '.join(in_map) or 'none'})", file=spec.file, line=line)
+            return in_map[a.port]
+        _check_block(a, line)
+        return [(prefix + a.block, a.port)]
+
+    def _check_block(a, line):
+        if a.block not in spec.blocks:
+            import difflib
+            near = difflib.get_close_matches(a.block, list(spec.blocks), n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise WiringError(f"connection refers to unknown block '{a.block}'{hint}",
+                              file=spec.file, line=line)
+
+    for c in spec.connections:
+        src = resolve_src(c.src, c.line)
+        for dst in resolve_dst(c.dst, c.line):
+            flat.conns.append(FlatConn(src, dst, spec.file, c.line, f"{c.src} -> {c.dst}"))
+
+    in_map = {}
+    for name, addrs in spec.inputs.items():
+        line = spec.port_lines[("in", name)]
+        targets = []
+        for a in addrs:
+            if a.start is not None:
+                raise WiringError(f"exposed input '{name}' must map to whole input ports",
+                                  file=spec.file, line=line)
+            targets += resolve_dst(a, line)
+        in_map[name] = targets
+    out_map = {}
+    for name, a in spec.outputs.items():
+        out_map[name] = resolve_src(a, spec.port_lines[("out", name)])
+    return in_map, out_map

@@ -1,0 +1,381 @@
+"""Port sizes, the port-level graph, the evaluation schedule and the flat array layout.
+
+Nodes of the graph are ``("out", block, port)`` and ``("in", block, port)``. Edges are the
+wires (output -> input) and each block's declared direct feedthrough (input -> output). An
+output that *is* a state has no incoming edge, so a cycle through a state is not a cycle of
+this graph. Strongly connected components with more than one node are algebraic loops.
+
+Schedule: the condensation is sorted topologically and walked node by node. Reaching an output
+that is not yet valid emits a call of its block's ``output`` kernel; every output of that block
+whose feedthrough inputs are all ready at that point becomes valid. Most blocks are called once;
+a block whose outputs are needed at different depths (a motor whose speed feeds the loop that
+computes its own voltage) is called once per depth.
+"""
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+
+import networkx as nx
+import numpy as np
+
+from ..errors import AlgebraicLoopError, ParameterError, WiringError
+from .flatten import Flat
+
+
+@dataclass
+class PortInfo:
+    size: int
+    unit: str
+    kind: str                 # "out" | "in"
+    loc: tuple | None = None  # ("x"|"sig", start, stop) for outputs
+
+
+@dataclass
+class BlockLayout:
+    """Where a block's ports, states, modes and parameters live in the flat arrays."""
+
+    path: str
+    cls: type
+    params: dict
+    inputs: list
+    outputs: list
+    ports: dict = field(default_factory=dict)        # (kind, name) -> PortInfo
+    states: dict = field(default_factory=dict)       # name -> (start, stop)
+    modes: dict = field(default_factory=dict)        # name -> (start, stop)
+    pslots: dict = field(default_factory=dict)       # param name -> (start, stop, shape)
+    constants: dict = field(default_factory=dict)    # int/bool params
+    feedthrough: dict = field(default_factory=dict)  # output -> tuple of inputs
+    state_outputs: set = field(default_factory=set)
+    input_src: dict = field(default_factory=dict)    # input -> ("x"|"sig", start, stop)
+
+
+@dataclass
+class Layout:
+    blocks: dict                # path -> BlockLayout
+    n_x: int
+    n_sig: int
+    n_p: int
+    n_modes: int
+    calls: list                 # schedule: list of block paths (output kernel calls)
+    loops: list                 # list of lists of nodes (empty when no loops)
+    graph: nx.DiGraph
+    zero_slot: tuple
+
+
+def _out_size_spec(cls, name):
+    return cls.output_decl(name).size
+
+
+def infer_sizes(flat: Flat):
+    """Port sizes of every block (declared, from parameters, or propagated along wires)."""
+    info = {}
+    for path, inst in flat.blocks.items():
+        cls, prm = inst.cls, inst.params
+        ins, outs = cls.input_names(prm), cls.output_names(prm)
+        bl = BlockLayout(path, cls, prm, ins, outs)
+        for n in ins:
+            d = cls.input_decl(n)
+            bl.ports[("in", n)] = PortInfo(cls.size_of(d.size, prm), d.unit, "in")
+        for n in outs:
+            d = cls.output_decl(n)
+            bl.ports[("out", n)] = PortInfo(cls.size_of(d.size, prm), d.unit, "out")
+        info[path] = bl
+
+    # wiring checks: known ports, single source per input
+    dst_seen = {}
+    for c in flat.conns:
+        sp, sport, s0, s1 = c.src
+        dp, dport = c.dst
+        if sp not in info:
+            raise WiringError(f"unknown block '{sp}'", file=c.file, line=c.line)
+        if dp not in info:
+            raise WiringError(f"unknown block '{dp}'", file=c.file, line=c.line)
+        for path, port, kind in ((sp, sport, "out"), (dp, dport, "in")):
+            bl = info[path]
+            if (kind, port) not in bl.ports:
+                names = bl.outputs if kind == "out" else bl.inputs
+                other = bl.inputs if kind == "out" else bl.outputs
+                near = difflib.get_close_matches(port, names, n=2)
+                hint = f"; did you mean {', '.join(near)}?" if near else ""
+                extra = (f" ('{port}' is an {'input' if kind == 'out' else 'output'})"
+                         if port in other else "")
+                word = "output" if kind == "out" else "input"
+                raise WiringError(
+                    f"block '{path}' ({bl.cls.type_name}) has no {word} '{port}'{extra}{hint}; "
+                    f"{word}s: {', '.join(names) or 'none'}", file=c.file, line=c.line)
+        if (dp, dport) in dst_seen:
+            first = dst_seen[(dp, dport)]
+            raise WiringError(f"input '{dp}.{dport}' has two sources: '{_src_text(first)}' "
+                              f"(line {first.line}) and '{_src_text(c)}'",
+                              file=c.file, line=c.line)
+        dst_seen[(dp, dport)] = c
+
+    # propagate sizes to a fixed point
+    def out_size(path, port):
+        return info[path].ports[("out", port)].size
+
+    changed = True
+    while changed:
+        changed = False
+        for bl in info.values():
+            for n in bl.outputs:
+                pi = bl.ports[("out", n)]
+                if pi.size is not None:
+                    continue
+                spec = _out_size_spec(bl.cls, n)
+                if isinstance(spec, str) and spec.startswith("@"):
+                    pi.size = bl.ports[("in", spec[1:])].size
+                elif spec is not None and hasattr(spec, "fn") and hasattr(spec, "text") \
+                        and spec.fn.__code__.co_argcount == 2:
+                    sizes = {m: bl.ports[("in", m)].size for m in bl.inputs}
+                    if all(v is not None for v in sizes.values()):
+                        pi.size = int(spec.fn(bl.params, sizes))
+                changed |= pi.size is not None
+        for c in flat.conns:
+            sp, sport, s0, s1 = c.src
+            n_src = out_size(sp, sport)
+            if n_src is None:
+                continue
+            if s0 is not None:
+                a, b = _norm_slice(s0, s1, n_src, c)
+                width = b - a
+            else:
+                width = n_src
+            dpi = info[c.dst[0]].ports[("in", c.dst[1])]
+            if dpi.size is None:
+                dpi.size = width
+                changed = True
+            elif dpi.size != width:
+                raise WiringError(
+                    f"size mismatch on '{c.text}': the source gives {width} element(s), "
+                    f"input '{c.dst[0]}.{c.dst[1]}' expects {dpi.size}", file=c.file,
+                    line=c.line)
+    for bl in info.values():
+        for n in bl.inputs:
+            pi = bl.ports[("in", n)]
+            connected = (bl.path, n) in dst_seen
+            if not connected:
+                if bl.cls.input_decl(n).optional:
+                    if pi.size is None:
+                        pi.size = 1
+                    continue
+                raise WiringError(_unconnected_msg(info, flat, bl, n), block=bl.path,
+                                  file=flat.blocks[bl.path].file,
+                                  line=flat.blocks[bl.path].line)
+        for n in bl.outputs:
+            if bl.ports[("out", n)].size is None:
+                inst = flat.blocks[bl.path]
+                raise WiringError(f"cannot infer the size of output '{n}': connect the "
+                                  f"inputs it follows", block=bl.path, file=inst.file,
+                                  line=inst.line)
+        sizes = {n: bl.ports[("in", n)].size for n in bl.inputs}
+        sizes.update({n: bl.ports[("out", n)].size for n in bl.outputs})
+        try:
+            bl.cls.check_sizes(bl.params, sizes)
+        except ValueError as exc:
+            inst = flat.blocks[bl.path]
+            raise ParameterError(str(exc), block=bl.path, file=inst.file,
+                                 line=inst.line) from None
+    return info, dst_seen
+
+
+def _src_text(c):
+    sp, sport, s0, s1 = c.src
+    return f"{sp}.{sport}" + ("" if s0 is None else f"[{s0}:{s1}]")
+
+
+def _norm_slice(s0, s1, n, c):
+    a = s0 + n if s0 < 0 else s0
+    b = s1 + n if s1 is not None and s1 < 0 else (n if s1 is None else s1)
+    if not (0 <= a < b <= n):
+        raise WiringError(f"element range [{s0}:{s1}] is outside output "
+                          f"'{c.src[0]}.{c.src[1]}' of size {n}", file=c.file, line=c.line)
+    return a, b
+
+
+def _unconnected_msg(info, flat, bl, name):
+    pi = bl.ports[("in", name)]
+    cand = []
+    for other in info.values():
+        if other.path == bl.path:
+            continue
+        for o in other.outputs:
+            po = other.ports[("out", o)]
+            if (pi.size is None or po.size == pi.size) and (pi.unit in ("1", po.unit)):
+                cand.append(f"{other.path}.{o} [{po.unit}]")
+    size = "any size" if pi.size is None else f"size {pi.size}"
+    hint = (f"; outputs of matching size and unit: {', '.join(cand[:8])}"
+            + (" ..." if len(cand) > 8 else "")) if cand else "; no output matches it"
+    return f"input '{name}' [{pi.unit}, {size}] is not connected{hint}"
+
+
+def build_layout(flat: Flat) -> Layout:
+    """Sizes, graph, schedule and offsets of every port, state, mode and parameter."""
+    info, dst_seen = infer_sizes(flat)
+    g = nx.DiGraph()
+    for bl in info.values():
+        prm = bl.params
+        state_sizes = {}
+        for s, decl in bl.cls.states.items():
+            spec = decl.size
+            if isinstance(spec, str) and spec.startswith("@"):
+                n = bl.ports[("in", spec[1:])].size
+            else:
+                n = bl.cls.size_of(spec, prm)
+            state_sizes[s] = n
+        bl.states = state_sizes  # sizes for now, offsets later
+        for o in bl.outputs:
+            g.add_node(("out", bl.path, o))
+            if o in state_sizes and state_sizes[o] == bl.ports[("out", o)].size:
+                bl.state_outputs.add(o)
+                bl.feedthrough[o] = ()
+            else:
+                bl.feedthrough[o] = bl.cls.feedthrough_of(o, prm)
+        for i in bl.inputs:
+            g.add_node(("in", bl.path, i))
+        for o, fts in bl.feedthrough.items():
+            for i in fts:
+                g.add_edge(("in", bl.path, i), ("out", bl.path, o), kind="feedthrough")
+    for (dp, dport), c in dst_seen.items():
+        g.add_edge(("out", c.src[0], c.src[1]), ("in", dp, dport), kind="wire",
+                   line=c.line, file=c.file)
+
+    loops = [sorted(comp) for comp in nx.strongly_connected_components(g) if len(comp) > 1]
+    if loops:
+        raise AlgebraicLoopError(describe_loops(g, loops) + "\nAlgebraic loops are not yet "
+                                 "supported: break the loop with a state (e.g. a small "
+                                 "first-order lag or an Integrator) or add inductance/inertia.",
+                                 file=next(iter(flat.blocks.values())).file)
+
+    # schedule
+    order = list(nx.topological_sort(g))
+    valid, ready, calls = set(), set(), []
+    for node in order:
+        kind, path, port = node
+        bl = info[path]
+        if kind == "in":
+            continue
+        if port in bl.state_outputs or node in valid:
+            continue
+        for i in bl.inputs:
+            c = dst_seen.get((path, i))
+            if c is None or ("out", c.src[0], c.src[1]) in valid or \
+                    c.src[1] in info[c.src[0]].state_outputs:
+                ready.add((path, i))
+        calls.append(path)
+        for o in bl.outputs:
+            if o not in bl.state_outputs and all((path, i) in ready for i in bl.feedthrough[o]):
+                valid.add(("out", path, o))
+        assert node in valid, node
+
+    # offsets: states, signals (in first-call order), modes, parameters
+    n_x = 0
+    for bl in info.values():
+        offs = {}
+        for s, n in bl.states.items():
+            offs[s] = (n_x, n_x + n)
+            n_x += n
+        bl.states = offs
+    n_sig = 0
+    seen = set()
+    for path in calls + [p for p in info if p not in calls]:
+        if path in seen:
+            continue
+        seen.add(path)
+        bl = info[path]
+        for o in bl.outputs:
+            pi = bl.ports[("out", o)]
+            if o in bl.state_outputs:
+                pi.loc = ("x",) + bl.states[o]
+            else:
+                pi.loc = ("sig", n_sig, n_sig + pi.size)
+                n_sig += pi.size
+    max_opt = max([bl.ports[("in", i)].size for bl in info.values() for i in bl.inputs
+                   if (bl.path, i) not in dst_seen] + [0])
+    zero_slot = ("sig", n_sig, n_sig + max_opt)
+    n_sig += max_opt
+    n_modes = 0
+    n_p = 0
+    for bl in info.values():
+        for m, decl in bl.cls.modes.items():
+            n = bl.cls.size_of(decl.size, bl.params)
+            bl.modes[m] = (n_modes, n_modes + n)
+            n_modes += n
+        numeric = dict(bl.params)
+        numeric.update(bl.cls.derive(bl.params))
+        bl.params = numeric
+        for name, v in numeric.items():
+            decl = bl.cls.parameters.get(name)
+            if decl is not None and decl.kind in ("int", "bool"):
+                bl.constants[name] = v
+                continue
+            if isinstance(v, str):
+                continue
+            arr = np.asarray(v, dtype=float)
+            shape = "scalar" if (decl is not None and decl.shape == ()) or (
+                decl is None and arr.ndim == 0) else arr.shape
+            bl.pslots[name] = (n_p, n_p + arr.size, shape)
+            n_p += arr.size
+        for i in bl.inputs:
+            c = dst_seen.get((bl.path, i))
+            n = bl.ports[("in", i)].size
+            if c is None:
+                bl.input_src[i] = (zero_slot[0], zero_slot[1], zero_slot[1] + n)
+                continue
+            src_loc = info[c.src[0]].ports[("out", c.src[1])].loc
+            s0, s1 = c.src[2], c.src[3]
+            if s0 is not None:
+                a, b = _norm_slice(s0, s1, src_loc[2] - src_loc[1], c)
+                bl.input_src[i] = (src_loc[0], src_loc[1] + a, src_loc[1] + b)
+            else:
+                bl.input_src[i] = src_loc
+    return Layout(info, n_x, n_sig, n_p, n_modes, calls, [], g, zero_slot)
+
+
+def describe_loops(g, loops):
+    """Walk each loop port by port (``a.y -> b.u (feedthrough) -> b.y -> ...``)."""
+    lines = []
+    for k, comp in enumerate(loops):
+        sub = g.subgraph(comp)
+        cycle = nx.find_cycle(sub)
+        steps = [f"{u[1]}.{u[2]}" for u, v in cycle]
+        lines.append(f"algebraic loop {k + 1} ({len(comp)} ports): " + " -> ".join(
+            steps + [steps[0]]))
+    return "\n".join(lines)
+
+
+def jacobian_sparsity(layout: Layout):
+    """Boolean (n_x, n_x) pattern: which states can move each state's derivative."""
+    info = layout.blocks
+    g = layout.graph
+    # states each output depends on: own states for computed outputs, plus ft inputs' deps
+    deps = {}
+    for node in nx.topological_sort(g):
+        kind, path, port = node
+        bl = info[path]
+        if kind == "in":
+            preds = list(g.predecessors(node))
+            deps[node] = set().union(*(deps[p] for p in preds)) if preds else set()
+        else:
+            own = set()
+            if port in bl.state_outputs:
+                a, b = bl.states[port]
+                own = set(range(a, b))
+            else:
+                for a, b in bl.states.values():
+                    own.update(range(a, b))
+                for i in bl.feedthrough[port]:
+                    own |= deps[("in", path, i)]
+            deps[node] = own
+    pattern = np.zeros((layout.n_x, layout.n_x), dtype=bool)
+    for bl in info.values():
+        cols = set()
+        for a, b in bl.states.values():
+            cols.update(range(a, b))
+        for i in bl.inputs:
+            cols |= deps[("in", bl.path, i)]
+        for a, b in bl.states.values():
+            for c in cols:
+                pattern[a:b, c] = True
+    return pattern

@@ -1,0 +1,255 @@
+"""A loaded, validated and laid-out diagram: ``spidersim.load`` returns one.
+
+Compilation happens once per structure and mode (compiled or interpreted), on the first
+``simulate``; parameter values live in an array, so ``set`` and ``simulate`` with new values
+never recompile.
+"""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from ..errors import DiagramError, ParameterError, SpidersimError
+from ..solver import CompiledSystem, integrate
+from ..solver.compiled import load_module
+from .codegen import generate
+from .flatten import flatten
+from .graph import build_layout, jacobian_sparsity
+from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
+
+DEFAULTS = {"t_end": 1.0, "method": "LSODA", "rtol": 1e-6, "atol": 1e-8, "max_step": np.inf,
+            "output_interval": None, "first_step": None}
+
+
+class Diagram:
+    """A flat diagram ready to simulate.
+
+    Attributes
+    ----------
+    spec : DiagramSpec
+        The parsed top-level file.
+    blocks : dict
+        Dotted path -> instance (type, parameters).
+    layout : Layout
+        Sizes, schedule, offsets.
+    simulation : dict
+        Settings from the file's ``simulation`` section merged with the defaults.
+    """
+
+    def __init__(self, spec: DiagramSpec, overrides=None):
+        self.spec = spec
+        self.file = spec.file
+        self.flat = flatten(spec, overrides)
+        if not self.flat.blocks:
+            raise DiagramError("the diagram has no blocks", file=spec.file)
+        self.layout = build_layout(self.flat)
+        self.blocks = self.flat.blocks
+        self.simulation = dict(DEFAULTS)
+        for k, v in spec.simulation.items():
+            self.simulation[k] = self._sim_value(k, v)
+        self.p = self._param_array()
+        self._modules = {}
+        self._log = self._log_spec(spec.log)
+
+    # ------------------------------------------------------------------ set-up
+    def _sim_value(self, key, v):
+        line = self.spec.simulation_lines.get(key)
+        if key == "method":
+            if not isinstance(v, str):
+                raise DiagramError(f"simulation.method must be a name, got {v!r}",
+                                   file=self.file, line=line)
+            return v
+        from .expr import ExprError, evaluate
+        try:
+            val = evaluate(v, {}) if isinstance(v, str) else v
+            val = float(val)
+        except (ExprError, TypeError, ValueError) as exc:
+            raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be a number, got "
+                               f"{v!r}", file=self.file, line=line) from None
+        if not val > 0:
+            raise DiagramError(f"simulation.{key} must be > 0, got {val:g}", file=self.file,
+                               line=line)
+        return val
+
+    def _param_array(self):
+        p = np.zeros(self.layout.n_p)
+        for bl in self.layout.blocks.values():
+            for name, (a, b, _shape) in bl.pslots.items():
+                p[a:b] = np.ravel(bl.params[name])
+        return p
+
+    def _signal_table(self):
+        """(name, array, start, stop, unit) of every output and of states not output."""
+        rows = []
+        for bl in self.layout.blocks.values():
+            for o in bl.outputs:
+                pi = bl.ports[("out", o)]
+                rows.append((f"{bl.path}.{o}", pi.loc[0], pi.loc[1], pi.loc[2], pi.unit))
+            for s, (a, b) in bl.states.items():
+                if s not in bl.state_outputs:
+                    rows.append((f"{bl.path}.{s}", "x", a, b, bl.cls.states[s].unit))
+        return rows
+
+    def signals(self):
+        """Names of every signal that can be logged."""
+        return [r[0] for r in self._signal_table()]
+
+    def _log_spec(self, log):
+        table = {r[0]: r for r in self._signal_table()}
+        if log == "all" or log is None:
+            return list(table.values())
+        out = []
+        lines = getattr(log, "lines", [self.spec.log_line] * len(log))
+        for k, name in enumerate(log):
+            if name not in table:
+                import difflib
+                near = difflib.get_close_matches(str(name), list(table), n=3)
+                hint = f"; did you mean {', '.join(near)}?" if near else ""
+                raise DiagramError(f"log: no signal '{name}'{hint}", file=self.file,
+                                   line=lines[k] if k < len(lines) else self.spec.log_line)
+            out.append(table[name])
+        return out
+
+    # ------------------------------------------------------------------ parameters
+    def set(self, path, value):
+        """Change a numeric parameter ``block.param`` without recompiling.
+
+        Structural parameters (integers, strings, sizes) need ``spidersim.load(...,
+        set={path: value})`` instead.
+        """
+        block, _, name = path.rpartition(".")
+        bl = self.layout.blocks.get(block)
+        if bl is None:
+            raise ParameterError(f"set {path}: no block '{block}' (write block.param; "
+                                 f"subsystem parameters need load(set=...))")
+        decl = bl.cls.parameters.get(name)
+        if decl is None:
+            raise ParameterError(f"set {path}: type {bl.cls.type_name} has no parameter "
+                                 f"'{name}'", block=block)
+        if decl.is_structural:
+            raise ParameterError(f"set {path}: '{name}' is structural; reload with "
+                                 f"spidersim.load(file, set={{'{path}': ...}})", block=block)
+        user = {k: v for k, v in self.blocks[block].params.items()}
+        user[name] = value
+        new = bl.cls.validate_params(user)
+        old_shape = np.shape(self.blocks[block].params[name])
+        if np.shape(new[name]) != old_shape:
+            raise ParameterError(f"set {path}: shape {np.shape(new[name])} differs from "
+                                 f"{old_shape}; reload to change sizes", block=block)
+        self.blocks[block].params = new
+        merged = dict(new)
+        merged.update(bl.cls.derive(new))
+        bl.params = merged
+        for pname, (a, b, _s) in bl.pslots.items():
+            if np.size(merged[pname]) != b - a:
+                raise ParameterError(f"set {path}: changes the size of '{pname}'; reload",
+                                     block=block)
+            self.p[a:b] = np.ravel(merged[pname])
+
+    def initial_state(self):
+        x0 = np.zeros(self.layout.n_x)
+        for bl in self.layout.blocks.values():
+            for s, (a, b) in bl.states.items():
+                try:
+                    x0[a:b] = bl.cls.initial_value(bl.cls.states[s], b - a, bl.params)
+                except ParameterError as exc:
+                    inst = self.blocks[bl.path]
+                    raise ParameterError(f"state '{s}': {exc.message}", file=inst.file,
+                                         line=inst.line, block=bl.path) from None
+        return x0
+
+    def initial_modes(self):
+        m0 = np.zeros(self.layout.n_modes)
+        for bl in self.layout.blocks.values():
+            for m, (a, b) in bl.modes.items():
+                m0[a:b] = bl.cls.initial_value(bl.cls.modes[m], b - a, bl.params)
+        return m0
+
+    # ------------------------------------------------------------------ compile & run
+    def source(self, jit=True):
+        """The generated module text."""
+        return generate(self.layout, self.spec.name, jit)
+
+    def compile(self, jit=True):
+        """Generate, import and warm up the compiled functions; return the system."""
+        if jit not in self._modules:
+            t0 = time.perf_counter()
+            mod, key, _ = load_module(self.source(jit), jit)
+            self._modules[jit] = (mod, key)
+            system = self._system(jit)
+            system.warm_up()
+            self._compile_time = time.perf_counter() - t0
+        else:
+            self._compile_time = 0.0
+        return self._system(jit)
+
+    def _system(self, jit):
+        mod, key = self._modules[jit]
+        L = self.layout
+        sig_names, x_names = [], []
+        for r in self._signal_table():
+            (sig_names if r[1] == "sig" else x_names).append((r[0], r[2], r[3]))
+        for bl in L.blocks.values():
+            for s, (a, b) in bl.states.items():
+                nm = f"{bl.path}.{s}"
+                if nm not in {n for n, _, _ in x_names}:
+                    x_names.append((nm, a, b))
+        sig_names.sort(key=lambda r: r[1])
+        system = CompiledSystem(mod, self.initial_state(), self.p.copy(), self.initial_modes(),
+                                L.n_sig, self._log, sig_names, x_names,
+                                jacobian_sparsity(L) if L.n_x else None)
+        system.structure_key = key
+        return system
+
+    def simulate(self, t_end=None, method=None, rtol=None, atol=None, max_step=None,
+                 output_interval=None, jit=True, progress=None):
+        """Run the diagram; arguments left ``None`` come from the file's ``simulation``.
+
+        Returns a :class:`~spidersim.solver.result.Result`; raises
+        :class:`~spidersim.errors.IntegrationError` (with ``partial``) on failure.
+        """
+        cfg = dict(self.simulation)
+        for k, v in (("t_end", t_end), ("method", method), ("rtol", rtol), ("atol", atol),
+                     ("max_step", max_step), ("output_interval", output_interval)):
+            if v is not None:
+                cfg[k] = v
+        system = self.compile(jit)
+        stats = {"diagram": self.spec.name, "jit": jit, "compile_time": self._compile_time,
+                 "structure_key": system.structure_key}
+        return integrate(system, cfg["t_end"], method=cfg["method"], rtol=cfg["rtol"],
+                         atol=cfg["atol"], max_step=cfg["max_step"],
+                         first_step=cfg["first_step"], output_interval=cfg["output_interval"],
+                         progress=progress, stats=stats)
+
+    # ------------------------------------------------------------------ summary
+    def summary(self):
+        """Text for ``spidersim check``: blocks, states, signals, schedule."""
+        L = self.layout
+        lines = [f"diagram '{self.spec.name}' ({self.file})",
+                 f"  {len(L.blocks)} blocks, {L.n_x} states, {L.n_sig} signal values, "
+                 f"{L.n_p} parameter values, {L.n_modes} mode values, "
+                 f"{len(self.flat.subsystem_instances)} subsystem instances",
+                 "  blocks:"]
+        for bl in L.blocks.values():
+            st = ", ".join(f"{s}[{b - a}]" for s, (a, b) in bl.states.items())
+            lines.append(f"    {bl.path}: {bl.cls.type_name}" + (f"  states {st}" if st else ""))
+        lines.append("  signals:")
+        for name, arr, a, b, unit in self._signal_table():
+            lines.append(f"    {name} [{unit}] size {b - a}" + ("  (state)" if arr == "x"
+                                                                  else ""))
+        lines.append(f"  schedule ({len(L.calls)} output calls):")
+        lines.append("    " + " -> ".join(L.calls) if L.calls else "    (none)")
+        lines.append("  algebraic loops: none")
+        return "\n".join(lines)
+
+
+def load(path, set=None) -> Diagram:
+    """Load a diagram file. ``set`` maps dotted parameter paths to values (or expressions)."""
+    return Diagram(parse_file(path), set)
+
+
+def loads(text, set=None, file="<string>") -> Diagram:
+    """Load a diagram from YAML text (subsystem paths relative to the current directory)."""
+    return Diagram(parse_text(text, file), set)

@@ -1,0 +1,233 @@
+"""YAML diagram file -> :class:`DiagramSpec` (still unflattened, values unevaluated).
+
+A diagram file has these top-level sections (all optional but ``blocks``)::
+
+    name, description      free text
+    parameters             name: value or expression (in order; later ones may use earlier)
+    subsystems             type_name: path/to/file.yaml  (relative to this file)
+    blocks                 name: {type: TypeName, param: value, ...}
+    connections            - "src.port -> dst.port"   (``src.port[i]``, ``src.port[i:j]``;
+                             several destinations separated by commas)
+    inputs                 (subsystem files) exposed input: internal "block.port" or a list
+    outputs                (subsystem files) exposed output: internal "block.port[...]"
+    simulation             t_end, method, rtol, atol, max_step, output_interval
+    log                    list of "block.port" to record, or "all" (the default)
+    plots                  list of {title, signals, kind, file, ...}
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+
+from ..errors import DiagramError, WiringError
+from .yamlio import LineDict, load_text
+
+SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
+            "inputs", "outputs", "simulation", "log", "plots", "analysis")
+SIM_KEYS = {"t_end": "simulated time [s]", "method": "LSODA, RK45, DOP853, Radau or BDF",
+            "rtol": "relative tolerance", "atol": "absolute tolerance",
+            "max_step": "largest step [s]", "output_interval": "spacing of output samples [s]",
+            "first_step": "first step [s]"}
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_ADDR = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)"
+                   r"(?:\[\s*(-?\d+)\s*(?::\s*(-?\d+)\s*)?\])?\s*$")
+
+
+@dataclass
+class Address:
+    """``block.port[start:stop]`` inside one diagram file (``stop`` None: whole port)."""
+
+    block: str
+    port: str
+    start: int | None = None
+    stop: int | None = None
+    single: bool = False
+
+    def __str__(self):
+        if self.start is None:
+            return f"{self.block}.{self.port}"
+        if self.single:
+            return f"{self.block}.{self.port}[{self.start}]"
+        return f"{self.block}.{self.port}[{self.start}:{self.stop}]"
+
+
+@dataclass
+class BlockSpec:
+    name: str
+    type: str
+    params: dict
+    line: int
+    param_lines: dict
+
+
+@dataclass
+class ConnSpec:
+    src: Address
+    dst: Address
+    line: int
+
+
+@dataclass
+class DiagramSpec:
+    file: str
+    name: str
+    description: str
+    parameters: dict
+    param_lines: dict
+    subsystems: dict          # type name -> absolute path
+    subsystem_lines: dict
+    blocks: dict              # name -> BlockSpec
+    connections: list
+    inputs: dict              # exposed name -> [Address]
+    outputs: dict             # exposed name -> Address
+    port_lines: dict
+    simulation: dict
+    simulation_lines: dict
+    log: object
+    log_line: int | None
+    plots: list
+    analysis: dict
+    data: dict = field(repr=False, default=None)
+
+
+def parse_address(text, file, line, what="address"):
+    if not isinstance(text, str):
+        raise WiringError(f"{what} must be a string 'block.port', got {text!r}", file=file,
+                          line=line)
+    m = _ADDR.match(text)
+    if not m:
+        raise WiringError(f"cannot read {what} '{text}': expected 'block.port', "
+                          f"'block.port[i]' or 'block.port[i:j]'", file=file, line=line)
+    block, port, a, b = m.groups()
+    if a is None:
+        return Address(block, port)
+    a = int(a)
+    if b is None:
+        return Address(block, port, a, a + 1, single=True)
+    return Address(block, port, a, int(b))
+
+
+def _section(data, key, kind, file):
+    v = data.get(key)
+    if v is None:
+        return kind()
+    if not isinstance(v, kind):
+        want = "a mapping (name: value)" if kind is LineDict or kind is dict else "a list"
+        raise DiagramError(f"section '{key}' must be {want}, got {type(v).__name__}",
+                           file=file, line=data.line_of(key))
+    return v
+
+
+def parse_file(path: str) -> DiagramSpec:
+    """Read and check one diagram file (no subsystems opened yet)."""
+    if not os.path.isfile(path):
+        raise DiagramError(f"diagram file not found: {path}")
+    with open(path, encoding="utf-8") as fh:
+        text = fh.read()
+    return parse_text(text, path)
+
+
+def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
+    data = load_text(text, file)
+    if data is None:
+        raise DiagramError("the diagram is empty: it needs at least a 'blocks' section",
+                           file=file)
+    if not isinstance(data, dict):
+        raise DiagramError(f"a diagram must be a mapping of sections, got "
+                           f"{type(data).__name__}", file=file, line=getattr(data, "line", 1))
+    for key in data:
+        if key not in SECTIONS:
+            import difflib
+            near = difflib.get_close_matches(str(key), SECTIONS, n=1)
+            hint = f" (did you mean '{near[0]}'?)" if near else ""
+            raise DiagramError(f"unknown section '{key}'{hint}; sections are "
+                               f"{', '.join(SECTIONS)}", file=file, line=data.line_of(key))
+    if "blocks" not in data:
+        raise DiagramError("the diagram has no 'blocks' section", file=file, line=1)
+    base = os.path.dirname(os.path.abspath(file)) if file != "<string>" else os.getcwd()
+
+    params = _section(data, "parameters", LineDict, file)
+    for k in params:
+        if not isinstance(k, str) or not _NAME.match(k):
+            raise DiagramError(f"parameter name '{k}' is not an identifier", file=file,
+                               line=params.line_of(k))
+
+    subs_raw = _section(data, "subsystems", LineDict, file)
+    subsystems = {}
+    for k, v in subs_raw.items():
+        if isinstance(v, dict):
+            v = v.get("file")
+        if not isinstance(v, str):
+            raise DiagramError(f"subsystem '{k}' must name a YAML file, got {v!r}",
+                               file=file, line=subs_raw.line_of(k))
+        subsystems[k] = os.path.normpath(os.path.join(base, v))
+
+    blocks_raw = _section(data, "blocks", LineDict, file)
+    blocks = {}
+    for name, entry in blocks_raw.items():
+        line = blocks_raw.line_of(name)
+        if not isinstance(name, str) or not _NAME.match(name):
+            raise DiagramError(f"block name '{name}' is not an identifier (letters, digits, "
+                               f"_; no dots)", file=file, line=line)
+        if not isinstance(entry, dict) or "type" not in entry:
+            raise DiagramError(f"block '{name}' must be a mapping with a 'type' key, e.g. "
+                               f"'{name}: {{type: Gain, k: 2}}'", file=file, line=line)
+        p = LineDict((k, v) for k, v in entry.items() if k != "type")
+        plines = {k: entry.line_of(k) for k in p}
+        blocks[name] = BlockSpec(name, entry["type"], p, line, plines)
+
+    conns_raw = _section(data, "connections", list, file)
+    conns = []
+    for k, item in enumerate(conns_raw):
+        line = conns_raw.lines[k] if hasattr(conns_raw, "lines") else None
+        if isinstance(item, (list, tuple)) and len(item) == 2:
+            src_t, dsts = item[0], [item[1]]
+        elif isinstance(item, str) and "->" in item:
+            src_t, rest = item.split("->", 1)
+            dsts = [d for d in rest.split(",")]
+        else:
+            raise WiringError(f"connection {item!r} must read 'src.port -> dst.port'",
+                              file=file, line=line)
+        src = parse_address(src_t, file, line, "connection source")
+        for d in dsts:
+            dst = parse_address(d, file, line, "connection destination")
+            if dst.start is not None:
+                raise WiringError(f"a destination takes a whole input port, got '{d.strip()}' "
+                                  f"(select elements on the source side or with a Selector)",
+                                  file=file, line=line)
+            conns.append(ConnSpec(src, dst, line))
+
+    port_lines = {}
+    inputs = {}
+    for k, v in _section(data, "inputs", LineDict, file).items():
+        line = data["inputs"].line_of(k)
+        vs = v if isinstance(v, list) else [v]
+        inputs[k] = [parse_address(a, file, line, f"exposed input '{k}'") for a in vs]
+        port_lines[("in", k)] = line
+    outputs = {}
+    for k, v in _section(data, "outputs", LineDict, file).items():
+        line = data["outputs"].line_of(k)
+        outputs[k] = parse_address(v, file, line, f"exposed output '{k}'")
+        port_lines[("out", k)] = line
+
+    sim = _section(data, "simulation", LineDict, file)
+    for k in sim:
+        if k not in SIM_KEYS:
+            raise DiagramError(f"unknown simulation setting '{k}'; settings are "
+                               f"{', '.join(SIM_KEYS)}", file=file, line=sim.line_of(k))
+    log = data.get("log", "all")
+    if not (log == "all" or isinstance(log, list)):
+        raise DiagramError("section 'log' must be 'all' or a list of 'block.port'",
+                           file=file, line=data.line_of("log"))
+    plots = _section(data, "plots", list, file)
+    analysis = _section(data, "analysis", LineDict, file)
+    return DiagramSpec(
+        file=file, name=str(data.get("name", os.path.splitext(os.path.basename(file))[0])),
+        description=str(data.get("description", "")), parameters=dict(params),
+        param_lines={k: params.line_of(k) for k in params}, subsystems=subsystems,
+        subsystem_lines={k: subs_raw.line_of(k) for k in subs_raw}, blocks=blocks,
+        connections=conns, inputs=inputs, outputs=outputs, port_lines=port_lines,
+        simulation=dict(sim), simulation_lines={k: sim.line_of(k) for k in sim}, log=log,
+        log_line=data.line_of("log") if "log" in data else None, plots=list(plots),
+        analysis=dict(analysis), data=data)

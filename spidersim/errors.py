@@ -1,0 +1,73 @@
+"""Exception hierarchy of spidersim.
+
+Every error a user can cause derives from :class:`SpidersimError`. The CLI prints these
+without a traceback and exits with status 2. Each error may carry the file and line of the
+YAML construct that caused it and the dotted path of the block involved; ``str(err)`` renders
+them as ``file:line: block 'path': message``.
+"""
+from __future__ import annotations
+
+
+class SpidersimError(Exception):
+    """Base class of every error reported to users.
+
+    Parameters
+    ----------
+    message : str
+        What was expected and what was found, with advice where there is some.
+    file : str, optional
+        YAML file the problem comes from.
+    line : int, optional
+        1-based line in ``file``.
+    block : str, optional
+        Dotted path of the block instance (``j3.motor``).
+    """
+
+    exit_code = 2
+
+    def __init__(self, message, file=None, line=None, block=None):
+        super().__init__(message)
+        self.message = message
+        self.file = file
+        self.line = line
+        self.block = block
+
+    def __str__(self):
+        where = ""
+        if self.file:
+            where = f"{self.file}:{self.line}: " if self.line else f"{self.file}: "
+        who = f"block '{self.block}': " if self.block else ""
+        return f"{where}{who}{self.message}"
+
+
+class DiagramError(SpidersimError):
+    """Malformed diagram: YAML syntax, unknown sections, bad subsystem files."""
+
+
+class BlockTypeError(DiagramError):
+    """Unknown block type or malformed block entry."""
+
+
+class ParameterError(SpidersimError):
+    """Unknown, missing, out-of-bounds or mis-shaped parameter, bad expression."""
+
+
+class WiringError(SpidersimError):
+    """Unknown port, size mismatch, two sources into one input, unconnected input."""
+
+
+class AlgebraicLoopError(SpidersimError):
+    """An algebraic loop that is not supported or could not be solved."""
+
+
+class IntegrationError(SpidersimError):
+    """The integration failed (non-finite value, step size too small, ...).
+
+    ``partial`` holds the :class:`~spidersim.solver.result.Result` computed up to the failure.
+    """
+
+    exit_code = 3
+
+    def __init__(self, message, partial=None, **kw):
+        super().__init__(message, **kw)
+        self.partial = partial

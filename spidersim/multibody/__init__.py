@@ -1,0 +1,1 @@
+"""Rigid-body algorithms (kinematics, RNEA, CRBA/ABA, base wrench); see the arm issue."""

@@ -1,0 +1,96 @@
+"""Simulation results: named time series, events, statistics; saved as NPZ, CSV and a report.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+
+import numpy as np
+
+
+class Result:
+    """Named time series of one run.
+
+    ``r.t`` is the time vector; ``r["block.port"]`` a 1-D array for a scalar signal and an
+    (n_samples, size) array for a vector signal; ``r.events`` a list of ``(t, block, event)``;
+    ``r.stats`` a dict (method, rtol, atol, steps, rhs_calls, jacobian_calls, lu_decompositions,
+    events, wall_time, compile_time, ...); ``r.status`` ``"ok"`` or ``"failed"`` with
+    ``r.message``.
+    """
+
+    def __init__(self, t, data, slices, units, events, stats, status="ok", message=""):
+        self.t = np.asarray(t)
+        self._data = data
+        self._slices = slices
+        self.units = units
+        self.events = events
+        self.stats = stats
+        self.status = status
+        self.message = message
+
+    @property
+    def names(self):
+        return list(self._slices)
+
+    def __contains__(self, name):
+        return name in self._slices
+
+    def __getitem__(self, name):
+        if name not in self._slices:
+            import difflib
+            near = difflib.get_close_matches(name, self.names, n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise KeyError(f"no logged signal '{name}'{hint}")
+        a, b = self._slices[name]
+        col = self._data[:, a:b]
+        return col[:, 0] if b - a == 1 else col
+
+    def __repr__(self):
+        return (f"<Result {self.status}: {len(self.t)} samples to t = "
+                f"{self.t[-1] if len(self.t) else 0:g} s, {len(self._slices)} signals>")
+
+    def columns(self):
+        """(header, column) pairs with one column per element (``name[i]`` for vectors)."""
+        for name, (a, b) in self._slices.items():
+            for k in range(a, b):
+                yield (name if b - a == 1 else f"{name}[{k - a}]"), self._data[:, k]
+
+    def save(self, folder):
+        """Write ``result.npz``, ``result.csv`` and ``report.txt`` into ``folder``."""
+        os.makedirs(folder, exist_ok=True)
+        arrays = {"t": self.t}
+        arrays.update({n: self[n] for n in self.names})
+        np.savez(os.path.join(folder, "result.npz"), **arrays)
+        cols = list(self.columns())
+        with open(os.path.join(folder, "result.csv"), "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["t"] + [h for h, _ in cols])
+            data = np.column_stack([self.t] + [c for _, c in cols]) if len(self.t) else []
+            for row in data:
+                w.writerow([repr(float(v)) for v in row])
+        with open(os.path.join(folder, "report.txt"), "w") as fh:
+            fh.write(self.report())
+        return folder
+
+    def report(self):
+        s = self.stats
+        lines = [f"status: {self.status}"]
+        if self.message:
+            lines.append(f"message: {self.message}")
+        keys = ["diagram", "method", "rtol", "atol", "max_step", "t_end", "t_reached", "steps",
+                "rejected_or_restarts", "rhs_calls", "jacobian_calls", "lu_decompositions",
+                "time_events", "events", "samples", "compile_time", "from_cache", "wall_time",
+                "jit", "structure_key"]
+        for k in keys:
+            if k in s:
+                v = s[k]
+                lines.append(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}")
+        if self.events:
+            lines.append(f"event log ({len(self.events)}, first 20):")
+            lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]
+        return "\n".join(lines) + "\n"
+
+    def to_json(self):
+        return json.dumps({"status": self.status, "message": self.message,
+                           "stats": self.stats}, default=float, indent=1)

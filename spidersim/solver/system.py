@@ -1,0 +1,123 @@
+"""The ``System`` the solver integrates: flat arrays and compiled functions, no blocks.
+
+Contract (what :func:`spidersim.solver.integrate.integrate` needs)
+-----------------------------------------------------------------
+1. ``n_x``, ``x0`` (float array), ``sig``, ``p``, ``modes`` (float arrays owned by the system;
+   ``modes`` changes only at events).
+2. ``rhs(t, x) -> xdot`` (a new array) and ``outputs(t, x)`` (fills ``sig``).
+3. ``next_time(t) -> float`` (earliest pending time event, ``inf`` for none) and
+   ``time_events(t, x, tol) -> list of names`` (apply every event due by ``t + tol``).
+4. ``record(x) -> 1-D array`` of the logged values (after ``outputs``), with
+   ``record_names``, ``record_slices`` (name -> (start, stop)) and ``units``.
+5. ``diagnose(t, x) -> str``: which signal or state derivative is not finite, in schedule
+   order, for error messages.
+6. ``jac_sparsity``: ``None`` or an (n_x, n_x) boolean pattern for the implicit methods.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class CompiledSystem:
+    """A diagram compiled into a generated module (see :mod:`spidersim.diagram.codegen`).
+
+    Parameters
+    ----------
+    module : module
+        Generated module with ``outputs``, ``rhs``, ``derivatives``, ``next_time`` and
+        ``time_events``.
+    x0, p, modes0 : ndarray
+        Initial state, parameters, initial modes.
+    n_sig : int
+        Length of the signal array.
+    log : list of (name, array, start, stop, unit)
+        Logged signals: ``array`` is ``"x"`` or ``"sig"``.
+    sig_names, x_names : list of (name, start, stop)
+        Every signal and state, in schedule / layout order, for diagnostics.
+    """
+
+    def __init__(self, module, x0, p, modes0, n_sig, log, sig_names, x_names,
+                 jac_sparsity=None):
+        self.module = module
+        self.n_x = len(x0)
+        self.x0 = np.ascontiguousarray(x0, dtype=float)
+        self.p = np.ascontiguousarray(p, dtype=float)
+        self.modes = np.array(modes0, dtype=float)
+        self.sig = np.zeros(n_sig)
+        self.sig_names = sig_names
+        self.x_names = x_names
+        self.jac_sparsity = jac_sparsity
+        self.timed = list(module.TIMED)
+        self._fired = np.zeros(max(1, len(self.timed)), dtype=np.int64)
+        x_idx, s_idx, names, slices, units = [], [], [], {}, {}
+        k = 0
+        for name, arr, a, b, unit in log:
+            idx = np.arange(a, b)
+            (x_idx if arr == "x" else s_idx).append(idx)
+            names.append(name)
+            units[name] = unit
+        # record layout: all logged sig values first, then logged states
+        k = 0
+        for name, arr, a, b, unit in log:
+            if arr == "sig":
+                slices[name] = (k, k + b - a)
+                k += b - a
+        for name, arr, a, b, unit in log:
+            if arr == "x":
+                slices[name] = (k, k + b - a)
+                k += b - a
+        self._s_idx = np.concatenate(s_idx) if s_idx else np.zeros(0, dtype=np.int64)
+        self._x_idx = np.concatenate(x_idx) if x_idx else np.zeros(0, dtype=np.int64)
+        self.record_names = names
+        self.record_slices = slices
+        self.record_size = k
+        self.units = units
+        m = module
+        sig, p_, modes = self.sig, self.p, self.modes
+        rhs = m.rhs
+        self.rhs = lambda t, x: rhs(t, x, sig, p_, modes)
+        self._outputs = m.outputs
+
+    def outputs(self, t, x):
+        self._outputs(t, x, self.sig, self.p, self.modes)
+
+    def record(self, x):
+        return np.concatenate((self.sig[self._s_idx], x[self._x_idx]))
+
+    def next_time(self, t):
+        return self.module.next_time(t, self.p, self.modes)
+
+    def time_events(self, t, x, tol):
+        self._fired[:] = 0
+        self.module.outputs(t, x, self.sig, self.p, self.modes)
+        self.module.time_events(t, x, self.sig, self.p, self.modes, tol, self._fired)
+        return [self.timed[k] for k in np.flatnonzero(self._fired[:len(self.timed)])]
+
+    def warm_up(self):
+        """Call every compiled function once (this is when numba compiles or loads)."""
+        x = self.x0.copy()
+        modes = self.modes.copy()
+        self.rhs(0.0, x)
+        self.outputs(0.0, x)
+        self.next_time(0.0)
+        fired = np.zeros_like(self._fired)
+        self.module.time_events(-np.inf, x, self.sig, self.p, self.modes, 0.0, fired)
+        self.modes[:] = modes
+
+    def diagnose(self, t, x):
+        """Name the first non-finite signal (schedule order) or state derivative."""
+        with np.errstate(all="ignore"):
+            bad_x = [n for n, a, b in self.x_names if not np.all(np.isfinite(x[a:b]))]
+            self.outputs(t, x)
+            for name, a, b in self.sig_names:
+                if not np.all(np.isfinite(self.sig[a:b])):
+                    return (f"signal '{name}' is {self.sig[a:b].tolist()} at t = {t:.9g} s"
+                            + (f" (non-finite state: {bad_x[0]})" if bad_x else ""))
+            if bad_x:
+                return f"state '{bad_x[0]}' is not finite at t = {t:.9g} s"
+            xdot = self.rhs(t, x)
+            for name, a, b in self.x_names:
+                if not np.all(np.isfinite(xdot[a:b])):
+                    return (f"the derivative of state '{name}' is {xdot[a:b].tolist()} "
+                            f"at t = {t:.9g} s")
+        return ""
