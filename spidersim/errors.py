@@ -66,8 +66,6 @@ class IntegrationError(SpidersimError):
     ``partial`` holds the :class:`~spidersim.solver.result.Result` computed up to the failure.
     """
 
-    exit_code = 3
-
     def __init__(self, message, partial=None, **kw):
         super().__init__(message, **kw)
         self.partial = partial

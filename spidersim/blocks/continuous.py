@@ -11,7 +11,7 @@ class Integrator(Block):
     parameters = {"x0": Param(0.0, doc="initial value (scalar or one per element)", shape="*")}
     inputs = {"u": Port(size=None, doc="rate")}
     outputs = {"y": Port(size="@u", doc="integral of u")}
-    states = {"x": State(size="@u", initial="x0", doc="integral of u")}
+    states = {"y": State(size="@u", initial="x0", doc="integral of u")}
 
     @classmethod
     def check_sizes(cls, params, sizes):
@@ -21,14 +21,9 @@ class Integrator(Block):
                              f"{sizes['u']}")
 
     @staticmethod
-    def output(t, x, y):
-        for i in range(y.size):
-            y[i] = x[i]
-
-    @staticmethod
-    def derivative(t, u, der_x):
-        for i in range(der_x.size):
-            der_x[i] = u[i]
+    def derivative(t, u, der_y):
+        for i in range(der_y.size):
+            der_y[i] = u[i]
 
 
 def _ss_derivative(t, x, u, A, B, der_x):

@@ -47,6 +47,7 @@ class Flat:
     blocks: dict                 # path -> Instance
     conns: list                  # FlatConn
     subsystem_instances: dict    # path -> file
+    aliases: dict = field(default_factory=dict)  # "sub.out" -> (path, port, start, stop)
 
 
 def _eval_value(value, scope, decl, file, line, what):
@@ -110,14 +111,12 @@ def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
     return flat
 
 
-def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False,
-                 full_prefix_for_set=""):
+def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
     """Add the blocks of ``spec`` under ``prefix``; return (in_map, out_map)."""
     sub_specs = {}
     local_subs = {}  # instance name -> (in_map, out_map)
     for bname, b in spec.blocks.items():
         path = prefix + bname
-        set_key = full_prefix_for_set + bname
         own = {}  # overrides addressed to this block: param -> value
         deeper = {}
         for k, v in overrides.items():
@@ -165,6 +164,8 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False,
                                 stack + [os.path.abspath(sub_file)], sub_used)
             used.update(keymap[k] for k in sub_used if k in keymap)
             local_subs[bname] = maps
+            for oname, src in maps[1].items():
+                flat.aliases[f"{path}.{oname}"] = src
             flat.subsystem_instances[path] = sub_file
             continue
         cls = lookup(b.type, spec.file, b.line, extra=list(spec.subsystems))

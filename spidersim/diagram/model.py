@@ -90,6 +90,12 @@ class Diagram:
             for s, (a, b) in bl.states.items():
                 if s not in bl.state_outputs:
                     rows.append((f"{bl.path}.{s}", "x", a, b, bl.cls.states[s].unit))
+        by_port = {(r[0]): r for r in rows}
+        for alias, (path, port, s0, s1) in self.flat.aliases.items():
+            name, arr, a, b, unit = by_port[f"{path}.{port}"]
+            if s0 is not None:
+                a, b = a + s0, a + s1
+            rows.append((alias, arr, a, b, unit))
         return rows
 
     def signals(self):

@@ -163,9 +163,9 @@ def integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_s
                             tk = grid_time(grid_k)
                 if progress is not None:
                     progress(solver.t)
-            st["rhs_calls"] += solver.nfev
-            st["jacobian_calls"] += getattr(solver, "njev", 0)
-            st["lu_decompositions"] += getattr(solver, "nlu", 0)
+            st["rhs_calls"] += int(solver.nfev)
+            st["jacobian_calls"] += int(getattr(solver, "njev", 0))
+            st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
             t = solver.t
             x = solver.y.copy()
         if t >= t_end:

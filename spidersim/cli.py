@@ -1,0 +1,163 @@
+"""Command line: ``spidersim run | check | blocks``.
+
+Errors of the user's making (:class:`~spidersim.errors.SpidersimError`) are printed as
+``file:line: block 'path': message`` without a traceback, and the exit status is 2. A run
+that fails part-way still writes the data it computed and a report saying where and why.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import yaml
+
+from .errors import IntegrationError, SpidersimError
+
+
+class Progress:
+    """Progress bar on stderr for runs longer than a second (a line per 25 % off a tty)."""
+
+    def __init__(self, t_end, stream=sys.stderr):
+        self.t_end = t_end
+        self.stream = stream
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+        self.tty = stream.isatty()
+        self.shown = False
+        self.next_mark = 0.25
+
+    def __call__(self, t):
+        now = time.perf_counter()
+        if now - self.t0 < 1.0 or now - self.last < 0.2:
+            return
+        self.last = now
+        frac = min(1.0, t / self.t_end) if self.t_end > 0 else 1.0
+        if self.tty:
+            n = int(30 * frac)
+            self.stream.write(f"\r  [{'#' * n}{'.' * (30 - n)}] {100 * frac:5.1f}%  "
+                              f"t = {t:.4g} / {self.t_end:g} s  ({now - self.t0:.1f} s)")
+            self.stream.flush()
+            self.shown = True
+        elif frac >= self.next_mark:
+            self.stream.write(f"  {100 * frac:.0f}%  t = {t:.4g} / {self.t_end:g} s  "
+                              f"({now - self.t0:.1f} s)\n")
+            while self.next_mark <= frac:
+                self.next_mark += 0.25
+
+    def close(self):
+        if self.shown:
+            self.stream.write("\n")
+
+
+def _parse_sets(items):
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise SpidersimError(f"--set expects path=value, got '{item}'")
+        k, v = item.split("=", 1)
+        try:
+            val = yaml.safe_load(v)
+        except yaml.YAMLError:
+            val = v
+        out[k.strip()] = val
+    return out
+
+
+def cmd_run(args):
+    from . import load
+    from .plots import check_plot_specs, make_plots
+
+    d = load(args.file, set=_parse_sets(args.set))
+    t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
+    out = args.out or os.path.join("results", d.spec.name)
+    check_plot_specs(d.spec.plots, set(d.signals()) & {r[0] for r in d._log}, d.file)
+    print(f"spidersim: {d.spec.name}: {len(d.blocks)} blocks, {d.layout.n_x} states; "
+          f"compiling ({'numba' if not args.no_jit else 'interpreted'}) ...", file=sys.stderr)
+    prog = Progress(t_end)
+    try:
+        r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit, progress=prog)
+    except IntegrationError as exc:
+        prog.close()
+        if exc.partial is not None:
+            exc.partial.save(out)
+            print(f"spidersim: partial data up to the failure written to {out}/",
+                  file=sys.stderr)
+        raise
+    prog.close()
+    r.save(out)
+    pngs = make_plots(r, d.spec.plots, out) if not args.no_plots else []
+    s = r.stats
+    print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
+          f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration + "
+          f"{s['compile_time']:.2f} s compile")
+    print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
+          + (f" and {len(pngs)} plot(s)" if pngs else ""))
+    return 0
+
+
+def cmd_check(args):
+    from . import load
+    d = load(args.file, set=_parse_sets(args.set))
+    print(d.summary())
+    print("OK")
+    return 0
+
+
+def cmd_blocks(args):
+    from .blocks import REGISTRY, lookup
+    if args.type:
+        print(lookup(args.type).describe())
+        return 0
+    by_cat = {}
+    for name, cls in sorted(REGISTRY.items()):
+        by_cat.setdefault(cls.category, []).append(cls)
+    for cat in sorted(by_cat):
+        print(f"{cat}:")
+        for cls in by_cat[cat]:
+            first = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+            print(f"  {cls.type_name:20s} {first}")
+    print("\n`spidersim blocks TYPE` prints the parameters, ports and states of one type.")
+    return 0
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(prog="spidersim", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("run", help="simulate a diagram, write data, report and plots")
+    r.add_argument("file")
+    r.add_argument("--set", action="append", metavar="PATH=VALUE",
+                   help="override a parameter (name, block.param or sub.block.param)")
+    r.add_argument("--t-end", type=float, help="simulated time [s]")
+    r.add_argument("--out", help="results folder (default results/<diagram name>)")
+    r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF")
+    r.add_argument("--no-jit", action="store_true", help="interpreted mode (no numba)")
+    r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    r.set_defaults(fn=cmd_run)
+    c = sub.add_parser("check", help="validate a diagram and print its structure")
+    c.add_argument("file")
+    c.add_argument("--set", action="append", metavar="PATH=VALUE")
+    c.set_defaults(fn=cmd_check)
+    b = sub.add_parser("blocks", help="list block types or document one")
+    b.add_argument("type", nargs="?")
+    b.set_defaults(fn=cmd_blocks)
+    return ap
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        return args.fn(args)
+    except SpidersimError as exc:
+        print(f"spidersim: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except BrokenPipeError:
+        return 0
+    except KeyboardInterrupt:
+        print("spidersim: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
