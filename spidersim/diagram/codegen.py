@@ -155,6 +155,28 @@ def rhs(t, x, sig, p, modes):
 
 
 @_jit
+def record(t, x, sig, p, modes, s_idx, x_idx, buf, row):
+    """Outputs at (t, x) into row ``row`` of ``buf``; False if x or a logged value is not
+    finite."""
+    outputs(t, x, sig, p, modes)
+    ok = True
+    for i in range(x.size):
+        if not math.isfinite(x[i]):
+            ok = False
+    k = 0
+    for i in s_idx:
+        v = sig[i]
+        buf[row, k] = v
+        if not math.isfinite(v):
+            ok = False
+        k += 1
+    for i in x_idx:
+        buf[row, k] = x[i]
+        k += 1
+    return ok
+
+
+@_jit
 def next_time(t, p, modes):
     tn = math.inf
 {body(nt_lines) or "    pass"}

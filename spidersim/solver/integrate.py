@@ -29,24 +29,42 @@ MAX_EVENTS_AT_ONE_TIME = 1000
 
 
 class _Recorder:
-    def __init__(self, system):
+    """Logged rows in a preallocated buffer that doubles when full."""
+
+    def __init__(self, system, capacity=1024):
         self.system = system
-        self.t = []
-        self.rows = []
+        self.buf = np.zeros((capacity, system.record_size))
+        self.tbuf = np.zeros(capacity)
+        self.n = 0
 
     def add(self, t, x):
-        self.system.outputs(t, x)
-        self.t.append(t)
-        self.rows.append(self.system.record(x))
+        """Record outputs at (t, x); return False if something is not finite."""
+        if self.n == len(self.tbuf):
+            self.buf = np.concatenate((self.buf, np.zeros_like(self.buf)))
+            self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
+        ok = self.system.record_row(t, x, self.buf, self.n)
+        self.tbuf[self.n] = t
+        self.n += 1
+        return ok
+
+    @property
+    def t(self):
+        return self.tbuf[:self.n]
 
     def result(self, events, stats, status="ok", message=""):
         s = self.system
-        data = (np.vstack(self.rows) if self.rows else np.zeros((0, s.record_size)))
-        return Result(np.array(self.t), data, s.record_slices, s.units, events, stats,
-                      status, message)
+        return Result(self.t.copy(), self.buf[:self.n].copy(), s.record_slices, s.units,
+                      events, stats, status, message)
 
 
-def integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_step=math.inf,
+def integrate(system, t_end, **kw):
+    """Integrate ``system`` to ``t_end`` (see :func:`_integrate`), floating-point warnings
+    silenced: non-finite values are detected and reported by name instead."""
+    with np.errstate(all="ignore"):
+        return _integrate(system, t_end, **kw)
+
+
+def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_step=math.inf,
               first_step=None, output_interval=None, progress=None, stats=None):
     """Integrate ``system`` from ``t0`` to ``t_end``; return a :class:`Result`.
 
@@ -144,16 +162,16 @@ def integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_s
                 fail(str(exc), t, x)
             while solver.status == "running":
                 t_old = solver.t
-                with np.errstate(all="ignore"):
-                    msg = solver.step()
+                msg = solver.step()
                 if solver.status == "failed":
                     fail(msg or "solver failure", solver.t, solver.y)
-                if not np.all(np.isfinite(solver.y)):
-                    fail("non-finite state", solver.t, solver.y)
                 st["steps"] += 1
                 if output_interval is None:
-                    rec.add(solver.t, solver.y)
+                    if not rec.add(solver.t, solver.y):
+                        fail("non-finite value", solver.t, solver.y)
                 else:
+                    if not np.all(np.isfinite(solver.y)):
+                        fail("non-finite state", solver.t, solver.y)
                     tk = grid_time(grid_k)
                     if tk <= solver.t:
                         dense = solver.dense_output()
@@ -173,9 +191,9 @@ def integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_s
         fire_due(t, x)
         if output_interval is None:
             rec.add(t, x)
-    if output_interval is not None and (not rec.t or rec.t[-1] < t_end * (1 - 1e-12)):
+    if output_interval is not None and (not rec.n or rec.t[-1] < t_end * (1 - 1e-12)):
         rec.add(t_end, x)
     st["t_reached"] = t
-    st["samples"] = len(rec.t)
+    st["samples"] = rec.n
     st["wall_time"] = time.perf_counter() - wall0
     return rec.result(events, st)

@@ -1,0 +1,149 @@
+"""spidersim benchmarks: print tables of figures (not tests; the machines are shared and noisy,
+so compare ratios measured in one run).
+
+    python tools/bench.py            # all benchmarks
+    python tools/bench.py servo      # one of them
+
+servo
+    ``diagrams/servo.yaml`` (DC motor, position P -> speed PI -> current PI -> +-24 V) for 1 s:
+    spidersim compiled, spidersim interpreted, and a hand-written numba right-hand side of the
+    same equations under the same SciPy solver and tolerances, integrated through the same two
+    segments (the reference step at t = 0.01 s is a time event in spidersim). Target: compiled
+    <= 1.5x hand-written (integration time, compile excluded). Compile time cold (empty numba
+    and spidersim caches, in a fresh process) and from cache (second fresh process).
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SERVO = os.path.join(ROOT, "diagrams", "servo.yaml")
+
+
+def _best(fn, repeat=7):
+    times = []
+    out = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), statistics.median(times), out
+
+
+def _hand_written():
+    """The servo equations written by hand as one numba function (the reference)."""
+    from numba import njit
+    from scipy.integrate import LSODA
+
+    @njit(cache=True)
+    def f(t, y, ref):
+        i, w, th, I_s, I_c = y
+        R, L, K, J, b = 1.0, 1e-3, 0.05, 1e-4, 1e-5
+        w_ref = 20.0 * (ref - th)
+        e_w = w_ref - w
+        i_ref = 0.05 * e_w + I_s
+        e_i = i_ref - i
+        v = 5.0 * e_i + I_c
+        v = min(max(v, -24.0), 24.0)
+        out = np.empty(5)
+        out[0] = (v - R * i - K * w) / L
+        out[1] = (K * i - b * w) / J
+        out[2] = w
+        out[3] = 1.0 * e_w
+        out[4] = 5000.0 * e_i
+        return out
+
+    def run():
+        y = np.zeros(5)
+        ts, ys = [0.0], [y.copy()]
+        steps = nfev = 0
+        for t0, t1, ref in ((0.0, 0.01, 0.0), (0.01, 1.0, 1.0)):
+            s = LSODA(lambda t, y, r=ref: f(t, y, r), t0, y, t1, rtol=1e-6, atol=1e-8)
+            while s.status == "running":
+                s.step()
+                ts.append(s.t)
+                ys.append(s.y.copy())
+                steps += 1
+            nfev += s.nfev
+            y = s.y.copy()
+        return np.array(ts), np.array(ys), steps, nfev
+
+    f(0.0, np.zeros(5), 0.0)
+    return run
+
+
+_COMPILE_SNIPPET = r"""
+import time, sys
+t0 = time.perf_counter()
+import spidersim
+t1 = time.perf_counter()
+d = spidersim.load(sys.argv[1])
+d.compile(jit=True)
+t2 = time.perf_counter()
+print(f"{t1 - t0:.4f} {d._compile_time:.4f} {t2 - t0:.4f}")
+"""
+
+
+def _compile_times(path):
+    """(import, compile, total) seconds: cold in an empty cache, then from that cache."""
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, SPIDERSIM_CACHE=os.path.join(tmp, "spidersim"),
+                   NUMBA_CACHE_DIR=os.path.join(tmp, "numba"))
+        out = []
+        for _ in range(2):
+            res = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET, path], env=env,
+                                 capture_output=True, text=True, check=True)
+            out.append(tuple(float(v) for v in res.stdout.split()))
+        return out
+
+
+def bench_servo():
+    import spidersim
+
+    print("== servo: diagrams/servo.yaml, 1 s, LSODA rtol 1e-6 atol 1e-8 ==")
+    (cold, cached) = _compile_times(SERVO)
+    d = spidersim.load(SERVO)
+    d.compile(jit=True)
+    best_c, med_c, r_c = _best(lambda: d.simulate(jit=True))
+    d.compile(jit=False)
+    best_i, med_i, r_i = _best(lambda: d.simulate(jit=False), repeat=3)
+    run = _hand_written()
+    best_h, med_h, (t_h, y_h, steps_h, nfev_h) = _best(run)
+    err = abs(r_c["motor.phi"][-1] - y_h[-1, 2])
+    rows = [("spidersim compiled", best_c, med_c, r_c.stats["steps"], r_c.stats["rhs_calls"]),
+            ("spidersim interpreted", best_i, med_i, r_i.stats["steps"],
+             r_i.stats["rhs_calls"]),
+            ("hand-written numba", best_h, med_h, steps_h, nfev_h)]
+    print(f"{'variant':24s} {'best [ms]':>10s} {'median [ms]':>12s} {'steps':>7s} "
+          f"{'RHS calls':>10s} {'/hand (best)':>13s}")
+    for name, b, m, s, n in rows:
+        print(f"{name:24s} {1e3 * b:10.2f} {1e3 * m:12.2f} {s:7d} {n:10d} {b / best_h:13.2f}")
+    print(f"final angle: spidersim {r_c['motor.phi'][-1]:.9f}, hand-written {y_h[-1, 2]:.9f} "
+          f"(|diff| {err:.2e})")
+    print(f"compile cold: {cold[1]:.2f} s (process total {cold[2]:.2f} s, import "
+          f"{cold[0]:.2f} s); from cache: {cached[1]:.2f} s (process total {cached[2]:.2f} s)")
+    print(f"ratio compiled / hand-written (target <= 1.5): {best_c / best_h:.2f}")
+    print(f"ratio interpreted / compiled: {best_i / best_c:.1f}")
+    print()
+
+
+BENCHES = {"servo": bench_servo}
+
+
+def main(argv):
+    names = argv or list(BENCHES)
+    for n in names:
+        if n not in BENCHES:
+            sys.exit(f"unknown benchmark '{n}'; choose from {', '.join(BENCHES)}")
+        BENCHES[n]()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
