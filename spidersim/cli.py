@@ -13,7 +13,7 @@ import time
 
 import yaml
 
-from .errors import IntegrationError, SpidersimError
+from .errors import SpidersimError
 
 
 class Progress:
@@ -78,9 +78,9 @@ def cmd_run(args):
     prog = Progress(t_end)
     try:
         r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit, progress=prog)
-    except IntegrationError as exc:
+    except SpidersimError as exc:
         prog.close()
-        if exc.partial is not None:
+        if getattr(exc, "partial", None) is not None:
             exc.partial.save(out)
             print(f"spidersim: partial data up to the failure written to {out}/",
                   file=sys.stderr)

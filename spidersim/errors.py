@@ -24,6 +24,8 @@ class SpidersimError(Exception):
     """
 
     exit_code = 2
+    #: the Result computed up to a failure during a run (None otherwise)
+    partial = None
 
     def __init__(self, message, file=None, line=None, block=None):
         super().__init__(message)

@@ -494,6 +494,6 @@ def load_kernel(module: str, cls_name: str, kernel: str, jit: bool):
         fn = getattr(cls, kernel)
         if jit:
             import numba
-            fn = numba.njit(cache=True, nogil=True)(fn)
+            fn = numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
         _JIT_CACHE[key] = fn
     return fn

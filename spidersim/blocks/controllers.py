@@ -117,7 +117,7 @@ def _jit_helper(fn):
     still works (it is compiled on first call).
     """
     import numba
-    return numba.njit(cache=True, inline="always")(fn)
+    return numba.njit(cache=True, inline="always", error_model="numpy")(fn)
 
 
 _i_rate_jit = _jit_helper(_i_rate)

@@ -19,6 +19,7 @@ import inspect
 import re
 import textwrap
 
+from ..solver.newton import newton_source
 from .graph import Layout
 
 
@@ -98,11 +99,30 @@ class Generator:
         exprs = [_arg_expr(bl, kernel, a) for a in args]
         return f"{indent}{name}({', '.join(exprs)})  # {bl.path}"
 
+    def loop_source(self, lp):
+        """Residual function and Newton solve of one algebraic loop."""
+        lines = [f"@_jit", f"def _loop{lp.index}_res(t, x, sig, p, modes, r):",
+                 f'    """Residual of loop {lp.index}: {lp.walk}"""']
+        lines += [self.call(self.layout.blocks[path], "output") for path in lp.calls
+                  if self.layout.blocks[path].cls.has_kernel("output")]
+        for k, (kind, a, o) in enumerate(lp.residual):
+            lines.append(f"    r[{k}] = sig[{a}] - sig[{o}]" if kind == "signal"
+                         else f"    r[{k}] = sig[{a}]")
+        a_tol, r_tol = self.layout.p_loop_tol
+        return "\n".join(lines) + "\n" + newton_source(
+            f"_loop{lp.index}_solve", f"_loop{lp.index}_res", lp.index, lp.zidx, lp.ws0,
+            a_tol, r_tol)
+
     def module(self, jit: bool) -> str:
         L = self.layout
         blocks = L.blocks
-        out_lines = [self.call(blocks[p], "output") for p in L.calls
-                     if blocks[p].cls.has_kernel("output")]
+        out_lines = []
+        for kind, what in L.calls:
+            if kind == "loop":
+                out_lines.append(f"    _loop{what}_solve(t, x, sig, p, modes)")
+            elif blocks[what].cls.has_kernel("output"):
+                out_lines.append(self.call(blocks[what], "output"))
+        loop_text = [self.loop_source(lp) for lp in L.loops]
         der_lines = [self.call(bl, "derivative") for bl in blocks.values()
                      if bl.states and bl.cls.has_kernel("derivative")]
         timed = [bl for bl in blocks.values() if bl.cls.has_kernel("next_time")]
@@ -119,21 +139,26 @@ class Generator:
 import math
 import numpy as np
 from spidersim.blocks.base import load_kernel
+from spidersim.solver import newton as _newton
 
 JIT = {jit!r}
 if JIT:
     from numba import njit
 
     def _jit(f):
-        return njit(cache=True, nogil=True)(f)
+        return njit(cache=True, nogil=True, error_model="numpy")(f)
 else:
     def _jit(f):
         return f
+
+lu_factor = _jit(_newton.lu_factor)
+lu_solve = _jit(_newton.lu_solve)
 
 N_X = {L.n_x}
 TIMED = {[bl.path for bl in timed]!r}
 
 {body(self.header)}
+{body(loop_text)}
 
 
 @_jit

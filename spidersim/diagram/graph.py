@@ -51,16 +51,33 @@ class BlockLayout:
 
 
 @dataclass
+class Loop:
+    """An algebraic loop: its ports, tear unknowns, inner calls and workspace."""
+
+    index: int
+    nodes: list                 # port nodes of the strongly connected component
+    tears: list                 # (path, port, kind): kind "signal" or "constraint"
+    calls: list                 # block paths, in evaluation order inside the loop
+    walk: str                   # the loop port by port, for messages
+    zslots: dict = field(default_factory=dict)   # (path, port) -> (start, stop) of z in sig
+    zidx: list = field(default_factory=list)     # sig indices of all unknowns
+    residual: list = field(default_factory=list)  # (kind, a, b) per unknown element
+    names: list = field(default_factory=list)    # a name per unknown element
+    ws0: int = 0
+
+
+@dataclass
 class Layout:
     blocks: dict                # path -> BlockLayout
     n_x: int
     n_sig: int
     n_p: int
     n_modes: int
-    calls: list                 # schedule: list of block paths (output kernel calls)
-    loops: list                 # list of lists of nodes (empty when no loops)
+    calls: list                 # schedule: ("call", path) or ("loop", k)
+    loops: list                 # Loop
     graph: nx.DiGraph
     zero_slot: tuple
+    p_loop_tol: tuple = (0, 0)  # p indices of the loop atol and rtol
 
 
 def _out_size_spec(cls, name):
@@ -237,37 +254,43 @@ def build_layout(flat: Flat) -> Layout:
         for o, fts in bl.feedthrough.items():
             for i in fts:
                 g.add_edge(("in", bl.path, i), ("out", bl.path, o), kind="feedthrough")
+        for o, (i, _guess) in getattr(bl.cls, "implicit", {}).items():
+            g.add_edge(("in", bl.path, i), ("out", bl.path, o), kind="constraint")
     for (dp, dport), c in dst_seen.items():
         g.add_edge(("out", c.src[0], c.src[1]), ("in", dp, dport), kind="wire",
                    line=c.line, file=c.file)
 
-    loops = [sorted(comp) for comp in nx.strongly_connected_components(g) if len(comp) > 1]
-    if loops:
-        raise AlgebraicLoopError(describe_loops(g, loops) + "\nAlgebraic loops are not yet "
-                                 "supported: break the loop with a state (e.g. a small "
-                                 "first-order lag or an Integrator) or add inductance/inertia.",
-                                 file=next(iter(flat.blocks.values())).file)
+    comps = [c for c in nx.strongly_connected_components(g) if len(c) > 1]
+    for bl in info.values():
+        for o, (i, _g) in getattr(bl.cls, "implicit", {}).items():
+            if not any(("out", bl.path, o) in c for c in comps):
+                inst = flat.blocks[bl.path]
+                raise AlgebraicLoopError(
+                    f"input '{i}' does not depend on output '{o}': the constraint "
+                    f"{i}({o}) = 0 has nothing to solve (wire {o} into the blocks that "
+                    f"compute {i})", block=bl.path, file=inst.file, line=inst.line)
+    loops = [_make_loop(k, g, sorted(c), info, dst_seen) for k, c in enumerate(
+        sorted(comps, key=lambda c: sorted(c)[0]))]
+    node_loop = {n: lp for lp in loops for n in lp.nodes}
 
-    # schedule
-    order = list(nx.topological_sort(g))
-    valid, ready, calls = set(), set(), []
-    for node in order:
-        kind, path, port = node
-        bl = info[path]
-        if kind == "in":
+    # schedule over the condensation
+    cond = nx.condensation(g, scc=[set(lp.nodes) for lp in loops] + [
+        {n} for n in g.nodes if n not in node_loop])
+    valid, calls = set(), []
+    for cnode in nx.topological_sort(cond):
+        members = cond.nodes[cnode]["members"]
+        first = next(iter(members))
+        if first in node_loop:
+            lp = node_loop[first]
+            calls.append(("loop", lp.index))
+            valid.update(n for n in lp.nodes if n[0] == "out")
             continue
-        if port in bl.state_outputs or node in valid:
+        kind, path, port = first
+        if kind == "in" or port in info[path].state_outputs or first in valid:
             continue
-        for i in bl.inputs:
-            c = dst_seen.get((path, i))
-            if c is None or ("out", c.src[0], c.src[1]) in valid or \
-                    c.src[1] in info[c.src[0]].state_outputs:
-                ready.add((path, i))
-        calls.append(path)
-        for o in bl.outputs:
-            if o not in bl.state_outputs and all((path, i) in ready for i in bl.feedthrough[o]):
-                valid.add(("out", path, o))
-        assert node in valid, node
+        calls.append(("call", path))
+        _mark_valid(info[path], valid, dst_seen, info)
+        assert first in valid, first
 
     # offsets: states, signals (in first-call order), modes, parameters
     n_x = 0
@@ -279,7 +302,10 @@ def build_layout(flat: Flat) -> Layout:
         bl.states = offs
     n_sig = 0
     seen = set()
-    for path in calls + [p for p in info if p not in calls]:
+    call_paths = [c[1] for c in calls if c[0] == "call"]
+    for lp in loops:
+        call_paths += lp.calls
+    for path in call_paths + [p for p in info if p not in call_paths]:
         if path in seen:
             continue
         seen.add(path)
@@ -295,6 +321,15 @@ def build_layout(flat: Flat) -> Layout:
                    if (bl.path, i) not in dst_seen] + [0])
     zero_slot = ("sig", n_sig, n_sig + max_opt)
     n_sig += max_opt
+    from ..solver.newton import workspace_size
+    for lp in loops:
+        for path, port, kind in lp.tears:
+            pi = info[path].ports[("out", port)]
+            if kind == "signal":
+                lp.zslots[(path, port)] = (n_sig, n_sig + pi.size)
+                n_sig += pi.size
+            else:
+                lp.zslots[(path, port)] = pi.loc[1:]
     n_modes = 0
     n_p = 0
     for bl in info.values():
@@ -324,24 +359,113 @@ def build_layout(flat: Flat) -> Layout:
                 bl.input_src[i] = (zero_slot[0], zero_slot[1], zero_slot[1] + n)
                 continue
             src_loc = info[c.src[0]].ports[("out", c.src[1])].loc
+            zs = _tear_slot(loops, c.src[0], c.src[1])
+            if zs is not None:
+                src_loc = ("sig",) + zs
             s0, s1 = c.src[2], c.src[3]
             if s0 is not None:
                 a, b = _norm_slice(s0, s1, src_loc[2] - src_loc[1], c)
                 bl.input_src[i] = (src_loc[0], src_loc[1] + a, src_loc[1] + b)
             else:
                 bl.input_src[i] = src_loc
-    return Layout(info, n_x, n_sig, n_p, n_modes, calls, [], g, zero_slot)
+    for lp in loops:
+        for path, port, kind in lp.tears:
+            a, b = lp.zslots[(path, port)]
+            lp.zidx += list(range(a, b))
+            if kind == "signal":
+                o0 = info[path].ports[("out", port)].loc[1]
+                lp.residual += [("signal", a + k, o0 + k) for k in range(b - a)]
+                lp.names += [f"{path}.{port}" + (f"[{k}]" if b - a > 1 else "")
+                             for k in range(b - a)]
+            else:
+                f = info[path].cls.implicit[port][0]
+                arr, fa, fb = info[path].input_src[f]
+                lp.residual += [("constraint", fa + k, None) for k in range(fb - fa)]
+                lp.names += [f"{path}.{f}" + (f"[{k}]" if fb - fa > 1 else "")
+                             for k in range(fb - fa)]
+        lp.ws0 = n_sig
+        n_sig += workspace_size(len(lp.zidx))
+    p_tol = (n_p, n_p + 1)
+    n_p += 2
+    return Layout(info, n_x, n_sig, n_p, n_modes, calls, loops, g, zero_slot, p_tol)
+
+
+def _tear_slot(loops, path, port):
+    for lp in loops:
+        if (path, port) in lp.zslots and any(
+                t[0] == path and t[1] == port and t[2] == "signal" for t in lp.tears):
+            return lp.zslots[(path, port)]
+    return None
+
+
+def _mark_valid(bl, valid, dst_seen, info, known=()):
+    """After a call of ``bl``: mark each output whose feedthrough inputs are all ready."""
+    path = bl.path
+    ready = set()
+    for i in bl.inputs:
+        c = dst_seen.get((path, i))
+        src = None if c is None else ("out", c.src[0], c.src[1])
+        if c is None or src in valid or src in known or \
+                c.src[1] in info[c.src[0]].state_outputs:
+            ready.add(i)
+    for o in bl.outputs:
+        if o not in bl.state_outputs and all(i in ready for i in bl.feedthrough[o]):
+            valid.add(("out", path, o))
+
+
+def _choose_tears(sub):
+    """Greedy feedback set over output ports: tear the output with the largest
+    (in-degree x out-degree) inside the remaining cycles until none is left."""
+    sub = sub.copy()
+    tears = []
+    while True:
+        cyc = [c for c in nx.strongly_connected_components(sub) if len(c) > 1]
+        if not cyc:
+            return tears
+        cands = [n for c in cyc for n in c if n[0] == "out"]
+        best = max(cands, key=lambda n: (sub.in_degree(n) * sub.out_degree(n), n))
+        tears.append(best)
+        sub.remove_edges_from(list(sub.out_edges(best)))
+
+
+def _make_loop(k, g, nodes, info, dst_seen):
+    sub = g.subgraph(nodes).copy()
+    forced = [n for n in nodes if n[0] == "out" and n[2] in getattr(
+        info[n[1]].cls, "implicit", {})]
+    for n in forced:
+        sub.remove_edges_from(list(sub.out_edges(n)))
+    tears = forced + _choose_tears(sub)
+    for n in tears:
+        sub.remove_edges_from(list(sub.out_edges(n)))
+    valid = set()
+    known = set(tears)
+    calls = []
+    for node in nx.topological_sort(sub):
+        kind, path, port = node
+        if kind == "in" or node in valid or node in forced:
+            continue
+        calls.append(path)
+        # inputs fed from outside the loop are ready; so are torn signals
+        outside = {n for n in nodes}
+        _mark_valid(info[path], valid, dst_seen, info,
+                    known=known | {("out", c.src[0], c.src[1]) for c in dst_seen.values()
+                                   if ("out", c.src[0], c.src[1]) not in outside})
+    tear_list = [(n[1], n[2], "constraint" if n in forced else "signal") for n in tears]
+    return Loop(k, nodes, tear_list, calls, describe_loops(g, [nodes]))
 
 
 def describe_loops(g, loops):
-    """Walk each loop port by port (``a.y -> b.u (feedthrough) -> b.y -> ...``)."""
+    """Walk each loop port by port: ``a.y -> b.u => b.y -> a.u => a.y`` (``->`` a wire,
+    ``=>`` a block's direct feedthrough)."""
     lines = []
-    for k, comp in enumerate(loops):
+    for comp in loops:
         sub = g.subgraph(comp)
         cycle = nx.find_cycle(sub)
-        steps = [f"{u[1]}.{u[2]}" for u, v in cycle]
-        lines.append(f"algebraic loop {k + 1} ({len(comp)} ports): " + " -> ".join(
-            steps + [steps[0]]))
+        text = f"{cycle[0][0][1]}.{cycle[0][0][2]}"
+        for u, v in cycle:
+            arrow = "->" if g.edges[u, v].get("kind") == "wire" else "=>"
+            text += f" {arrow} {v[1]}.{v[2]}"
+        lines.append(f"{len(comp)} ports: {text}")
     return "\n".join(lines)
 
 
@@ -349,25 +473,25 @@ def jacobian_sparsity(layout: Layout):
     """Boolean (n_x, n_x) pattern: which states can move each state's derivative."""
     info = layout.blocks
     g = layout.graph
-    # states each output depends on: own states for computed outputs, plus ft inputs' deps
-    deps = {}
-    for node in nx.topological_sort(g):
-        kind, path, port = node
-        bl = info[path]
-        if kind == "in":
-            preds = list(g.predecessors(node))
-            deps[node] = set().union(*(deps[p] for p in preds)) if preds else set()
-        else:
-            own = set()
-            if port in bl.state_outputs:
-                a, b = bl.states[port]
-                own = set(range(a, b))
-            else:
+    # states each port depends on, component by component of the condensation (a loop is
+    # one component: each of its ports depends on everything the loop reads)
+    cond = nx.condensation(g)
+    comp_deps = {}
+    for c in nx.topological_sort(cond):
+        d = set()
+        for node in cond.nodes[c]["members"]:
+            kind, path, port = node
+            bl = info[path]
+            if kind == "out" and port in bl.state_outputs:
+                d.update(range(*bl.states[port]))
+            elif kind == "out":
                 for a, b in bl.states.values():
-                    own.update(range(a, b))
-                for i in bl.feedthrough[port]:
-                    own |= deps[("in", path, i)]
-            deps[node] = own
+                    d.update(range(a, b))
+        for pred in cond.predecessors(c):
+            d |= comp_deps[pred]
+        comp_deps[c] = d
+    mapping = cond.graph["mapping"]
+    deps = {node: comp_deps[mapping[node]] for node in g.nodes}
     pattern = np.zeros((layout.n_x, layout.n_x), dtype=bool)
     for bl in info.values():
         cols = set()

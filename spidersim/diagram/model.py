@@ -19,6 +19,9 @@ from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
 from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
 
+#: loop residual tolerances are this fraction of the integrator's atol and rtol
+LOOP_TOL_FACTOR = 1e-3
+
 DEFAULTS = {"t_end": 1.0, "method": "LSODA", "rtol": 1e-6, "atol": 1e-8, "max_step": np.inf,
             "output_interval": None, "first_step": None}
 
@@ -173,6 +176,29 @@ class Diagram:
                 m0[a:b] = bl.cls.initial_value(bl.cls.modes[m], b - a, bl.params)
         return m0
 
+    def initial_signals(self):
+        """Signal array at start: zeros, with the initial guesses of constraint unknowns."""
+        sig = np.zeros(self.layout.n_sig)
+        for lp in self.layout.loops:
+            for path, port, kind in lp.tears:
+                if kind == "constraint":
+                    bl = self.layout.blocks[path]
+                    a, b = lp.zslots[(path, port)]
+                    guess = bl.cls.implicit[port][1]
+                    sig[a:b] = np.broadcast_to(np.ravel(bl.params[guess]), (b - a,))
+        return sig
+
+    def loop_info(self):
+        """What the solver needs to report a loop failure, per loop."""
+        from ..solver.newton import WS_HEAD
+        out = []
+        for lp in self.layout.loops:
+            n = len(lp.zidx)
+            out.append({"index": lp.index, "walk": lp.walk, "names": lp.names,
+                        "tears": [f"{p}.{q}" for p, q, _ in lp.tears], "ws0": lp.ws0,
+                        "n": n, "r0": lp.ws0 + WS_HEAD + n * n + n})
+        return out
+
     # ------------------------------------------------------------------ compile & run
     def source(self, jit=True):
         """The generated module text."""
@@ -205,7 +231,11 @@ class Diagram:
         sig_names.sort(key=lambda r: r[1])
         system = CompiledSystem(mod, self.initial_state(), self.p.copy(), self.initial_modes(),
                                 L.n_sig, self._log, sig_names, x_names,
-                                jacobian_sparsity(L) if L.n_x else None)
+                                jacobian_sparsity(L) if L.n_x else None,
+                                sig0=self.initial_signals(), loops=self.loop_info())
+        a, r = L.p_loop_tol
+        system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
+        system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]
         system.structure_key = key
         return system
 
@@ -222,6 +252,9 @@ class Diagram:
             if v is not None:
                 cfg[k] = v
         system = self.compile(jit)
+        a, r = self.layout.p_loop_tol
+        system.p[a] = LOOP_TOL_FACTOR * cfg["atol"]
+        system.p[r] = LOOP_TOL_FACTOR * cfg["rtol"]
         stats = {"diagram": self.spec.name, "jit": jit, "compile_time": self._compile_time,
                  "structure_key": system.structure_key}
         return integrate(system, cfg["t_end"], method=cfg["method"], rtol=cfg["rtol"],
@@ -245,9 +278,16 @@ class Diagram:
         for name, arr, a, b, unit in self._signal_table():
             lines.append(f"    {name} [{unit}] size {b - a}" + ("  (state)" if arr == "x"
                                                                   else ""))
-        lines.append(f"  schedule ({len(L.calls)} output calls):")
-        lines.append("    " + " -> ".join(L.calls) if L.calls else "    (none)")
-        lines.append("  algebraic loops: none")
+        lines.append(f"  schedule ({len(L.calls)} items):")
+        lines.append("    " + " -> ".join(p if k == "call" else f"[loop {p + 1}]"
+                                          for k, p in L.calls) if L.calls else "    (none)")
+        if not L.loops:
+            lines.append("  algebraic loops: none")
+        for lp in L.loops:
+            lines.append(f"  algebraic loop {lp.index + 1}: {lp.walk}")
+            lines.append(f"    tear variables: " + ", ".join(
+                f"{p}.{q}" + (" (constraint)" if k == "constraint" else "")
+                for p, q, k in lp.tears) + f"; inner calls: {' -> '.join(lp.calls)}")
         return "\n".join(lines)
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 from scipy.sparse import csr_matrix
 
-from ..errors import IntegrationError, SpidersimError
+from ..errors import AlgebraicLoopError, IntegrationError, SpidersimError
 from .result import Result
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
@@ -130,6 +130,12 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     def fail(msg, t, x):
         st["t_reached"] = t
         st["wall_time"] = time.perf_counter() - wall0
+        st["newton_iterations"] = system.newton_iterations()
+        loop = system.loop_failure(t, x)
+        if loop:
+            err = AlgebraicLoopError(loop)
+            err.partial = rec.result(events, st, "failed", loop)
+            raise err
         why = system.diagnose(t, x) if x is not None else ""
         full = f"integration failed at t = {t:.9g} s: {msg}" + (f"; {why}" if why else "")
         raise IntegrationError(full, partial=rec.result(events, st, "failed", full))
@@ -194,6 +200,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if output_interval is not None and (not rec.n or rec.t[-1] < t_end * (1 - 1e-12)):
         rec.add(t_end, x)
     st["t_reached"] = t
+    st["newton_iterations"] = system.newton_iterations()
     st["samples"] = rec.n
     st["wall_time"] = time.perf_counter() - wall0
     return rec.result(events, st)

@@ -79,7 +79,7 @@ class Result:
         if self.message:
             lines.append(f"message: {self.message}")
         keys = ["diagram", "method", "rtol", "atol", "max_step", "t_end", "t_reached", "steps",
-                "rejected_or_restarts", "rhs_calls", "jacobian_calls", "lu_decompositions",
+                "rhs_calls", "newton_iterations", "jacobian_calls", "lu_decompositions",
                 "time_events", "events", "samples", "compile_time", "from_cache", "wall_time",
                 "jit", "structure_key"]
         for k in keys:

@@ -38,13 +38,14 @@ class CompiledSystem:
     """
 
     def __init__(self, module, x0, p, modes0, n_sig, log, sig_names, x_names,
-                 jac_sparsity=None):
+                 jac_sparsity=None, sig0=None, loops=()):
         self.module = module
         self.n_x = len(x0)
         self.x0 = np.ascontiguousarray(x0, dtype=float)
         self.p = np.ascontiguousarray(p, dtype=float)
         self.modes = np.array(modes0, dtype=float)
-        self.sig = np.zeros(n_sig)
+        self.sig = np.zeros(n_sig) if sig0 is None else np.array(sig0, dtype=float)
+        self.loops = list(loops)
         self.sig_names = sig_names
         self.x_names = x_names
         self.jac_sparsity = jac_sparsity
@@ -121,6 +122,38 @@ class CompiledSystem:
         sig, p_, modes = self.sig, self.p, self.modes
         self.rhs = lambda t, x: rhs(t, x, sig, p_, modes)
         self._record = rec
+
+    def newton_iterations(self):
+        """Newton iterations over all loops since the start (0 without loops)."""
+        from .newton import WS_TOTAL
+        return int(sum(self.sig[lp["ws0"] + WS_TOTAL] for lp in self.loops))
+
+    def loop_failure(self, t, x):
+        """Message of the first loop whose Newton solve fails at (t, x), or ''."""
+        from .newton import WS_ITERS, WS_STATUS
+        if not self.loops:
+            return ""
+        with np.errstate(all="ignore"):
+            self.outputs(t, x)
+        for lp in self.loops:
+            ws0 = lp["ws0"]
+            status = int(self.sig[ws0 + WS_STATUS])
+            if status == 0:
+                continue
+            why = {1: "did not converge", 2: "produced a non-finite residual",
+                   3: "has a singular Jacobian"}.get(status, "failed")
+            r = self.sig[lp["r0"]:lp["r0"] + lp["n"]]
+            res = "; ".join(f"{nm}: {v:.3g}" for nm, v in zip(lp["names"], r))
+            advice = {1: "check that the loop has a solution near the last one (a jump of an "
+                         "input may need a smaller max_step), or add a small lag to break it",
+                      2: "a block in the loop divides by zero or overflows for these values",
+                      3: "the unknowns do not influence the residual (a saturated or "
+                         "constant path): the loop has no unique solution here"}.get(status, "")
+            return (f"algebraic loop {lp['index'] + 1} {why} at t = {t:.9g} s after "
+                    f"{int(self.sig[ws0 + WS_ITERS])} Newton iterations.\n"
+                    f"  loop: {lp['walk']}\n  unknowns (tear variables): "
+                    f"{', '.join(lp['tears'])}\n  residuals: {res}\n  advice: {advice}")
+        return ""
 
     def diagnose(self, t, x):
         """Name the first non-finite signal (schedule order) or state derivative."""
