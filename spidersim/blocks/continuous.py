@@ -1,7 +1,7 @@
 """Linear continuous-time blocks: integrator, state space and transfer function."""
 import numpy as np
 
-from .base import Block, Dim, Param, Port, State
+from .base import Block, Dim, Event, Mode, Param, Port, State
 
 
 class Integrator(Block):
@@ -24,6 +24,61 @@ class Integrator(Block):
     def derivative(t, u, der_y):
         for i in range(der_y.size):
             der_y[i] = u[i]
+
+
+class LimitedIntegrator(Block):
+    """``dy/dt = u`` with ``lower <= y <= upper``: at a limit the state is *held* (mode
+    +1 / -1, derivative zero) until ``u`` turns back; reaching a limit and leaving it are
+    events. Nothing is clipped: at the reaching event the state is set to the limit it has
+    just crossed by at most the event-location tolerance.
+    """
+
+    category = "continuous"
+    parameters = {"x0": Param(0.0, doc="initial value"),
+                  "lower": Param(-1.0, doc="lower limit"), "upper": Param(1.0, doc="upper limit")}
+    inputs = {"u": Port(doc="rate")}
+    outputs = {"y": Port(doc="limited integral")}
+    states = {"y": State(initial="x0", doc="limited integral")}
+    modes = {"m": Mode(doc="-1 held at lower, 0 free, +1 held at upper")}
+    events = {"upper": Event(1, "y reaches the upper limit"),
+              "lower": Event(-1, "y reaches the lower limit"),
+              "leave": Event(0, "u turns back while held at a limit")}
+
+    @classmethod
+    def check(cls, params):
+        if not params["lower"] <= params["x0"] <= params["upper"]:
+            raise ValueError(f"x0 ({params['x0']}) must lie within [lower, upper] = "
+                             f"[{params['lower']}, {params['upper']}]")
+
+    @staticmethod
+    def derivative(t, u, m, der_y):
+        der_y[0] = u[0] if m[0] == 0.0 else 0.0
+
+    @staticmethod
+    def initialize(t, y, u, lower, upper, m):
+        if m[0] == 0.0:
+            if y[0] >= upper and u[0] > 0.0:
+                m[0] = 1.0
+            elif y[0] <= lower and u[0] < 0.0:
+                m[0] = -1.0
+
+    @staticmethod
+    def guard(t, y, u, lower, upper, m, zc):
+        free = m[0] == 0.0
+        zc[0] = y[0] - upper if free else -1.0
+        zc[1] = y[0] - lower if free else 1.0
+        zc[2] = 0.0 if free else u[0] * m[0]
+
+    @staticmethod
+    def on_event(t, which, direction, y, u, lower, upper, m):
+        if which == 0:
+            m[0] = 1.0
+            y[0] = upper
+        elif which == 1:
+            m[0] = -1.0
+            y[0] = lower
+        elif which == 2:
+            m[0] = 0.0
 
 
 def _ss_derivative(t, x, u, A, B, der_x):

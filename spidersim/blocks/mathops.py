@@ -1,5 +1,5 @@
 """Element-wise math: gain, sum with signs, product and quotient."""
-from .base import Block, Param, Port
+from .base import Block, Dim, Param, Port
 
 
 class Gain(Block):
@@ -110,3 +110,20 @@ class Product(_Nary):
     def output(t, u1, u2, y):
         for i in range(y.size):
             y[i] = u1[i] * u2[i]
+
+
+class AlgebraicConstraint(Block):
+    """Output ``z`` such that the input ``f`` is zero: ``f(z) = 0`` (Simulink's Algebraic
+    Constraint). Wire ``z`` into the blocks that compute ``f``: the engine closes the
+    implicit equation as an algebraic loop whose unknown is ``z`` and whose residual is
+    ``f``, solved by Newton from the guess ``z0`` (then from the last solution).
+    """
+
+    category = "math"
+    parameters = {"z0": Param(0.0, doc="initial guess (scalar or one per element)", shape="*")}
+    inputs = {"f": Port(size=Dim("len(z0)", lambda p: len(p["z0"])),
+                        doc="residual to drive to zero")}
+    outputs = {"z": Port(size=Dim("len(z0)", lambda p: len(p["z0"])),
+                         doc="solution of f(z) = 0")}
+    #: output -> (residual input, initial-guess parameter)
+    implicit = {"z": ("f", "z0")}

@@ -1,14 +1,31 @@
-"""Static nonlinearities: saturation and dead zone (continuous-time versions)."""
-from .base import Block, Param, Port
+"""Discontinuous static nonlinearities: saturation, dead zone, relay with hysteresis, switch.
+
+With ``zero_crossing: true`` (the default, as in Simulink) a block switches *mode* at its
+corners through zero-crossing events: between events its output is a smooth function of
+its input, so the integrator never steps across a corner, and the event is located to a
+tight time tolerance. With ``zero_crossing: false`` the output is computed directly (a
+corner inside a step is then left to the step-size control).
+
+Every mode block also has an ``initialize`` kernel: at the start and after every event
+(a step input may jump past a corner) it sets the mode from the current input.
+"""
+from .base import Block, Event, Mode, Param, Port
+
+_ZC = Param(True, kind="bool", doc="switch modes at the corners by zero-crossing events")
 
 
 class Saturation(Block):
-    """``y = min(max(u, lower), upper)`` element-wise."""
+    """``y = min(max(u, lower), upper)`` element-wise; mode per element -1 / 0 / +1
+    (at lower / linear / at upper)."""
 
     category = "nonlinear"
-    parameters = {"lower": Param(-1.0, doc="lower limit"), "upper": Param(1.0, doc="upper limit")}
+    parameters = {"lower": Param(-1.0, doc="lower limit"), "upper": Param(1.0, doc="upper limit"),
+                  "zero_crossing": _ZC}
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="limited input")}
+    modes = {"m": Mode(size="@u", doc="-1 at lower, 0 linear, +1 at upper")}
+    events = {"upper": Event(0, "u crosses the upper limit (per element: first of them)"),
+              "lower": Event(0, "u crosses the lower limit")}
 
     @classmethod
     def check(cls, params):
@@ -17,20 +34,58 @@ class Saturation(Block):
                              f"({params['upper']})")
 
     @staticmethod
-    def output(t, lower, upper, u, y):
+    def output(t, lower, upper, zero_crossing, u, m, y):
         for i in range(y.size):
-            v = u[i]
-            y[i] = lower if v < lower else (upper if v > upper else v)
+            if zero_crossing:
+                y[i] = upper if m[i] > 0.5 else (lower if m[i] < -0.5 else u[i])
+            else:
+                v = u[i]
+                y[i] = lower if v < lower else (upper if v > upper else v)
+
+    @staticmethod
+    def initialize(t, lower, upper, u, m):
+        for i in range(u.size):
+            m[i] = 1.0 if u[i] > upper else (-1.0 if u[i] < lower else 0.0)
+
+    @staticmethod
+    def guard(t, lower, upper, zero_crossing, u, zc):
+        # the element closest to a corner drives each guard
+        zc[0] = 1.0
+        zc[1] = 1.0
+        if zero_crossing:
+            best_u, best_l = 1e300, 1e300
+            for i in range(u.size):
+                if abs(u[i] - upper) < abs(best_u):
+                    best_u = u[i] - upper
+                if abs(u[i] - lower) < abs(best_l):
+                    best_l = u[i] - lower
+            zc[0] = best_u
+            zc[1] = best_l
+
+    @staticmethod
+    def on_event(t, which, direction, lower, upper, u, m):
+        for i in range(u.size):
+            m[i] = 1.0 if u[i] > upper else (-1.0 if u[i] < lower else 0.0)
+        # at the crossing u sits on the corner: the direction decides
+        for i in range(u.size):
+            if which == 0 and abs(u[i] - upper) <= 1e-9 * (1.0 + abs(upper)):
+                m[i] = 1.0 if direction > 0 else 0.0
+            if which == 1 and abs(u[i] - lower) <= 1e-9 * (1.0 + abs(lower)):
+                m[i] = -1.0 if direction < 0 else 0.0
 
 
 class DeadZone(Block):
-    """Dead zone: ``y = 0`` for ``start <= u <= end``, ``u - end`` above, ``u - start`` below."""
+    """Dead zone: ``y = 0`` for ``start <= u <= end``, ``u - end`` above, ``u - start`` below.
+    Mode per element -1 / 0 / +1 (below / inside / above)."""
 
     category = "nonlinear"
     parameters = {"start": Param(-0.5, doc="lower edge of the zone"),
-                  "end": Param(0.5, doc="upper edge of the zone")}
+                  "end": Param(0.5, doc="upper edge of the zone"), "zero_crossing": _ZC}
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="output")}
+    modes = {"m": Mode(size="@u", doc="-1 below, 0 inside, +1 above the zone")}
+    events = {"end": Event(0, "u crosses the upper edge"),
+              "start": Event(0, "u crosses the lower edge")}
 
     @classmethod
     def check(cls, params):
@@ -38,7 +93,122 @@ class DeadZone(Block):
             raise ValueError(f"start ({params['start']}) must not exceed end ({params['end']})")
 
     @staticmethod
-    def output(t, start, end, u, y):
+    def output(t, start, end, zero_crossing, u, m, y):
         for i in range(y.size):
             v = u[i]
-            y[i] = v - end if v > end else (v - start if v < start else 0.0)
+            if zero_crossing:
+                y[i] = v - end if m[i] > 0.5 else (v - start if m[i] < -0.5 else 0.0)
+            else:
+                y[i] = v - end if v > end else (v - start if v < start else 0.0)
+
+    @staticmethod
+    def initialize(t, start, end, u, m):
+        for i in range(u.size):
+            m[i] = 1.0 if u[i] > end else (-1.0 if u[i] < start else 0.0)
+
+    @staticmethod
+    def guard(t, start, end, zero_crossing, u, zc):
+        zc[0] = 1.0
+        zc[1] = 1.0
+        if zero_crossing:
+            best_e, best_s = 1e300, 1e300
+            for i in range(u.size):
+                if abs(u[i] - end) < abs(best_e):
+                    best_e = u[i] - end
+                if abs(u[i] - start) < abs(best_s):
+                    best_s = u[i] - start
+            zc[0] = best_e
+            zc[1] = best_s
+
+    @staticmethod
+    def on_event(t, which, direction, start, end, u, m):
+        for i in range(u.size):
+            m[i] = 1.0 if u[i] > end else (-1.0 if u[i] < start else 0.0)
+            if which == 0 and abs(u[i] - end) <= 1e-9 * (1.0 + abs(end)):
+                m[i] = 1.0 if direction > 0 else 0.0
+            if which == 1 and abs(u[i] - start) <= 1e-9 * (1.0 + abs(start)):
+                m[i] = -1.0 if direction < 0 else 0.0
+
+
+class Relay(Block):
+    """Relay with hysteresis: switches on when ``u`` rises through ``on_point``, off when it
+    falls through ``off_point`` (``off_point <= on_point``); ``y`` is ``on_value`` or
+    ``off_value``."""
+
+    category = "nonlinear"
+    parameters = {"on_point": Param(0.5, doc="switch-on threshold"),
+                  "off_point": Param(-0.5, doc="switch-off threshold"),
+                  "on_value": Param(1.0, doc="output when on"),
+                  "off_value": Param(0.0, doc="output when off"),
+                  "initially_on": Param(False, kind="bool", doc="state at the start between "
+                                                                 "the thresholds")}
+    inputs = {"u": Port(doc="input")}
+    outputs = {"y": Port(doc="relay output")}
+    modes = {"on": Mode(initial=lambda p: 1.0 if p["initially_on"] else 0.0,
+                        doc="1 when on")}
+    events = {"switch": Event(0, "u crosses the active threshold")}
+
+    @classmethod
+    def check(cls, params):
+        if params["off_point"] > params["on_point"]:
+            raise ValueError(f"off_point ({params['off_point']}) must not exceed on_point "
+                             f"({params['on_point']})")
+
+    @staticmethod
+    def output(t, on_value, off_value, on, y):
+        y[0] = on_value if on[0] > 0.5 else off_value
+
+    @staticmethod
+    def initialize(t, on_point, off_point, u, on):
+        if u[0] > on_point:
+            on[0] = 1.0
+        elif u[0] < off_point:
+            on[0] = 0.0
+
+    @staticmethod
+    def guard(t, on_point, off_point, u, on, zc):
+        zc[0] = u[0] - (off_point if on[0] > 0.5 else on_point)
+
+    @staticmethod
+    def on_event(t, which, direction, on):
+        if on[0] < 0.5 and direction > 0:
+            on[0] = 1.0
+        elif on[0] > 0.5 and direction < 0:
+            on[0] = 0.0
+
+
+class Switch(Block):
+    """``y = u1`` while ``u2 >= threshold``, else ``u3`` (Simulink's Switch); the control
+    input's crossings are events."""
+
+    category = "nonlinear"
+    parameters = {"threshold": Param(0.0, doc="threshold on the control input u2")}
+    inputs = {"u1": Port(size=None, doc="passed while u2 >= threshold"),
+              "u2": Port(doc="control input"),
+              "u3": Port(size=None, doc="passed while u2 < threshold")}
+    outputs = {"y": Port(size="@u1", feedthrough=("u1", "u2", "u3"), doc="selected input")}
+    modes = {"first": Mode(doc="1 while u1 is passed")}
+    events = {"switch": Event(0, "u2 crosses the threshold")}
+
+    @classmethod
+    def check_sizes(cls, params, sizes):
+        if sizes["u1"] != sizes["u3"]:
+            raise ValueError(f"u1 and u3 must have the same size, got {sizes['u1']} and "
+                             f"{sizes['u3']}")
+
+    @staticmethod
+    def output(t, u1, u3, first, y):
+        for i in range(y.size):
+            y[i] = u1[i] if first[0] > 0.5 else u3[i]
+
+    @staticmethod
+    def initialize(t, threshold, u2, first):
+        first[0] = 1.0 if u2[0] >= threshold else 0.0
+
+    @staticmethod
+    def guard(t, threshold, u2, zc):
+        zc[0] = u2[0] - threshold
+
+    @staticmethod
+    def on_event(t, which, direction, first):
+        first[0] = 1.0 if direction > 0 else 0.0

@@ -48,6 +48,7 @@ class BlockLayout:
     feedthrough: dict = field(default_factory=dict)  # output -> tuple of inputs
     state_outputs: set = field(default_factory=set)
     input_src: dict = field(default_factory=dict)    # input -> ("x"|"sig", start, stop)
+    guard_slice: tuple = (0, 0)                      # this block's events in the guard array
 
 
 @dataclass
@@ -78,6 +79,7 @@ class Layout:
     graph: nx.DiGraph
     zero_slot: tuple
     p_loop_tol: tuple = (0, 0)  # p indices of the loop atol and rtol
+    n_g: int = 0                # number of zero-crossing guards
 
 
 def _out_size_spec(cls, name):
@@ -332,9 +334,27 @@ def build_layout(flat: Flat) -> Layout:
                 lp.zslots[(path, port)] = pi.loc[1:]
     n_modes = 0
     n_p = 0
+    n_g = 0
     for bl in info.values():
+        ne = len(bl.cls.events)
+        if ne:
+            if not bl.states and not bl.cls.modes:
+                inst = flat.blocks[bl.path]
+                raise ParameterError(
+                    f"block type {bl.cls.type_name} declares events "
+                    f"({', '.join(bl.cls.events)}) but has no states or modes for them to "
+                    f"change", block=bl.path, file=inst.file, line=inst.line)
+            for k in ("guard", "on_event"):
+                if not bl.cls.has_kernel(k):
+                    raise RuntimeError(f"block type {bl.cls.type_name} declares events but "
+                                       f"has no '{k}' kernel")
+        bl.guard_slice = (n_g, n_g + ne)
+        n_g += ne
         for m, decl in bl.cls.modes.items():
-            n = bl.cls.size_of(decl.size, bl.params)
+            if isinstance(decl.size, str) and decl.size.startswith("@"):
+                n = bl.ports[("in", decl.size[1:])].size
+            else:
+                n = bl.cls.size_of(decl.size, bl.params)
             bl.modes[m] = (n_modes, n_modes + n)
             n_modes += n
         numeric = dict(bl.params)
@@ -387,7 +407,7 @@ def build_layout(flat: Flat) -> Layout:
         n_sig += workspace_size(len(lp.zidx))
     p_tol = (n_p, n_p + 1)
     n_p += 2
-    return Layout(info, n_x, n_sig, n_p, n_modes, calls, loops, g, zero_slot, p_tol)
+    return Layout(info, n_x, n_sig, n_p, n_modes, calls, loops, g, zero_slot, p_tol, n_g)
 
 
 def _tear_slot(loops, path, port):

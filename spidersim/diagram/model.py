@@ -91,7 +91,7 @@ class Diagram:
                 pi = bl.ports[("out", o)]
                 rows.append((f"{bl.path}.{o}", pi.loc[0], pi.loc[1], pi.loc[2], pi.unit))
             for s, (a, b) in bl.states.items():
-                if s not in bl.state_outputs:
+                if s not in bl.state_outputs and b > a and s not in bl.outputs:
                     rows.append((f"{bl.path}.{s}", "x", a, b, bl.cls.states[s].unit))
         by_port = {(r[0]): r for r in rows}
         for alias, (path, port, s0, s1) in self.flat.aliases.items():
@@ -190,13 +190,12 @@ class Diagram:
 
     def loop_info(self):
         """What the solver needs to report a loop failure, per loop."""
-        from ..solver.newton import WS_HEAD
         out = []
         for lp in self.layout.loops:
             n = len(lp.zidx)
             out.append({"index": lp.index, "walk": lp.walk, "names": lp.names,
                         "tears": [f"{p}.{q}" for p, q, _ in lp.tears], "ws0": lp.ws0,
-                        "n": n, "r0": lp.ws0 + WS_HEAD + n * n + n})
+                        "n": n})
         return out
 
     # ------------------------------------------------------------------ compile & run

@@ -26,6 +26,39 @@ METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau"
            "BDF": BDF}
 IMPLICIT = ("Radau", "BDF")
 MAX_EVENTS_AT_ONE_TIME = 1000
+#: chattering: this many events of one block inside the window below is an error
+CHATTER_COUNT = 50
+
+
+def crossed(g_old, g_new, direction):
+    """Which guards crossed zero in the allowed direction over a step.
+
+    A guard must be strictly on one side at the start of the step: one sitting at zero
+    (just fired) has to leave zero before it can fire again.
+    """
+    rising = (g_old < 0.0) & (g_new >= 0.0)
+    falling = (g_old > 0.0) & (g_new <= 0.0)
+    return np.flatnonzero(((direction >= 0) & rising) | ((direction <= 0) & falling))
+
+
+def locate(gfun, t_a, t_b, g_a, xtol):
+    """Time of the zero crossing of ``gfun`` in ``(t_a, t_b]``, on the far side.
+
+    ``brentq`` brackets the root to ``xtol``; the returned time is the first bracket point
+    where the guard has left the side it started on, so that the event is applied after
+    the crossing and cannot fire twice.
+    """
+    from scipy.optimize import brentq
+    g_b = gfun(t_b)
+    if g_b == 0.0 or np.sign(g_b) == np.sign(g_a):
+        return t_b
+    r = brentq(gfun, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
+    for _ in range(8):
+        g = gfun(r)
+        if g == 0.0 or np.sign(g) != np.sign(g_a) or r >= t_b:
+            return r
+        r = min(t_b, r + xtol)
+    return t_b
 
 
 class _Recorder:
@@ -120,6 +153,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
             fired = system.time_events(t, x, 1e-12 * max(1.0, abs(t)))
             events.extend((t, name, "time") for name in fired)
             st["time_events"] += len(fired)
+            system.initialize(t, x)
             n += 1
             if n > MAX_EVENTS_AT_ONE_TIME or not fired:
                 raise IntegrationError(
@@ -131,7 +165,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         st["t_reached"] = t
         st["wall_time"] = time.perf_counter() - wall0
         st["newton_iterations"] = system.newton_iterations()
-        loop = system.loop_failure(t, x)
+        loop = system.loop_failure()
         if loop:
             err = AlgebraicLoopError(loop)
             err.partial = rec.result(events, st, "failed", loop)
@@ -140,8 +174,62 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         full = f"integration failed at t = {t:.9g} s: {msg}" + (f"; {why}" if why else "")
         raise IntegrationError(full, partial=rec.result(events, st, "failed", full))
 
+    n_g = system.n_g
+    directions = np.array([d for _, _, d in system.event_table], dtype=float)
+    recent = {}
+    chatter_window = max(1e-9, 1e-6 * (t_end - t0))
+
+    def handle_state_events(solver, t_old, g_old):
+        """Locate and apply the earliest crossing of this step; return (t, x) or None."""
+        g_new = system.guards(solver.t, solver.y)
+        hits = crossed(g_old, g_new, directions)
+        if not len(hits):
+            return None
+        dense = solver.dense_output()
+        xtol = 1e-13 * max(1.0, abs(solver.t))
+        times = {}
+        for i in hits:
+            times[i] = locate(lambda s, i=i: system.guards(s, dense(s))[i], t_old, solver.t,
+                              g_old[i], xtol)
+        t_ev = min(times.values())
+        now = [i for i in hits if times[i] <= t_ev + 2 * xtol]
+        x_ev = dense(t_ev) if t_ev < solver.t else solver.y.copy()
+        if output_interval is not None:
+            record_grid(dense, t_old, t_ev)
+        else:
+            rec.add(t_ev, x_ev)
+        for i in sorted(now):
+            block, name, _d = system.event_table[i]
+            system.apply_event(t_ev, x_ev, int(i), np.sign(g_new[i] - g_old[i]) or 1.0)
+            events.append((float(t_ev), block, name))
+            q = recent.setdefault(block, [])
+            q.append(t_ev)
+            if len(q) > CHATTER_COUNT:
+                q.pop(0)
+            if len(q) == CHATTER_COUNT and q[-1] - q[0] <= chatter_window:
+                msg = (f"chattering: block '{block}' fired {CHATTER_COUNT} events ('{name}') "
+                       f"within {q[-1] - q[0]:.3g} s up to t = {t_ev:.9g} s (Zeno "
+                       f"behaviour); give the block a rest mode or threshold, or stop "
+                       f"the run earlier")
+                st["t_reached"] = t_ev
+                st["events"] = len(events)
+                rec.add(t_ev, x_ev)
+                raise IntegrationError(msg, partial=rec.result(events, st, "failed", msg),
+                                       block=block)
+        system.initialize(t_ev, x_ev)
+        return t_ev, x_ev
+
+    def record_grid(dense, t_a, t_b):
+        nonlocal grid_k
+        tk = grid_time(grid_k)
+        while tk <= t_b and tk <= t_end * (1 + 1e-12):
+            rec.add(tk, dense(tk))
+            grid_k += 1
+            tk = grid_time(grid_k)
+
     t = float(t0)
     x = system.x0.copy()
+    system.initialize(t, x)
     fire_due(t, x)
     rec.add(t, x)
     grid_k = 1
@@ -166,27 +254,38 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                 solver = cls(system.rhs, t, x, t_seg, **kw)
             except ValueError as exc:
                 fail(str(exc), t, x)
+            g_old = system.guards(t, x) if n_g else None
+            restarted = False
             while solver.status == "running":
                 t_old = solver.t
                 msg = solver.step()
                 if solver.status == "failed":
                     fail(msg or "solver failure", solver.t, solver.y)
                 st["steps"] += 1
+                if n_g:
+                    hit = handle_state_events(solver, t_old, g_old)
+                    if hit is not None:
+                        st["rhs_calls"] += int(solver.nfev)
+                        st["jacobian_calls"] += int(getattr(solver, "njev", 0))
+                        st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
+                        t, x = hit
+                        if not rec.add(t, x):
+                            fail("non-finite value after an event", t, x)
+                        restarted = True
+                        break
+                    g_old = system.guards(solver.t, solver.y)
                 if output_interval is None:
                     if not rec.add(solver.t, solver.y):
                         fail("non-finite value", solver.t, solver.y)
                 else:
                     if not np.all(np.isfinite(solver.y)):
                         fail("non-finite state", solver.t, solver.y)
-                    tk = grid_time(grid_k)
-                    if tk <= solver.t:
-                        dense = solver.dense_output()
-                        while tk <= solver.t and tk <= t_end * (1 + 1e-12):
-                            rec.add(tk, dense(tk) if tk < solver.t else solver.y)
-                            grid_k += 1
-                            tk = grid_time(grid_k)
+                    if grid_time(grid_k) <= solver.t:
+                        record_grid(solver.dense_output(), t_old, solver.t)
                 if progress is not None:
                     progress(solver.t)
+            if restarted:
+                continue
             st["rhs_calls"] += int(solver.nfev)
             st["jacobian_calls"] += int(getattr(solver, "njev", 0))
             st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
@@ -200,6 +299,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if output_interval is not None and (not rec.n or rec.t[-1] < t_end * (1 - 1e-12)):
         rec.add(t_end, x)
     st["t_reached"] = t
+    st["events"] = len(events)
     st["newton_iterations"] = system.newton_iterations()
     st["samples"] = rec.n
     st["wall_time"] = time.perf_counter() - wall0

@@ -11,12 +11,17 @@ a function ``solve(t, x, sig, p, modes)`` that:
 3. otherwise takes a Newton step ``J dz = -r`` with the finite-difference Jacobian
    ``J[:, j] = (r(z + h e_j) - r(z)) / h``, ``h = sqrt(eps) max(|z_j|, 1)``, kept between
    calls (a chord iteration, as Radau does) and refreshed when the convergence rate
-   ``|r_new| / |r_old|`` exceeds 0.5 or a step fails;
+   ``|r_new| / |r_old|`` exceeds 0.1 (linear loops keep theirs) or a step fails;
 4. damps: halves the step up to 6 times while the residual norm grows;
 5. gives up after ``maxit`` iterations, reporting instead of raising: the workspace holds
    the status (0 converged, 1 no convergence, 2 non-finite residual, 3 singular Jacobian),
    the iteration count and the residual; the unknowns are set to NaN so the integrator
-   rejects the step, and the caller walks the loop to explain it.
+   rejects the step. The last failure (status, time, iterations, residuals) stays in the
+   workspace, so that when the integration fails the caller can walk the loop to explain it.
+
+Convergence is also accepted when a Newton step is at round-off level
+(``|dz_i| <= 1e-13 (1 + |z_i|)``): the residual tolerance can sit below what floating point
+resolves for the terms of the residual.
 
 Everything lives in the flat arrays: the workspace is a slice of ``sig`` (Jacobian, LU
 pivots, residuals, last good values, status), the tolerances two entries of ``p``.
@@ -25,12 +30,17 @@ from __future__ import annotations
 
 import math
 
-WS_STATUS, WS_ITERS, WS_NORM, WS_JVALID, WS_TOTAL = range(5)
-WS_HEAD = 5
+WS_STATUS, WS_ITERS, WS_NORM, WS_JVALID, WS_TOTAL, WS_FAIL, WS_FAIL_T, WS_FAIL_ITERS = range(8)
+WS_HEAD = 8
 
 
 def workspace_size(n):
     """Length of a loop's workspace in ``sig`` for ``n`` unknowns."""
+    return WS_HEAD + n * n + 6 * n
+
+
+def fail_residual_offset(n):
+    """Offset in the workspace of the residuals saved at the last failure."""
     return WS_HEAD + n * n + 5 * n
 
 
@@ -94,6 +104,7 @@ def {name}(t, x, sig, p, modes):
     r2 = ws[{oR2}:{oR2} + n]
     dz = ws[{oD}:{oD} + n]
     zgood = ws[{oG}:{oG} + n]
+    rfail = ws[{oF}:{oF} + n]
     atol = p[{p_atol}]
     rtol = p[{p_rtol}]
     for i in range(n):
@@ -118,7 +129,7 @@ def {name}(t, x, sig, p, modes):
         if nrm <= 1.0:
             status = 0.0
             break
-        if ws[{jv}] < 0.5 or (it > 0 and nrm > 0.5 * old):
+        if ws[{jv}] < 0.5 or (it > 0 and nrm > 0.1 * old):
             for j in range(n):
                 zj = sig[zi[j]]
                 h = 1.4901161193847656e-08 * max(abs(zj), 1.0)
@@ -135,6 +146,17 @@ def {name}(t, x, sig, p, modes):
         for i in range(n):
             dz[i] = -r[i]
         lu_solve(J, piv, dz)
+        tiny = True
+        for i in range(n):
+            if abs(dz[i]) > 1e-13 * (1.0 + abs(sig[zi[i]])):
+                tiny = False
+        if tiny and ws[{jv}] > 0.5:
+            for i in range(n):
+                sig[zi[i]] += dz[i]
+            {resfn}(t, x, sig, p, modes, r)
+            status = 0.0
+            it += 1
+            break
         n0 = 0.0
         for i in range(n):
             n0 += r[i] * r[i]
@@ -162,6 +184,11 @@ def {name}(t, x, sig, p, modes):
             zgood[i] = sig[zi[i]]
     else:
         ws[{nm}] = nrm
+        ws[{fs}] = status
+        ws[{ft}] = t
+        ws[{fi}] = it
+        for i in range(n):
+            rfail[i] = r[i]
         ws[{jv}] = 0.0
         for i in range(n):
             sig[zi[i]] = math.nan
@@ -174,10 +201,11 @@ def newton_source(name, resfn, index, zidx, ws0, p_atol, p_rtol, maxit=30):
     n = len(zidx)
     oJ = WS_HEAD
     oP = oJ + n * n
-    oR, oR2, oD, oG = oP + n, oP + 2 * n, oP + 3 * n, oP + 4 * n
+    oR, oR2, oD, oG, oF = oP + n, oP + 2 * n, oP + 3 * n, oP + 4 * n, oP + 5 * n
     return _TEMPLATE.format(
         name=name, resfn=resfn, index=index, n=n,
         zidx="(" + "".join(f"{int(i)}, " for i in zidx) + ")",
-        ws0=ws0, ws1=ws0 + workspace_size(n), oJ=oJ, oP=oP, oR=oR, oR2=oR2, oD=oD, oG=oG,
+        ws0=ws0, ws1=ws0 + workspace_size(n), oJ=oJ, oP=oP, oR=oR, oR2=oR2, oD=oD, oG=oG, oF=oF,
+        fs=WS_FAIL, ft=WS_FAIL_T, fi=WS_FAIL_ITERS,
         p_atol=p_atol, p_rtol=p_rtol, maxit=maxit, jv=WS_JVALID, st=WS_STATUS, its=WS_ITERS,
         tot=WS_TOTAL, nm=WS_NORM)

@@ -10,9 +10,13 @@ Contract (what :func:`spidersim.solver.integrate.integrate` needs)
 4. ``record_row(t, x, buf, row) -> bool``: outputs at (t, x), logged values written into
    ``buf[row]``; False when the state or a logged value is not finite. ``record_size``,
    ``record_names``, ``record_slices`` (name -> (start, stop)) and ``units`` describe a row.
-5. ``diagnose(t, x) -> str``: which signal or state derivative is not finite, in schedule
+5. ``n_g``, ``event_table`` (list of (block, event name, direction)), ``guards(t, x) -> g``
+   (a new array of the zero-crossing functions) and ``apply_event(t, x, k, direction)``
+   (applies event ``k`` in place on ``x`` and ``modes``); ``initialize(t, x)`` lets blocks
+   set modes consistent with their inputs, at the start and after every event.
+6. ``diagnose(t, x) -> str``: which signal or state derivative is not finite, in schedule
    order, for error messages.
-6. ``jac_sparsity``: ``None`` or an (n_x, n_x) boolean pattern for the implicit methods.
+7. ``jac_sparsity``: ``None`` or an (n_x, n_x) boolean pattern for the implicit methods.
 """
 from __future__ import annotations
 
@@ -50,6 +54,9 @@ class CompiledSystem:
         self.x_names = x_names
         self.jac_sparsity = jac_sparsity
         self.timed = list(module.TIMED)
+        self.event_table = list(module.EVENTS)
+        self.n_g = len(self.event_table)
+        self._g = np.zeros(max(1, self.n_g))
         self._fired = np.zeros(max(1, len(self.timed)), dtype=np.int64)
         x_idx, s_idx, names, slices, units = [], [], [], {}, {}
         k = 0
@@ -97,6 +104,17 @@ class CompiledSystem:
         self.module.time_events(t, x, self.sig, self.p, self.modes, tol, self._fired)
         return [self.timed[k] for k in np.flatnonzero(self._fired[:len(self.timed)])]
 
+    def guards(self, t, x):
+        self.module.guards(t, x, self.sig, self.p, self.modes, self._g)
+        return self._g[:self.n_g].copy()
+
+    def initialize(self, t, x):
+        """Let blocks make their modes consistent with their inputs (start, after events)."""
+        self.module.initialize(t, x, self.sig, self.p, self.modes)
+
+    def apply_event(self, t, x, k, direction):
+        self.module.apply_event(t, x, self.sig, self.p, self.modes, k, float(direction))
+
     def warm_up(self):
         """Call every compiled function once (this is when numba compiles or loads)."""
         x = self.x0.copy()
@@ -108,6 +126,9 @@ class CompiledSystem:
         self._bind_entry_points()
         fired = np.zeros_like(self._fired)
         self.module.time_events(-np.inf, x, self.sig, self.p, self.modes, 0.0, fired)
+        self.guards(0.0, x)
+        self.initialize(0.0, x)
+        self.module.apply_event(0.0, x, self.sig, self.p, self.modes, -1, 1.0)
         self.modes[:] = modes
 
     def _bind_entry_points(self):
@@ -128,32 +149,37 @@ class CompiledSystem:
         from .newton import WS_TOTAL
         return int(sum(self.sig[lp["ws0"] + WS_TOTAL] for lp in self.loops))
 
-    def loop_failure(self, t, x):
-        """Message of the first loop whose Newton solve fails at (t, x), or ''."""
-        from .newton import WS_ITERS, WS_STATUS
-        if not self.loops:
-            return ""
-        with np.errstate(all="ignore"):
-            self.outputs(t, x)
+    def loop_failure(self):
+        """Report of the most recent failed Newton solve of any loop, or ''.
+
+        Failures during rejected trial steps are normal; this is read only once the
+        integration itself has failed.
+        """
+        from .newton import WS_FAIL, WS_FAIL_ITERS, WS_FAIL_T, fail_residual_offset
+        worst = None
         for lp in self.loops:
             ws0 = lp["ws0"]
-            status = int(self.sig[ws0 + WS_STATUS])
-            if status == 0:
-                continue
-            why = {1: "did not converge", 2: "produced a non-finite residual",
-                   3: "has a singular Jacobian"}.get(status, "failed")
-            r = self.sig[lp["r0"]:lp["r0"] + lp["n"]]
-            res = "; ".join(f"{nm}: {v:.3g}" for nm, v in zip(lp["names"], r))
-            advice = {1: "check that the loop has a solution near the last one (a jump of an "
-                         "input may need a smaller max_step), or add a small lag to break it",
-                      2: "a block in the loop divides by zero or overflows for these values",
-                      3: "the unknowns do not influence the residual (a saturated or "
-                         "constant path): the loop has no unique solution here"}.get(status, "")
-            return (f"algebraic loop {lp['index'] + 1} {why} at t = {t:.9g} s after "
-                    f"{int(self.sig[ws0 + WS_ITERS])} Newton iterations.\n"
-                    f"  loop: {lp['walk']}\n  unknowns (tear variables): "
-                    f"{', '.join(lp['tears'])}\n  residuals: {res}\n  advice: {advice}")
-        return ""
+            status = int(self.sig[ws0 + WS_FAIL])
+            if status and (worst is None or self.sig[ws0 + WS_FAIL_T] >= worst[1]):
+                worst = (lp, self.sig[ws0 + WS_FAIL_T], status)
+        if worst is None:
+            return ""
+        lp, t, status = worst
+        ws0 = lp["ws0"]
+        why = {1: "did not converge", 2: "produced a non-finite residual",
+               3: "has a singular Jacobian"}.get(status, "failed")
+        r0 = ws0 + fail_residual_offset(lp["n"])
+        r = self.sig[r0:r0 + lp["n"]]
+        res = "; ".join(f"{nm} = {v:.3g}" for nm, v in zip(lp["names"], r))
+        advice = {1: "check that the loop has a solution near the last one (a jump of an "
+                     "input may need a smaller max_step), or break the loop with a small lag",
+                  2: "a block in the loop divides by zero or overflows for these values",
+                  3: "the unknowns do not influence the residual (a saturated or constant "
+                     "path): the loop has no unique solution here"}.get(status, "")
+        return (f"algebraic loop {lp['index'] + 1} {why} at t = {t:.9g} s after "
+                f"{int(self.sig[ws0 + WS_FAIL_ITERS])} Newton iterations.\n"
+                f"  loop: {lp['walk']}\n  unknowns (tear variables): "
+                f"{', '.join(lp['tears'])}\n  residuals: {res}\n  advice: {advice}")
 
     def diagnose(self, t, x):
         """Name the first non-finite signal (schedule order) or state derivative."""

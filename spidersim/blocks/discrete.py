@@ -1,0 +1,189 @@
+"""Sampled (discrete-time) blocks: zero-order hold, unit delay, discrete transfer function,
+discrete PI and PID.
+
+Each block samples at ``t_k = offset + k Ts`` through *time events*: the integrator stops
+exactly there, the block reads its input (computed at ``t_k``, after any upstream sampled
+block has updated at the same instant) and updates its discrete states; its output is held
+until the next sample. Outputs come from held values, so no output is direct feedthrough
+in continuous time.
+"""
+import math
+
+import numpy as np
+
+from .base import Block, Dim, Mode, Param, Port
+
+_TS = Param(doc="sample period", unit="s", gt=0.0)
+_OFF = Param(0.0, "s", "time of the first sample", ge=0.0)
+_K = Mode(doc="number of samples taken")
+
+
+
+class ZeroOrderHold(Block):
+    """``y(t) = u(t_k)`` for ``t_k <= t < t_k+1``."""
+
+    category = "discrete"
+    parameters = {"Ts": _TS, "offset": _OFF}
+    inputs = {"u": Port(size=None, doc="sampled input")}
+    outputs = {"y": Port(size="@u", doc="held sample")}
+    modes = {"held": Mode(size="@u", doc="last sample"), "k": _K}
+
+    @staticmethod
+    def output(t, held, y):
+        for i in range(y.size):
+            y[i] = held[i]
+
+    @staticmethod
+    def next_time(t, offset, Ts, k):
+        return offset + k[0] * Ts
+
+    @staticmethod
+    def time_event(t, u, held, k):
+        for i in range(u.size):
+            held[i] = u[i]
+        k[0] += 1.0
+
+
+class UnitDelay(Block):
+    """``y[k] = u[k-1]``, ``y[0] = x0``: the sample taken at ``t_k-1`` is output from ``t_k``."""
+
+    category = "discrete"
+    parameters = {"Ts": _TS, "offset": _OFF,
+                  "x0": Param(0.0, doc="initial output (scalar or per element)", shape="*")}
+    inputs = {"u": Port(size=None, doc="sampled input")}
+    outputs = {"y": Port(size="@u", doc="delayed sample")}
+    modes = {"held": Mode(size="@u", initial="x0", doc="output value"),
+             "last": Mode(size="@u", initial="x0", doc="sample to output next"), "k": _K}
+
+    @staticmethod
+    def output(t, held, y):
+        for i in range(y.size):
+            y[i] = held[i]
+
+    @staticmethod
+    def next_time(t, offset, Ts, k):
+        return offset + k[0] * Ts
+
+    @staticmethod
+    def time_event(t, u, held, last, k):
+        for i in range(u.size):
+            held[i] = last[i]
+            last[i] = u[i]
+        k[0] += 1.0
+
+
+class DiscreteTransferFunction(Block):
+    """``Y(z)/U(z) = num(z)/den(z)`` (coefficients in descending powers of z, as
+    ``control.tf(num, den, Ts)``), direct form II transposed, output held between samples."""
+
+    category = "discrete"
+    parameters = {"num": Param(doc="numerator, highest power of z first", shape="*"),
+                  "den": Param(doc="denominator, highest power of z first", shape="*"),
+                  "Ts": _TS, "offset": _OFF}
+    inputs = {"u": Port(doc="sampled input")}
+    outputs = {"y": Port(doc="held output")}
+    modes = {"s": Mode(size=Dim("len(den) - 1", lambda p: len(p["den"]) - 1),
+                       doc="direct-form-II-transposed states"),
+             "held": Mode(doc="last output"), "k": _K}
+
+    @classmethod
+    def check(cls, params):
+        if params["den"][0] == 0:
+            raise ValueError("the leading coefficient of 'den' must not be 0")
+        if len(params["num"]) > len(params["den"]):
+            raise ValueError("improper (non-causal) transfer function: num is longer than den")
+
+    @classmethod
+    def derive(cls, params):
+        den = params["den"] / params["den"][0]
+        b = np.zeros(len(den))
+        b[len(den) - len(params["num"]):] = params["num"] / params["den"][0]
+        return {"a_n": den, "b_n": b}
+
+    @staticmethod
+    def output(t, held, y):
+        y[0] = held[0]
+
+    @staticmethod
+    def next_time(t, offset, Ts, k):
+        return offset + k[0] * Ts
+
+    @staticmethod
+    def time_event(t, u, a_n, b_n, s, held, k):
+        n = s.size
+        yk = b_n[0] * u[0] + (s[0] if n > 0 else 0.0)
+        for i in range(n):
+            nxt = s[i + 1] if i + 1 < n else 0.0
+            s[i] = b_n[i + 1] * u[0] - a_n[i + 1] * yk + nxt
+        held[0] = yk
+        k[0] += 1.0
+
+
+_LIM = {"y_min": Param(-math.inf, doc="lower output limit"),
+        "y_max": Param(math.inf, doc="upper output limit"),
+        "I0": Param(0.0, doc="initial integral term (output units)")}
+
+
+class DiscretePI(Block):
+    """Sampled PI, forward-Euler integral (``C(z) = kp + ki Ts / (z - 1)``)::
+
+        y_k = sat(kp e_k + I_k),   I_k+1 = I_k + ki Ts e_k
+    except while the output is limited and ``e_k`` drives it further (clamping)."""
+
+    category = "discrete"
+    parameters = dict({"kp": Param(1.0, doc="proportional gain"),
+                       "ki": Param(0.0, doc="integral gain [1/s]"), "Ts": _TS,
+                       "offset": _OFF}, **_LIM)
+    inputs = {"e": Port(doc="control error")}
+    outputs = {"y": Port(doc="held command")}
+    modes = {"I": Mode(initial="I0", doc="integral term"), "held": Mode(doc="last output"),
+             "k": _K}
+
+    @staticmethod
+    def output(t, held, y):
+        y[0] = held[0]
+
+    @staticmethod
+    def next_time(t, offset, Ts, k):
+        return offset + k[0] * Ts
+
+    @staticmethod
+    def time_event(t, e, kp, ki, Ts, y_min, y_max, I, held, k):
+        v = kp * e[0] + I[0]
+        held[0] = min(max(v, y_min), y_max)
+        if not ((v > y_max and e[0] > 0.0) or (v < y_min and e[0] < 0.0)):
+            I[0] += ki * Ts * e[0]
+        k[0] += 1.0
+
+
+class DiscretePID(Block):
+    """Sampled PID: ``y_k = sat(kp e_k + I_k + kd (e_k - e_k-1) / Ts)``, integral as in
+    DiscretePI (clamping)."""
+
+    category = "discrete"
+    parameters = dict({"kp": Param(1.0, doc="proportional gain"),
+                       "ki": Param(0.0, doc="integral gain [1/s]"),
+                       "kd": Param(0.0, doc="derivative gain [s]"), "Ts": _TS,
+                       "offset": _OFF}, **_LIM)
+    inputs = {"e": Port(doc="control error")}
+    outputs = {"y": Port(doc="held command")}
+    modes = {"I": Mode(initial="I0", doc="integral term"), "e_prev": Mode(doc="last error"),
+             "held": Mode(doc="last output"), "k": _K}
+
+    @staticmethod
+    def output(t, held, y):
+        y[0] = held[0]
+
+    @staticmethod
+    def next_time(t, offset, Ts, k):
+        return offset + k[0] * Ts
+
+    @staticmethod
+    def time_event(t, e, kp, ki, kd, Ts, y_min, y_max, I, e_prev, held, k):
+        d = kd * (e[0] - e_prev[0]) / Ts if k[0] > 0.5 else 0.0
+        v = kp * e[0] + I[0] + d
+        held[0] = min(max(v, y_min), y_max)
+        if not ((v > y_max and e[0] > 0.0) or (v < y_min and e[0] < 0.0)):
+            I[0] += ki * Ts * e[0]
+        e_prev[0] = e[0]
+        k[0] += 1.0

@@ -1,0 +1,72 @@
+"""Translational mechanics with impacts: a point mass above a hard stop.
+
+Sign convention: ``x`` is the height above the stop's reference, positive up; gravity
+``g`` acts along -x; ``f`` is an applied force along +x.
+"""
+from .base import Block, Event, Mode, Param, Port, State
+
+
+class MassOnStop(Block):
+    """Point mass falling on a hard stop at ``x_stop`` with restitution ``e``::
+
+        dx/dt = v,   m dv/dt = f - m g          (free)
+        v+ = -e v-                              (impact event when x falls through x_stop)
+
+    If the rebound speed ``e |v-|`` is below ``v_rest`` the mass comes to rest on the stop
+    (mode ``rest``: derivatives zero) and lifts off when ``f > m g`` again. With
+    ``v_rest = 0`` a bouncing mass shows the Zeno accumulation of impacts, which the
+    solver reports as chattering.
+    """
+
+    category = "mechanics"
+    parameters = {
+        "m": Param(1.0, "kg", "mass", gt=0.0),
+        "g": Param(9.81, "m/s2", "gravity along -x", ge=0.0),
+        "e": Param(0.8, "1", "coefficient of restitution", ge=0.0, le=1.0),
+        "x_stop": Param(0.0, "m", "position of the stop"),
+        "v_rest": Param(0.0, "m/s", "rebound speed below which the mass comes to rest",
+                        ge=0.0),
+        "x0": Param(1.0, "m", "initial position"),
+        "v0": Param(0.0, "m/s", "initial velocity"),
+    }
+    inputs = {"f": Port("N", optional=True, doc="applied force along +x")}
+    outputs = {"x": Port("m", doc="position"), "v": Port("m/s", doc="velocity")}
+    states = {"x": State("m", initial="x0", doc="position"),
+              "v": State("m/s", initial="v0", doc="velocity")}
+    modes = {"rest": Mode(doc="1 while resting on the stop")}
+    events = {"impact": Event(-1, "the mass reaches the stop"),
+              "lift_off": Event(1, "the net force lifts a resting mass")}
+
+    @classmethod
+    def check(cls, params):
+        if params["x0"] < params["x_stop"]:
+            raise ValueError(f"x0 ({params['x0']}) must not be below x_stop "
+                             f"({params['x_stop']})")
+
+    @staticmethod
+    def derivative(t, v, f, m, g, rest, der_x, der_v):
+        if rest[0] > 0.5:
+            der_x[0] = 0.0
+            der_v[0] = 0.0
+        else:
+            der_x[0] = v[0]
+            der_v[0] = f[0] / m - g
+
+    @staticmethod
+    def guard(t, x, f, m, g, x_stop, rest, zc):
+        resting = rest[0] > 0.5
+        zc[0] = 1.0 if resting else x[0] - x_stop
+        zc[1] = f[0] / m - g if resting else -1.0
+
+    @staticmethod
+    def on_event(t, which, direction, x, v, e, v_rest, x_stop, rest):
+        if which == 0:
+            v_new = -e * v[0]
+            if abs(v_new) <= v_rest:
+                rest[0] = 1.0
+                v[0] = 0.0
+                x[0] = x_stop
+            else:
+                v[0] = v_new
+        else:
+            rest[0] = 0.0
