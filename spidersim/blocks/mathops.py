@@ -1,4 +1,7 @@
-"""Element-wise math: gain, sum with signs, product and quotient."""
+"""Element-wise math: gain, sum with signs, product and quotient, functions, and the
+algebraic constraint."""
+import math
+
 from .base import Block, Dim, Param, Port
 
 
@@ -127,3 +130,47 @@ class AlgebraicConstraint(Block):
                          doc="solution of f(z) = 0")}
     #: output -> (residual input, initial-guess parameter)
     implicit = {"z": ("f", "z0")}
+
+
+_FUNCS = ("sin", "cos", "tan", "tanh", "atan", "exp", "log", "sqrt", "abs", "square")
+
+
+class Function(Block):
+    """``y = fn(u)`` element-wise, ``fn`` one of sin, cos, tan, tanh, atan, exp, log, sqrt,
+    abs, square. ``log`` and ``sqrt`` of values outside their domain give NaN, which the
+    solver reports with the block's name."""
+
+    category = "math"
+    parameters = {"fn": Param("tanh", kind="str", choices=_FUNCS, doc="the function")}
+    inputs = {"u": Port(size=None, doc="argument")}
+    outputs = {"y": Port(size="@u", feedthrough=("u",), doc="fn(u)")}
+
+    @classmethod
+    def derive(cls, params):
+        return {"code": float(_FUNCS.index(params["fn"]))}
+
+    @staticmethod
+    def output(t, code, u, y):
+        c = int(code)
+        for i in range(y.size):
+            v = u[i]
+            if c == 0:
+                y[i] = math.sin(v)
+            elif c == 1:
+                y[i] = math.cos(v)
+            elif c == 2:
+                y[i] = math.tan(v)
+            elif c == 3:
+                y[i] = math.tanh(v)
+            elif c == 4:
+                y[i] = math.atan(v)
+            elif c == 5:
+                y[i] = math.exp(v)
+            elif c == 6:
+                y[i] = math.log(v) if v > 0.0 else (-math.inf if v == 0.0 else math.nan)
+            elif c == 7:
+                y[i] = math.sqrt(v) if v >= 0.0 else math.nan
+            elif c == 8:
+                y[i] = abs(v)
+            else:
+                y[i] = v * v

@@ -70,3 +70,28 @@ class MassOnStop(Block):
                 v[0] = v_new
         else:
             rest[0] = 0.0
+
+
+class Inertia(Block):
+    """Rigid rotating inertia ``J dw/dt = tau``, ``dphi/dt = w``; the acceleration ``a`` is
+    an output with direct feedthrough of ``tau`` (what a rigid coupling closes a loop on).
+    Positive ``tau`` accelerates positively."""
+
+    category = "mechanics"
+    parameters = {"J": Param(1.0, "kg.m2", "moment of inertia", gt=0.0),
+                  "w0": Param(0.0, "rad/s", "initial speed"),
+                  "phi0": Param(0.0, "rad", "initial angle")}
+    inputs = {"tau": Port("N.m", doc="net torque on the inertia")}
+    outputs = {"w": Port("rad/s", doc="speed"), "phi": Port("rad", doc="angle"),
+               "a": Port("rad/s2", feedthrough=("tau",), doc="angular acceleration tau/J")}
+    states = {"w": State("rad/s", initial="w0", doc="speed"),
+              "phi": State("rad", initial="phi0", doc="angle")}
+
+    @staticmethod
+    def output(t, tau, J, a):
+        a[0] = tau[0] / J
+
+    @staticmethod
+    def derivative(t, w, tau, J, der_w, der_phi):
+        der_w[0] = tau[0] / J
+        der_phi[0] = w[0]

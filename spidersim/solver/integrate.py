@@ -30,6 +30,45 @@ MAX_EVENTS_AT_ONE_TIME = 1000
 CHATTER_COUNT = 50
 
 
+class _Clock:
+    """A system without states seen through one dummy state ``c' = 1``, so that diagrams of
+    sources and static blocks get the same stepping, events and dense output."""
+
+    n_x = 1
+    jac_sparsity = None
+
+    def __init__(self, system):
+        self._s = system
+        self.x0 = np.zeros(1)
+
+    def __getattr__(self, name):
+        return getattr(self._s, name)
+
+    def rhs(self, t, x):
+        return np.ones(1)
+
+    def outputs(self, t, x):
+        self._s.outputs(t, x[:0])
+
+    def record_row(self, t, x, buf, row):
+        return self._s.record_row(t, x[:0], buf, row)
+
+    def guards(self, t, x):
+        return self._s.guards(t, x[:0])
+
+    def apply_event(self, t, x, k, direction):
+        self._s.apply_event(t, x[:0], k, direction)
+
+    def initialize(self, t, x):
+        self._s.initialize(t, x[:0])
+
+    def time_events(self, t, x, tol):
+        return self._s.time_events(t, x[:0], tol)
+
+    def diagnose(self, t, x):
+        return self._s.diagnose(t, x[:0])
+
+
 def crossed(g_old, g_new, direction):
     """Which guards crossed zero in the allowed direction over a step.
 
@@ -131,6 +170,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         raise SpidersimError(f"output_interval must be in (0, {t_end - t0}], "
                              f"got {output_interval}")
     wall0 = time.perf_counter()
+    if system.n_x == 0:
+        system = _Clock(system)
+        if max_step == math.inf:
+            max_step = (t_end - t0) / 200
     cls = METHODS[method]
     kw = dict(rtol=rtol, atol=atol, max_step=max_step)
     if first_step is not None:
@@ -220,9 +263,11 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         return t_ev, x_ev
 
     def record_grid(dense, t_a, t_b):
+        """Grid points in [t_a, t_b): a point at an event time is recorded after the event
+        (signals are right-continuous)."""
         nonlocal grid_k
         tk = grid_time(grid_k)
-        while tk <= t_b and tk <= t_end * (1 + 1e-12):
+        while tk < t_b - 1e-12 * max(1.0, abs(t_b)):
             rec.add(tk, dense(tk))
             grid_k += 1
             tk = grid_time(grid_k)
@@ -238,64 +283,57 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         if t_seg <= t:
             t_seg = t_end
         st["segments"] += 1
-        if system.n_x == 0:
-            solver = None
-            t_new = t_seg
-            if output_interval is not None:
-                while grid_k < 1e15 and grid_time(grid_k) < t_seg - 1e-12 * abs(t_seg):
-                    rec.add(grid_time(grid_k), x)
-                    grid_k += 1
+        try:
+            solver = cls(system.rhs, t, x, t_seg, **kw)
+        except ValueError as exc:
+            fail(str(exc), t, x)
+        g_old = system.guards(t, x) if n_g else None
+        restarted = False
+        while solver.status == "running":
+            t_old = solver.t
+            msg = solver.step()
+            if solver.status == "failed":
+                fail(msg or "solver failure", solver.t, solver.y)
+            st["steps"] += 1
+            if n_g:
+                hit = handle_state_events(solver, t_old, g_old)
+                if hit is not None:
+                    st["rhs_calls"] += int(solver.nfev)
+                    st["jacobian_calls"] += int(getattr(solver, "njev", 0))
+                    st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
+                    t, x = hit
+                    if output_interval is None and not rec.add(t, x):
+                        fail("non-finite value after an event", t, x)
+                    restarted = True
+                    break
+                g_old = system.guards(solver.t, solver.y)
+            if output_interval is None:
+                if not rec.add(solver.t, solver.y):
+                    fail("non-finite value", solver.t, solver.y)
             else:
-                for tt in np.linspace(t, t_seg, 51)[1:-1]:
-                    rec.add(tt, x)
-            t = t_new
-        else:
-            try:
-                solver = cls(system.rhs, t, x, t_seg, **kw)
-            except ValueError as exc:
-                fail(str(exc), t, x)
-            g_old = system.guards(t, x) if n_g else None
-            restarted = False
-            while solver.status == "running":
-                t_old = solver.t
-                msg = solver.step()
-                if solver.status == "failed":
-                    fail(msg or "solver failure", solver.t, solver.y)
-                st["steps"] += 1
-                if n_g:
-                    hit = handle_state_events(solver, t_old, g_old)
-                    if hit is not None:
-                        st["rhs_calls"] += int(solver.nfev)
-                        st["jacobian_calls"] += int(getattr(solver, "njev", 0))
-                        st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
-                        t, x = hit
-                        if not rec.add(t, x):
-                            fail("non-finite value after an event", t, x)
-                        restarted = True
-                        break
-                    g_old = system.guards(solver.t, solver.y)
-                if output_interval is None:
-                    if not rec.add(solver.t, solver.y):
-                        fail("non-finite value", solver.t, solver.y)
-                else:
-                    if not np.all(np.isfinite(solver.y)):
-                        fail("non-finite state", solver.t, solver.y)
-                    if grid_time(grid_k) <= solver.t:
-                        record_grid(solver.dense_output(), t_old, solver.t)
-                if progress is not None:
-                    progress(solver.t)
-            if restarted:
-                continue
-            st["rhs_calls"] += int(solver.nfev)
-            st["jacobian_calls"] += int(getattr(solver, "njev", 0))
-            st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
-            t = solver.t
-            x = solver.y.copy()
-        if t >= t_end:
+                if not np.all(np.isfinite(solver.y)):
+                    fail("non-finite state", solver.t, solver.y)
+                if grid_time(grid_k) <= solver.t:
+                    record_grid(solver.dense_output(), t_old, solver.t)
+            if progress is not None:
+                progress(solver.t)
+        if restarted:
+            continue
+        st["rhs_calls"] += int(solver.nfev)
+        st["jacobian_calls"] += int(getattr(solver, "njev", 0))
+        st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
+        t = solver.t
+        x = solver.y.copy()
+        if t >= t_end and system.next_time(t) > t + 1e-12 * max(1.0, abs(t)):
             break
         fire_due(t, x)
         if output_interval is None:
             rec.add(t, x)
+        elif abs(grid_time(grid_k) - t) <= 1e-12 * max(1.0, abs(t)):
+            rec.add(t, x)
+            grid_k += 1
+        if t >= t_end:
+            break
     if output_interval is not None and (not rec.n or rec.t[-1] < t_end * (1 - 1e-12)):
         rec.add(t_end, x)
     st["t_reached"] = t

@@ -1,0 +1,225 @@
+"""Zero-crossing events, time events and sampled blocks."""
+import os
+
+import control as ct
+import numpy as np
+import pytest
+
+import spidersim
+from spidersim.blocks import REGISTRY, Block, Event, Param, Port
+from spidersim.errors import IntegrationError, ParameterError
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+BALL = os.path.join(ROOT, "diagrams", "bouncing_ball.yaml")
+
+
+def _impact_times(h0=10.0, e=0.8, g=9.81, n=10):
+    t1 = np.sqrt(2 * h0 / g)
+    v1 = g * t1
+    t = [t1]
+    for k in range(1, n):
+        t.append(t[-1] + 2 * e ** k * v1 / g)
+    return np.array(t)
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_bouncing_ball_impact_times_and_rest(jit):
+    r = spidersim.load(BALL).simulate(jit=jit)
+    impacts = np.array([t for t, blk, ev in r.events if ev == "impact"])
+    assert np.max(np.abs(impacts[:10] - _impact_times())) < 1e-9
+    # with v_rest = 0.05 m/s it comes to rest on the floor, not through it
+    assert r["ball.x"][-1] == 0.0 and r["ball.v"][-1] == 0.0
+    assert np.min(r["ball.x"]) > -1e-9
+    assert r.stats["events"] == len(r.events)
+
+
+def test_bouncing_ball_zeno_is_reported_as_chattering():
+    d = spidersim.load(BALL, set={"ball.v_rest": 0})
+    with pytest.raises(IntegrationError) as ei:
+        d.simulate(jit=False)
+    err = ei.value
+    assert "chattering" in str(err) and err.block == "ball" and "'impact'" in str(err)
+    t_zeno = np.sqrt(2 * 10 / 9.81) * (1 + 2 * 0.8 / 0.2)
+    assert abs(err.partial.t[-1] - t_zeno) < 1e-3
+    assert err.partial.status == "failed"
+
+
+def test_guard_must_leave_zero_before_firing_again():
+    """A Switch whose control input touches the threshold and stays there fires once."""
+    text = """
+blocks:
+  c:  {type: TimeTable, time: [0, 1, 2, 3], value: [-1, 0, 0, 1]}
+  a:  {type: Constant, value: 1}
+  b:  {type: Constant, value: -1}
+  sw: {type: Switch, threshold: 0}
+connections:
+  - a.y -> sw.u1
+  - c.y -> sw.u2
+  - b.y -> sw.u3
+"""
+    r = spidersim.loads(text).simulate(t_end=4, jit=False)
+    sw = [e for e in r.events if e[1] == "sw"]
+    assert len(sw) <= 1
+    assert r["sw.y"][r.t > 3.01].min() == 1.0 and r["sw.y"][r.t < 0.99].max() == -1.0
+
+
+def test_simultaneous_events_are_all_applied():
+    text = """
+blocks:
+  a: {type: MassOnStop, x0: 5, e: 0.5}
+  b: {type: MassOnStop, x0: 5, e: 0.5}
+"""
+    r = spidersim.loads(text).simulate(t_end=1.5, rtol=1e-10, atol=1e-12, jit=False)
+    first = [e for e in r.events if e[2] == "impact"][:2]
+    assert {e[1] for e in first} == {"a", "b"} and first[0][0] == first[1][0]
+    assert np.array_equal(r["a.x"], r["b.x"])
+
+
+def test_event_saturation_switches_exactly_at_the_corner():
+    text = """
+blocks:
+  u:   {type: Sine, amplitude: 2, f: 1}
+  sat: {type: Saturation, lower: -1, upper: 1}
+  x:   {type: Integrator}
+connections:
+  - u.y -> sat.u
+  - sat.y -> x.u
+simulation: {rtol: 1e-10, atol: 1e-12}
+"""
+    r = spidersim.loads(text).simulate(t_end=1.0, jit=False)
+    times = sorted(t for t, blk, ev in r.events if blk == "sat")
+    # 2 sin(2 pi t) = +-1 at t = 1/12, 5/12, 7/12, 11/12
+    assert np.allclose(times, [1 / 12, 5 / 12, 7 / 12, 11 / 12], atol=1e-9)
+    # integral of the saturated sine over one period is zero
+    assert abs(r["x.y"][-1]) < 1e-8
+
+
+def test_limited_integrator_holds_without_clipping():
+    text = """
+blocks:
+  u:  {type: Sine, amplitude: 1, f: 0.5}
+  li: {type: LimitedIntegrator, lower: -0.2, upper: 0.2}
+connections:
+  - u.y -> li.u
+simulation: {rtol: 1e-10, atol: 1e-12}
+"""
+    r = spidersim.loads(text).simulate(t_end=4.0, jit=False)
+    y = r["li.y"]
+    assert y.max() <= 0.2 + 1e-12 and y.min() >= -0.2 - 1e-12
+    # reaches the upper limit when (1 - cos(pi t)) / pi = 0.2, leaves when u turns at t = 1
+    t_hit = np.arccos(1 - 0.2 * np.pi) / np.pi
+    ev = [(t, e) for t, blk, e in r.events if blk == "li"]
+    assert abs(ev[0][0] - t_hit) < 1e-9 and ev[0][1] == "upper"
+    assert abs(ev[1][0] - 1.0) < 1e-9 and ev[1][1] == "leave"
+
+
+def test_relay_hysteresis():
+    text = """
+blocks:
+  u: {type: Sine, amplitude: 1, f: 1}
+  r: {type: Relay, on_point: 0.5, off_point: -0.5}
+connections:
+  - u.y -> r.u
+"""
+    r = spidersim.loads(text).simulate(t_end=1.0, jit=False)
+    ev = [t for t, blk, e in r.events if blk == "r"]
+    # on at sin = 0.5 (t = 1/12), off at sin = -0.5 (t = 7/12)
+    assert np.allclose(ev, [1 / 12, 7 / 12], atol=1e-9)
+
+
+def test_sampled_pi_equals_python_control_discrete_simulation():
+    tau, kp, ki, Ts = 0.05, 2.0, 30.0, 1e-3
+    d = spidersim.loads(f"""
+blocks:
+  ref: {{type: Step, t_step: 0, after: 1}}
+  err: {{type: Sum, signs: "+-"}}
+  pi: {{type: DiscretePI, kp: {kp}, ki: {ki}, Ts: {Ts}}}
+  plant: {{type: TransferFunction, num: [1], den: [{tau}, 1]}}
+connections:
+  - ref.y -> err.u1
+  - plant.y -> err.u2
+  - err.y -> pi.e
+  - pi.y -> plant.u
+simulation: {{t_end: 0.3, rtol: 1e-10, atol: 1e-12}}
+""")
+    r = d.simulate(jit=False)
+    G = ct.c2d(ct.tf([1], [tau, 1]), Ts, "zoh")
+    C = ct.tf([kp, ki * Ts - kp], [1, -1], Ts)       # kp + ki Ts / (z - 1)
+    n = 300
+    tk = np.arange(n) * Ts
+    ref = ct.forced_response(ct.feedback(G * C, 1), tk, np.ones(n)).outputs
+    # the sample instants are time events: each appears in r.t
+    idx = np.searchsorted(r.t, tk)
+    assert np.max(np.abs(r.t[idx] - tk)) < 1e-12
+    assert np.max(np.abs(r["plant.y"][idx] - ref)) < 1e-8
+    # samples at 0, Ts, ..., t_end inclusive (as Simulink takes the final sample)
+    assert sum(1 for e in r.events if e[1] == "pi") == n + 1
+
+
+def test_zoh_and_unit_delay_chain_updates_in_order():
+    text = """
+blocks:
+  u:   {type: Ramp, slope: 1}
+  zoh: {type: ZeroOrderHold, Ts: 0.1}
+  del: {type: UnitDelay, Ts: 0.1}
+connections:
+  - u.y -> zoh.u
+  - zoh.y -> del.u
+"""
+    r = spidersim.loads(text).simulate(t_end=1.0, output_interval=0.05, jit=False)
+    t = r.t
+    k = np.floor(t / 0.1 + 1e-9)
+    assert np.allclose(r["zoh.y"], 0.1 * k, atol=1e-12)
+    # the delay outputs the ZOH value of the previous sample
+    assert np.allclose(r["del.y"], 0.1 * np.maximum(k - 1, 0), atol=1e-12)
+
+
+def test_discrete_transfer_function_matches_control():
+    Ts = 0.01
+    num, den = [0.2, 0.1], [1, -1.2, 0.5]
+    r = spidersim.loads(f"""
+blocks:
+  u: {{type: Step, t_step: 0}}
+  h: {{type: DiscreteTransferFunction, num: {num}, den: {den}, Ts: {Ts}}}
+connections:
+  - u.y -> h.u
+""").simulate(t_end=0.5, output_interval=Ts, jit=False)
+    ref = ct.forced_response(ct.tf(num, den, Ts), np.arange(51) * Ts, np.ones(51)).outputs
+    # spidersim holds y_k from t_k on; sample just after each instant
+    assert np.max(np.abs(r["h.y"][:51] - ref)) < 1e-12
+
+
+class _NoStateEvent(Block, abstract=True):
+    """A malformed block: an event with nothing to reset."""
+
+    type_name = "_NoStateEvent"
+    inputs = {"u": Port()}
+    outputs = {"y": Port(feedthrough=("u",))}
+    events = {"cross": Event(0)}
+
+    @staticmethod
+    def output(t, u, y):
+        y[0] = u[0]
+
+    @staticmethod
+    def guard(t, u, zc):
+        zc[0] = u[0]
+
+    @staticmethod
+    def on_event(t, which, direction):
+        pass
+
+
+def test_event_in_block_without_states_is_rejected():
+    REGISTRY["_NoStateEvent"] = _NoStateEvent
+    try:
+        with pytest.raises(ParameterError) as ei:
+            spidersim.loads("""
+blocks:
+  u: {type: Sine}
+  b: {type: _NoStateEvent}
+connections: [u.y -> b.u]
+""")
+        assert ei.value.block == "b" and "no states or modes" in str(ei.value)
+    finally:
+        del REGISTRY["_NoStateEvent"]
