@@ -11,6 +11,12 @@ servo
     segments (the reference step at t = 0.01 s is a time event in spidersim). Target: compiled
     <= 1.5x hand-written (integration time, compile excluded). Compile time cold (empty numba
     and spidersim caches, in a fresh process) and from cache (second fresh process).
+loop
+    ``diagrams/algebraic_loop.yaml`` (``y = u - K y`` solved by Newton at every evaluation)
+    against the same equations solved by hand (a gain ``1/(1+K)``), both compiled, same
+    solver and tolerances. Target: overhead ratio <= 2.
+ball
+    ``diagrams/bouncing_ball.yaml`` with e = 0.95 through its first 100 impacts: wall time.
 """
 from __future__ import annotations
 
@@ -134,7 +140,67 @@ def bench_servo():
     print()
 
 
-BENCHES = {"servo": bench_servo}
+LOOP_HAND = """
+name: loop_by_hand
+parameters: {K: 3.0}
+blocks:
+  u:   {type: Sine, amplitude: 1, f: 1}
+  sol: {type: Gain, k: 1/(1+K)}          # y = u - K y solved by hand: y = u / (1 + K)
+  x:   {type: Integrator}
+connections:
+  - u.y -> sol.u
+  - sol.y -> x.u
+simulation: {t_end: 2.0, rtol: 1e-9, atol: 1e-12}
+"""
+
+
+def bench_loop():
+    """Newton-solved loop versus the same equations solved by hand, both compiled."""
+    import spidersim
+
+    print("== loop: diagrams/algebraic_loop.yaml (y = u - K y by Newton) vs y = u/(1+K) ==")
+    d_loop = spidersim.load(os.path.join(ROOT, "diagrams", "algebraic_loop.yaml"))
+    d_hand = spidersim.loads(LOOP_HAND)
+    for d in (d_loop, d_hand):
+        d.compile(jit=True)
+    b_loop, m_loop, r_loop = _best(lambda: d_loop.simulate(jit=True))
+    b_hand, m_hand, r_hand = _best(lambda: d_hand.simulate(jit=True))
+    err = np.max(np.abs(r_loop["x.y"][-1] - r_hand["x.y"][-1]))
+    print(f"{'variant':24s} {'best [ms]':>10s} {'median [ms]':>12s} {'steps':>7s} "
+          f"{'RHS calls':>10s} {'Newton it.':>11s}")
+    for name, b, m, r in (("Newton loop", b_loop, m_loop, r_loop),
+                          ("solved by hand", b_hand, m_hand, r_hand)):
+        print(f"{name:24s} {1e3 * b:10.2f} {1e3 * m:12.2f} {r.stats['steps']:7d} "
+              f"{r.stats['rhs_calls']:10d} {r.stats['newton_iterations']:11d}")
+    print(f"final x: |difference| {err:.2e}")
+    print(f"overhead ratio loop / by hand (target <= 2): {b_loop / b_hand:.2f}")
+    print()
+
+
+def bench_ball():
+    """Bouncing ball through its first 100 impacts (e = 0.95)."""
+    import spidersim
+
+    e, g, h0 = 0.95, 9.81, 10.0
+    t1 = np.sqrt(2 * h0 / g)
+    t100 = t1 + sum(2 * e ** k * g * t1 / g for k in range(1, 100))
+    d = spidersim.load(os.path.join(ROOT, "diagrams", "bouncing_ball.yaml"),
+                       set={"ball.e": e, "ball.v_rest": 0})
+    d.compile(jit=True)
+    t_end = t100 + 0.5 * 2 * e ** 100 * t1
+    best, med, r = _best(lambda: d.simulate(t_end=t_end, jit=True), repeat=5)
+    impacts = [t for t, b, ev in r.events if ev == "impact"]
+    print("== ball: diagrams/bouncing_ball.yaml with e = 0.95, first 100 impacts, DOP853 "
+          "1e-10/1e-12 ==")
+    print(f"impacts: {len(impacts)}; last at {impacts[-1]:.9f} s (closed form "
+          f"{t100:.9f} s, |diff| {abs(impacts[-1] - t100):.1e}); steps {r.stats['steps']}, "
+          f"RHS calls {r.stats['rhs_calls']}")
+    print(f"wall time: best {1e3 * best:.1f} ms, median {1e3 * med:.1f} ms "
+          f"({1e3 * best / len(impacts):.2f} ms per impact)")
+    print()
+
+
+BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball}
 
 
 def main(argv):
