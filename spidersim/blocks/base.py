@@ -207,6 +207,13 @@ class Block:
         return cls.outputs[name]
 
     @classmethod
+    def fallback_sizes(cls, params) -> dict:
+        """Input sizes to assume when wiring alone cannot decide them (a loop of blocks
+        that all inherit their size): input name -> size. Used only after propagation
+        along the wires has stalled, one port at a time."""
+        return {}
+
+    @classmethod
     def check_sizes(cls, params, sizes):
         """Validation once port sizes are known (``sizes``: port name -> int); raise
         ``ValueError`` with a message."""

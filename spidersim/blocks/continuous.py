@@ -14,6 +14,10 @@ class Integrator(Block):
     states = {"y": State(size="@u", initial="x0", doc="integral of u")}
 
     @classmethod
+    def fallback_sizes(cls, params):
+        return {"u": len(params["x0"])}
+
+    @classmethod
     def check_sizes(cls, params, sizes):
         n = len(params["x0"])
         if n not in (1, sizes["u"]):

@@ -170,6 +170,8 @@ def infer_sizes(flat: Flat):
                     f"size mismatch on '{c.text}': the source gives {width} element(s), "
                     f"input '{c.dst[0]}.{c.dst[1]}' expects {dpi.size}", file=c.file,
                     line=c.line)
+        if not changed:
+            changed = _seed_one_size(info)
     for bl in info.values():
         for n in bl.inputs:
             pi = bl.ports[("in", n)]
@@ -197,6 +199,21 @@ def infer_sizes(flat: Flat):
             raise ParameterError(str(exc), block=bl.path, file=inst.file,
                                  line=inst.line) from None
     return info, dst_seen
+
+
+def _seed_one_size(info):
+    """Set one still-unknown input size from its block's ``fallback_sizes``; True if one
+    was set (propagation then resumes, so a seed never overrides what wiring decides)."""
+    for bl in info.values():
+        fb = None
+        for n in bl.inputs:
+            pi = bl.ports[("in", n)]
+            if pi.size is None:
+                fb = bl.cls.fallback_sizes(bl.params) if fb is None else fb
+                if n in fb:
+                    pi.size = int(fb[n])
+                    return True
+    return False
 
 
 def _src_text(c):
