@@ -451,6 +451,7 @@ class Block:
                     if title == "Outputs":
                         f = p.feedthrough
                         ft = ("; feedthrough depends on parameters" if callable(f) else
+                              "; direct feedthrough (all inputs)" if f == "all" else
                               f"; direct feedthrough from {', '.join(f)}" if f else "")
                     opt = ", optional: zero when unconnected" if p.optional else ""
                     lines.append(f"    {n} [{p.unit}] (size {size_text(p.size)}{opt}{ft}): "

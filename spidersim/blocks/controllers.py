@@ -5,30 +5,110 @@ Parallel form, error ``e`` in, command ``y`` out::
     v = kp e + I + D,   y = min(max(v, y_min), y_max)
     dI/dt = ki e                              (antiwindup = "none")
     dI/dt = ki e + kb (y - v)                 (antiwindup = "backcalc", kb in 1/s)
-    dI/dt = 0 while v is beyond a limit and e drives it further, ki e otherwise
+    dI/dt = 0 in the clamped mode, ki e otherwise
                                               (antiwindup = "clamping", the default)
     D = kd N (e - f),  df/dt = N (e - f)      (PID only: derivative filtered at N rad/s)
 
 ``I`` is the integral term in units of the output, so the initial value ``I0`` is the
 initial command of a controller at zero error.
+
+Clamping is event-driven (conditional integration), with modes ``clamp``:
+
+- ``0`` free: ``dI/dt = ki e``, ``y = sat(v)``;
+- ``+1`` clamped: entered when ``v > y_max`` and ``e > 0`` begin to hold together (guard
+  ``min(v - y_max, e)`` rising): ``I`` is held, ``y = sat(v)``. It ends when the error
+  reverses (``y`` may then jump with ``e``), or when ``v`` falls back through ``y_max``
+  while ``e > 0``: integration resumes, and the block remembers it (``armed``);
+- ``+2`` sliding: if ``v`` reaches ``y_max`` again before the error has reversed, free
+  integration would at once push ``v`` back over the limit: the exact (Filippov) motion
+  slides along ``v = y_max``, which an integrator without events can only crawl along.
+  The block then holds ``y = y_max`` and ``I`` until the error reverses, and resets
+  ``I := y_max - kp e`` there so that ``y`` is continuous. This is an approximation: the
+  exact sliding leaves the limit when ``kp de/dt + ki e`` turns negative, a little before
+  the error reverses, so the overshoot is slightly larger than the exact one.
+
+(``-1``, ``-2`` symmetrically at ``y_min``.)
 """
 import math
 
-from .base import Block, Param, Port, State
+from .base import Block, Event, Mode, Param, Port, State
 
 _AW = ("clamping", "backcalc", "none")
 
 
-def _i_rate(e, v, ki, y_min, y_max, aw, kb):
+def _i_rate(e, v, ki, y_min, y_max, aw, kb, clamp):
     """dI/dt for the anti-windup scheme ``aw`` (0 clamping, 1 back-calculation, 2 none)."""
     if aw == 0.0:
-        if (v > y_max and e > 0.0) or (v < y_min and e < 0.0):
-            return 0.0
-        return ki * e
+        return 0.0 if clamp != 0.0 else ki * e
     if aw == 1.0:
         y = min(max(v, y_min), y_max)
         return ki * e + kb * (y - v)
     return ki * e
+
+
+def _limited(v, y_min, y_max, clamp):
+    """Output: the limit while sliding, ``sat(v)`` otherwise."""
+    if clamp >= 1.5:
+        return y_max
+    if clamp <= -1.5:
+        return y_min
+    return min(max(v, y_min), y_max)
+
+
+def _clamp_guard(e, v, y_min, y_max, aw, clamp, armed, zc):
+    """Guards: 0 enter at y_max, 1 enter at y_min, 2 the error reverses, 3 v leaves the
+    limit while held (see the module docstring)."""
+    zc[0] = -1.0
+    zc[1] = 1.0
+    zc[2] = 1.0
+    zc[3] = 1.0
+    if aw != 0.0:
+        return
+    if clamp == 0.0:
+        zc[0] = min(v - y_max, e)
+        zc[1] = max(v - y_min, e)
+        if armed != 0.0:
+            zc[2] = e * armed
+    else:
+        zc[2] = e * clamp
+        if clamp == 1.0:
+            zc[3] = v - y_max
+        elif clamp == -1.0:
+            zc[3] = y_min - v
+
+
+def _clamp_event(which, e, kp, y_min, y_max, I, clamp, armed):
+    if which == 0:
+        clamp[0] = 2.0 if armed[0] > 0.0 else 1.0
+    elif which == 1:
+        clamp[0] = -2.0 if armed[0] < 0.0 else -1.0
+    elif which == 2:
+        if clamp[0] >= 1.5:
+            I[0] = y_max - kp * e
+        elif clamp[0] <= -1.5:
+            I[0] = y_min - kp * e
+        clamp[0] = 0.0
+        armed[0] = 0.0
+    else:
+        armed[0] = 1.0 if clamp[0] > 0.0 else -1.0
+        clamp[0] = 0.0
+
+
+def _clamp_init(e, v, kp, y_min, y_max, aw, I, clamp, armed):
+    """At the start and after any event (the error may have jumped)."""
+    if aw != 0.0:
+        return
+    if clamp[0] * e <= 0.0 and clamp[0] != 0.0:
+        rest = v - kp * e - I[0]
+        _clamp_event_jit(2, e, kp, y_min, y_max, I, clamp, armed)
+        v = kp * e + I[0] + rest
+    if armed[0] * e <= 0.0:
+        armed[0] = 0.0
+    if clamp[0] == 0.0:
+        if v > y_max and e > 0.0:
+            clamp[0] = 2.0 if armed[0] > 0.0 else 1.0
+        elif v < y_min and e < 0.0:
+            clamp[0] = -2.0 if armed[0] < 0.0 else -1.0
 
 
 def _aw_params(params):
@@ -49,6 +129,12 @@ _COMMON = {
     "kb": Param(0.0, "1/s", "back-calculation tracking gain", ge=0.0),
     "I0": Param(0.0, doc="initial integral term (output units)"),
 }
+_MODES = {"clamp": Mode(doc="clamping mode: 0 free, +-1 integral held, +-2 sliding"),
+          "armed": Mode(doc="+-1 after leaving a limit before the error reversed")}
+_EVENTS = {"clamp_upper": Event(1, "v > y_max with e > 0 begins: hold the integral"),
+           "clamp_lower": Event(-1, "v < y_min with e < 0 begins: hold the integral"),
+           "release": Event(-1, "the error reverses: integrate again"),
+           "leave": Event(-1, "v comes back inside the limit while the integral is held")}
 
 
 class PI(Block):
@@ -59,6 +145,8 @@ class PI(Block):
     inputs = {"e": Port(doc="control error")}
     outputs = {"y": Port(feedthrough=("e",), doc="limited command")}
     states = {"I": State(initial="I0", doc="integral term (output units)")}
+    modes = _MODES
+    events = _EVENTS
 
     @classmethod
     def check(cls, params):
@@ -69,14 +157,25 @@ class PI(Block):
         return {"aw": float(_AW.index(params["antiwindup"]))}
 
     @staticmethod
-    def output(t, I, e, kp, y_min, y_max, y):
-        v = kp * e[0] + I[0]
-        y[0] = min(max(v, y_min), y_max)
+    def output(t, I, e, kp, y_min, y_max, clamp, y):
+        y[0] = _limited_jit(kp * e[0] + I[0], y_min, y_max, clamp[0])
 
     @staticmethod
-    def derivative(t, I, e, kp, ki, y_min, y_max, aw, kb, der_I):
+    def derivative(t, I, e, kp, ki, y_min, y_max, aw, kb, clamp, der_I):
         v = kp * e[0] + I[0]
-        der_I[0] = _i_rate_jit(e[0], v, ki, y_min, y_max, aw, kb)
+        der_I[0] = _i_rate_jit(e[0], v, ki, y_min, y_max, aw, kb, clamp[0])
+
+    @staticmethod
+    def guard(t, I, e, kp, y_min, y_max, aw, clamp, armed, zc):
+        _clamp_guard_jit(e[0], kp * e[0] + I[0], y_min, y_max, aw, clamp[0], armed[0], zc)
+
+    @staticmethod
+    def on_event(t, which, direction, I, e, kp, y_min, y_max, clamp, armed):
+        _clamp_event_jit(which, e[0], kp, y_min, y_max, I, clamp, armed)
+
+    @staticmethod
+    def initialize(t, I, e, kp, y_min, y_max, aw, clamp, armed):
+        _clamp_init_jit(e[0], kp * e[0] + I[0], kp, y_min, y_max, aw, I, clamp, armed)
 
 
 class PID(Block):
@@ -89,6 +188,8 @@ class PID(Block):
     outputs = {"y": Port(feedthrough=("e",), doc="limited command")}
     states = {"I": State(initial="I0", doc="integral term (output units)"),
               "f": State(doc="filtered error for the derivative term")}
+    modes = _MODES
+    events = _EVENTS
 
     @classmethod
     def check(cls, params):
@@ -99,15 +200,32 @@ class PID(Block):
         return {"aw": float(_AW.index(params["antiwindup"]))}
 
     @staticmethod
-    def output(t, I, f, e, kp, kd, N, y_min, y_max, y):
+    def output(t, I, f, e, kp, kd, N, y_min, y_max, clamp, y):
         v = kp * e[0] + I[0] + kd * N * (e[0] - f[0])
-        y[0] = min(max(v, y_min), y_max)
+        y[0] = _limited_jit(v, y_min, y_max, clamp[0])
 
     @staticmethod
-    def derivative(t, I, f, e, kp, ki, kd, N, y_min, y_max, aw, kb, der_I, der_f):
+    def derivative(t, I, f, e, kp, ki, kd, N, y_min, y_max, aw, kb, clamp, der_I, der_f):
         v = kp * e[0] + I[0] + kd * N * (e[0] - f[0])
-        der_I[0] = _i_rate_jit(e[0], v, ki, y_min, y_max, aw, kb)
+        der_I[0] = _i_rate_jit(e[0], v, ki, y_min, y_max, aw, kb, clamp[0])
         der_f[0] = N * (e[0] - f[0])
+
+    @staticmethod
+    def guard(t, I, f, e, kp, kd, N, y_min, y_max, aw, clamp, armed, zc):
+        v = kp * e[0] + I[0] + kd * N * (e[0] - f[0])
+        _clamp_guard_jit(e[0], v, y_min, y_max, aw, clamp[0], armed[0], zc)
+
+    @staticmethod
+    def on_event(t, which, direction, I, f, e, kp, kd, N, y_min, y_max, clamp, armed):
+        # the reset keeps the output continuous: I := limit - kp e - D
+        d = kd * N * (e[0] - f[0])
+        _clamp_event_jit(which, e[0], kp, y_min - d, y_max - d, I, clamp, armed)
+
+    @staticmethod
+    def initialize(t, I, f, e, kp, kd, N, y_min, y_max, aw, clamp, armed):
+        d = kd * N * (e[0] - f[0])
+        _clamp_init_jit(e[0], kp * e[0] + I[0] + d, kp, y_min - d, y_max - d, aw, I, clamp,
+                        armed)
 
 
 def _jit_helper(fn):
@@ -121,3 +239,7 @@ def _jit_helper(fn):
 
 
 _i_rate_jit = _jit_helper(_i_rate)
+_clamp_guard_jit = _jit_helper(_clamp_guard)
+_clamp_event_jit = _jit_helper(_clamp_event)
+_limited_jit = _jit_helper(_limited)
+_clamp_init_jit = _jit_helper(_clamp_init)

@@ -44,8 +44,15 @@ class Saturation(Block):
 
     @staticmethod
     def initialize(t, lower, upper, u, m):
+        # exactly on a corner either adjacent mode is right: keep the current one if it is
+        # adjacent (an event may have just set it)
         for i in range(u.size):
-            m[i] = 1.0 if u[i] > upper else (-1.0 if u[i] < lower else 0.0)
+            if u[i] > upper or (u[i] == upper and m[i] > 0.5 and upper > lower):
+                m[i] = 1.0
+            elif u[i] < lower or (u[i] == lower and m[i] < -0.5 and upper > lower):
+                m[i] = -1.0
+            else:
+                m[i] = 0.0
 
     @staticmethod
     def guard(t, lower, upper, zero_crossing, u, zc):
@@ -103,8 +110,15 @@ class DeadZone(Block):
 
     @staticmethod
     def initialize(t, start, end, u, m):
+        # exactly on an edge either adjacent mode is right: keep the current one if it is
+        # adjacent (an event may have just set it)
         for i in range(u.size):
-            m[i] = 1.0 if u[i] > end else (-1.0 if u[i] < start else 0.0)
+            if u[i] > end or (u[i] == end and m[i] > 0.5):
+                m[i] = 1.0
+            elif u[i] < start or (u[i] == start and m[i] < -0.5):
+                m[i] = -1.0
+            else:
+                m[i] = 0.0
 
     @staticmethod
     def guard(t, start, end, zero_crossing, u, zc):

@@ -22,7 +22,10 @@ from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
 #: loop residual tolerances are this fraction of the integrator's atol and rtol
 LOOP_TOL_FACTOR = 1e-3
 
-DEFAULTS = {"t_end": 1.0, "method": "LSODA", "rtol": 1e-6, "atol": 1e-8, "max_step": np.inf,
+#: max_step when none is given: (t_end - t0) / AUTO_STEPS, as Simulink's "auto"
+AUTO_STEPS = 50
+
+DEFAULTS = {"t_end": 1.0, "method": "LSODA", "rtol": 1e-6, "atol": 1e-8, "max_step": None,
             "output_interval": None, "first_step": None}
 
 
@@ -250,6 +253,8 @@ class Diagram:
                      ("max_step", max_step), ("output_interval", output_interval)):
             if v is not None:
                 cfg[k] = v
+        if cfg["max_step"] is None:
+            cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
         system = self.compile(jit)
         a, r = self.layout.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * cfg["atol"]

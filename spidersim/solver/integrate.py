@@ -192,9 +192,12 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
 
     def fire_due(t, x):
         n = 0
+        g_before = system.guards(t, x) if n_g else None
+        timed_blocks = set()
         while system.next_time(t) <= t + 1e-12 * max(1.0, abs(t)):
             fired = system.time_events(t, x, 1e-12 * max(1.0, abs(t)))
             events.extend((t, name, "time") for name in fired)
+            timed_blocks.update(fired)
             st["time_events"] += len(fired)
             system.initialize(t, x)
             n += 1
@@ -203,6 +206,8 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                     f"time events keep firing at t = {t:.9g} s without time advancing "
                     f"(blocks: {', '.join(fired) or 'none'})",
                     partial=rec.result(events, st, "failed"))
+        if n:
+            settle(t, x, g_before, timed_blocks)
 
     def fail(msg, t, x):
         st["t_reached"] = t
@@ -241,6 +246,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
             record_grid(dense, t_old, t_ev)
         else:
             rec.add(t_ev, x_ev)
+        g_before = system.guards(t_ev, x_ev)
         for i in sorted(now):
             block, name, _d = system.event_table[i]
             system.apply_event(t_ev, x_ev, int(i), np.sign(g_new[i] - g_old[i]) or 1.0)
@@ -260,7 +266,32 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                 raise IntegrationError(msg, partial=rec.result(events, st, "failed", msg),
                                        block=block)
         system.initialize(t_ev, x_ev)
+        settle(t_ev, x_ev, g_before, {system.event_table[i][0] for i in now})
         return t_ev, x_ev
+
+    def settle(t, x, g_before, fired_blocks):
+        """Fire the crossings caused by a jump at an event instant: a guard of another block
+        that was on one side just before the event and is on the other just after it (a
+        step input that jumps past a corner). Guards of blocks whose own event has just
+        changed their mode are not compared (their guard functions changed with the mode).
+        Repeats until nothing more fires."""
+        if not n_g:
+            return
+        for _ in range(MAX_EVENTS_AT_ONE_TIME):
+            g_after = system.guards(t, x)
+            hits = [i for i in crossed(g_before, g_after, directions)
+                    if system.event_table[i][0] not in fired_blocks]
+            if not hits:
+                return
+            for i in hits:
+                block, name, _d = system.event_table[i]
+                system.apply_event(t, x, int(i), np.sign(g_after[i] - g_before[i]) or 1.0)
+                events.append((float(t), block, name))
+                fired_blocks.add(block)
+            system.initialize(t, x)
+            g_before = system.guards(t, x)
+        raise IntegrationError(f"events keep firing at t = {t:.9g} s",
+                               partial=rec.result(events, st, "failed"))
 
     def record_grid(dense, t_a, t_b):
         """Grid points in [t_a, t_b): a point at an event time is recorded after the event

@@ -12,11 +12,18 @@ and compiles it in interpreted mode (``jit=False``). Then::
     p.set_input("u", [1, 2, 3])     # d.set("in_u.value", ...), copied into the system
     x = p.x0()                      # initial flat state vector (a copy)
     p.set_state(x, "y", [...])      # write one state of blk into x
+    p.initialize(t, x)              # let mode blocks take the modes their inputs imply
     p.outputs(t, x)                 # {output name: array} of blk at time t
     p.derivatives(t, x)             # {state name: array} of blk at time t
 
 Every input gets a Constant, optional ones included (so that they can be perturbed); input
-sizes default to 1 unless given in ``sizes``.
+sizes default to 1 unless given in ``sizes``. Modes are left as they are (the initial modes)
+unless ``initialize`` or ``set_mode`` is called: outputs are a function of (t, x, inputs,
+modes), as the schedule sees them between events.
+
+For blocks that cannot stand alone (an ``AlgebraicConstraint`` needs a loop), ``extra``
+adds blocks (name -> (type, params)), ``feed`` connects an input to one of their outputs
+instead of a Constant (input -> "block.port") and ``wires`` adds connections.
 """
 from __future__ import annotations
 
@@ -38,34 +45,40 @@ def block_yaml(name, type_name, params):
 class Probe:
     """One block ``blk`` of type ``type_name`` with every input fed by a Constant."""
 
-    def __init__(self, type_name, params=None, sizes=None):
+    def __init__(self, type_name, params=None, sizes=None, extra=None, feed=None, wires=()):
         self.cls = REGISTRY[type_name]
         self.params = dict(params or {})
-        self.inputs = self.cls.input_names(self.cls.validate_params(self.params))
+        feed = dict(feed or {})
+        names = self.cls.input_names(self.cls.validate_params(dict(self.params)))
+        #: inputs fed by a Constant ``in_<name>`` (the ones set_input can set)
+        self.inputs = [n for n in names if n not in feed]
         self.sizes = {n: int((sizes or {}).get(n, 1)) for n in self.inputs}
         lines = ["name: probe", "blocks:", block_yaml("blk", type_name, self.params)]
         lines += [block_yaml(f"in_{n}", "Constant", {"value": [0.0] * s})
                   for n, s in self.sizes.items()]
-        if self.inputs:
-            lines.append("connections:")
-            lines += [f"  - in_{n}.y -> blk.{n}" for n in self.inputs]
+        lines += [block_yaml(n, t, prm) for n, (t, prm) in (extra or {}).items()]
+        conns = [f"in_{n}.y -> blk.{n}" for n in self.inputs]
+        conns += [f"{src} -> blk.{n}" for n, src in feed.items()] + list(wires)
+        if conns:
+            lines += ["connections:"] + [f"  - {c}" for c in conns]
         self.yaml = "\n".join(lines) + "\n"
         self.d = spidersim.loads(self.yaml)
-        self.system = self.d.compile(jit=False)
+        with np.errstate(all="ignore"):  # the warm-up call sees all-zero inputs (0/0)
+            self.system = self.d.compile(jit=False)
         self.layout = self.d.layout.blocks["blk"]
         self.outputs_names = list(self.layout.outputs)
-        self.state_names = list(self.layout.states)
+        self.state_names = [s for s, (a, b) in self.layout.states.items() if b > a]
 
-    # ---------------------------------------------------------------- inputs, states
+    # ---------------------------------------------------------------- inputs, states, modes
     def set_input(self, name, value):
         """Set input ``name`` (through its Constant) to ``value`` (scalar or array)."""
         value = np.broadcast_to(np.asarray(value, dtype=float), (self.sizes[name],))
         self.d.set(f"in_{name}.value", np.array(value))
         self.system.p[:] = self.d.p  # the system holds a copy of the parameter array
 
-    def set_param(self, name, value):
+    def set_param(self, name, value, block="blk"):
         """Change a numeric parameter of the block (no recompilation)."""
-        self.d.set(f"blk.{name}", value)
+        self.d.set(f"{block}.{name}", value)
         self.system.p[:] = self.d.p
 
     def x0(self):
@@ -81,9 +94,19 @@ class Probe:
         x[self.state_slice(name)] = value
         return x
 
+    def mode(self, name):
+        a, b = self.layout.modes[name]
+        return self.system.modes[a:b].copy()
+
     def set_mode(self, name, value):
         a, b = self.layout.modes[name]
         self.system.modes[a:b] = value
+
+    def initialize(self, t=0.0, x=None):
+        """Run the blocks' ``initialize`` hooks (as at the start and after an event)."""
+        x = self.x0() if x is None else np.asarray(x, dtype=float)
+        self.outputs(t, x)
+        self.system.initialize(t, x)
 
     # ---------------------------------------------------------------- evaluation
     def outputs(self, t=0.0, x=None):

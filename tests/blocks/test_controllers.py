@@ -1,0 +1,200 @@
+"""PI and PID controllers, open loop, against the formulas of controllers.py's docstring::
+
+    v = kp e + I + D,  y = min(max(v, y_min), y_max)
+    dI/dt = ki e (none) | ki e + kb (y - v) (backcalc) | 0 while v beyond a limit and e
+    drives it further, ki e otherwise (clamping);  D = kd N (e - f), df/dt = N (e - f)
+"""
+import numpy as np
+import pytest
+
+import spidersim
+from spidersim import ParameterError
+
+from .harness import Probe, simulate
+
+RTOL, ATOL = 1e-8, 1e-10
+
+
+def _run(ctrl, error, t_end, **kw):
+    """``error`` (a source block) -> ``ctrl`` (PI or PID named c); interpreted run."""
+    return simulate(f"blocks:\n  e: {error}\n  c: {ctrl}\nconnections:\n  - e.y -> c.e\n",
+                    t_end=t_end, rtol=RTOL, atol=ATOL, **kw)
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+@pytest.mark.parametrize("aw", ["clamping", "backcalc", "none"])
+def test_constant_error_gives_proportional_plus_ramp(ctrl, aw):
+    """Unlimited: y = kp e0 + ki e0 t (+ the derivative term of a PID, zero for kd = 0)."""
+    kp, ki, e0 = 1.5, 4.0, -0.75
+    r = _run(f"{{type: {ctrl}, kp: {kp}, ki: {ki}, antiwindup: {aw}, kb: 1}}",
+             f"{{type: Constant, value: {e0}}}", t_end=2.0)
+    np.testing.assert_allclose(r["c.y"], kp * e0 + ki * e0 * r.t, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(r["c.I"], ki * e0 * r.t, rtol=1e-10, atol=1e-10)
+
+
+def test_initial_integral_term_is_the_initial_command():
+    p = Probe("PI", {"kp": 3.0, "ki": 1.0, "I0": 0.4})
+    assert p.outputs()["y"][0] == 0.4
+    p.set_input("e", 0.1)
+    assert p.outputs()["y"][0] == pytest.approx(0.7)
+    assert p.derivatives()["I"][0] == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+def test_output_limits_hold(ctrl):
+    p = Probe(ctrl, {"kp": 2.0, "ki": 1.0, "y_min": -0.5, "y_max": 1.5})
+    for e, expect in ((10.0, 1.5), (-10.0, -0.5), (0.25, 0.5)):
+        p.set_input("e", e)
+        assert p.outputs()["y"][0] == expect
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+@pytest.mark.parametrize("aw", ["clamping", "none"])
+def test_clamping_stops_integration_while_saturated(aw, sign):
+    """e = +-1 until t = 3, then -+1; kp = 1, ki = 2, limits +-2.
+
+    clamping: I = 2 t until v = 1 + 2 t reaches the limit at t = 0.5, then I stays 1; at the
+    reversal the output leaves the limit at once: y = -2 (t - 3) (for sign +1), until it
+    reaches the other limit at t = 4 where I is clamped again at -1.
+    none: I winds up to 6 and holds the output at the limit until t = 4.5.
+    """
+    r = _run("{type: PI, kp: 1, ki: 2, y_min: -2, y_max: 2, antiwindup: " + aw + "}",
+             f"{{type: Step, t_step: 3, before: {sign}, after: {-sign}}}", t_end=5.0)
+    t, y, I = r.t, r["c.y"] * sign, r["c.I"] * sign
+    assert np.all(np.abs(y) <= 2.0)
+    if aw == "clamping":
+        early = t <= 0.5
+        np.testing.assert_allclose(I[early], 2 * t[early], rtol=1e-9, atol=1e-9)
+        held = (t > 0.5) & (t <= 3.0)
+        assert np.max(np.abs(I[held] - 1.0)) < 1e-5      # "none" reaches 6 here
+        late = (t > 3.0) & (r["e.y"] * sign < 0)
+        np.testing.assert_allclose(I[late], np.maximum(-1.0, 1.0 - 2 * (t[late] - 3.0)),
+                                   rtol=0, atol=1e-5)
+        assert np.max(np.abs(I[t > 4.0] + 1.0)) < 1e-5
+        np.testing.assert_allclose(y[late], np.maximum(-2.0, -2 * (t[late] - 3.0)),
+                                   rtol=0, atol=1e-5)
+    else:
+        wound = t <= 3.0
+        np.testing.assert_allclose(I[wound], 2 * t[wound], rtol=1e-9, atol=1e-9)
+        late = (t > 3.0) & (r["e.y"] * sign < 0)
+        v = -1.0 + 6.0 - 2 * (t[late] - 3.0)
+        np.testing.assert_allclose(y[late], np.clip(v, -2.0, 2.0), rtol=0, atol=1e-6)
+        assert np.all(y[(t > 3.0) & (t < 4.4)] == 2.0)
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_backcalc_converges_with_rate_kb(ctrl, sign):
+    """Saturated throughout: dI/dt = ki e0 + kb (y_lim - kp e0 - I), so
+    I = I* + (I0 - I*) exp(-kb t) with I* = y_lim - kp e0 + ki e0 / kb."""
+    kp, ki, kb, e0, I0, lim = 1.0, 2.0, 4.0, sign, 5.0 * sign, 2.0
+    r = _run(f"{{type: {ctrl}, kp: {kp}, ki: {ki}, kb: {kb}, y_min: {-lim}, y_max: {lim}, "
+             f"antiwindup: backcalc, I0: {I0}}}", f"{{type: Constant, value: {e0}}}",
+             t_end=3.0)
+    istar = sign * lim - kp * e0 + ki * e0 / kb
+    exact = istar + (I0 - istar) * np.exp(-kb * r.t)
+    err = np.abs(r["c.I"] - exact) / (ATOL + RTOL * np.abs(exact))
+    assert err.max() < 20
+    assert np.all(r["c.y"] == sign * lim)
+    assert r["c.I"][-1] == pytest.approx(istar, rel=1e-4)
+
+
+def test_pid_derivative_filter_step_response():
+    """Error step e0 at ts: y = kp e0 + ki e0 (t - ts) + kd N e0 exp(-N (t - ts))."""
+    kp, ki, kd, N, e0, ts = 0.5, 2.0, 0.05, 40.0, 1.5, 0.1
+    r = _run(f"{{type: PID, kp: {kp}, ki: {ki}, kd: {kd}, N: {N}}}",
+             f"{{type: Step, t_step: {ts}, after: {e0}}}", t_end=0.5)
+    t, y = r.t, r["c.y"]
+    on = r["e.y"] > 0
+    tau = t[on] - ts
+    exact = kp * e0 + ki * e0 * tau + kd * N * e0 * np.exp(-N * tau)
+    err = np.abs(y[on] - exact) / (ATOL + RTOL * np.abs(exact))
+    assert err.max() < 20
+    assert y[on][0] == pytest.approx(kp * e0 + kd * N * e0)      # the kick at the step
+    assert np.all(y[~on] == 0.0)
+    np.testing.assert_allclose(r["c.f"][on], e0 * (1 - np.exp(-N * tau)), rtol=0, atol=1e-7)
+
+
+def test_pid_probe_formula():
+    p = Probe("PID", {"kp": 2.0, "ki": 3.0, "kd": 0.5, "N": 10.0})
+    x = p.x0()
+    p.set_state(x, "I", 0.25)
+    p.set_state(x, "f", -0.5)
+    p.set_input("e", 1.0)
+    assert p.outputs(0.0, x)["y"][0] == pytest.approx(2.0 + 0.25 + 0.5 * 10.0 * 1.5)
+    der = p.derivatives(0.0, x)
+    assert der["I"][0] == pytest.approx(3.0)
+    assert der["f"][0] == pytest.approx(10.0 * 1.5)
+
+
+@pytest.mark.parametrize("extra,match", [("antiwindup: backcalc", "kb > 0"),
+                                         ("y_min: 1, y_max: 1", "below y_max"),
+                                         ("antiwindup: clamp", "must be one of")])
+def test_controller_parameter_checks(extra, match):
+    with pytest.raises(ParameterError, match=match):
+        spidersim.loads(f"blocks:\n  c: {{type: PI, {extra}}}\n  z: {{type: Constant}}\n"
+                        f"connections:\n  - z.y -> c.e\n")
+
+
+class _TooManySteps(Exception):
+    pass
+
+
+LOOP = """
+blocks:
+  ref:  {{type: Step, t_step: 0.05, after: 1.0}}
+  err:  {{type: Sum, signs: "+-"}}
+  c:    {{type: {ctrl}, kp: 2, ki: 2, y_min: -1.3, y_max: 1.3, antiwindup: {aw}}}
+  plant: {{type: TransferFunction, num: [1], den: [1, 2, 1]}}
+connections:
+  - ref.y -> err.u1
+  - plant.y -> err.u2
+  - err.y -> c.e
+  - c.y -> plant.u
+"""
+
+
+def _loop(ctrl, aw, max_steps=20000):
+    n, last = [0], [0.0]
+
+    def budget(t):
+        n[0] += 1
+        last[0] = t
+        if n[0] > max_steps:
+            raise _TooManySteps(f"{ctrl} ({aw}) in a loop: {max_steps} steps only reach "
+                                f"t = {last[0]:.9g} s")
+
+    return spidersim.loads(LOOP.format(ctrl=ctrl, aw=aw)).simulate(
+        t_end=10.0, rtol=1e-6, atol=1e-8, jit=False, progress=budget)
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+def test_loop_without_antiwindup_winds_up(ctrl):
+    """Reference for the test below: plant 1/(s+1)^2, kp = ki = 2, command limited to 1.3;
+    without anti-windup the loop overshoots to about 1.27."""
+    r = _loop(ctrl, "none")
+    assert np.all(np.abs(r["c.y"]) <= 1.3)
+    assert r["plant.y"].max() > 1.2
+    assert r["plant.y"][-1] == pytest.approx(1.0, abs=1e-2)
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+def test_clamping_in_a_closed_loop_does_not_stall(ctrl):
+    """The same loop with clamping: the command sits at y_max while the error decreases, and
+    the free rate ki e would push v back above the limit at once (Filippov sliding on
+    v = y_max, where I = y_max - kp e). dI/dt switches between 0 and ki e at v = y_max, a
+    discontinuity of the right-hand side without an event, so the integrator crawls with
+    steps of ~1e-12 s from t = 1.06 s (LSODA and RK45 never finish; Radau fails with
+    "Required step size is less than spacing between numbers").
+
+    The run must finish in a sensible number of steps, hold the limit, overshoot less than
+    without anti-windup, and (integral action) drive the error to zero.
+    """
+    try:
+        r = _loop(ctrl, "clamping")
+    except _TooManySteps as exc:
+        pytest.fail(f"clamping anti-windup stalls: {exc}")
+    assert np.all(np.abs(r["c.y"]) <= 1.3)
+    assert np.any(r["c.y"] == 1.3)                      # it did saturate
+    assert r["plant.y"].max() < 1.15
+    assert r["plant.y"][-1] == pytest.approx(1.0, abs=1e-2)

@@ -1,0 +1,128 @@
+"""Sampled blocks against their difference equations.
+
+Samples are time events at t_k = offset + k Ts: the record holds, at each t_k, the value
+before and (last) the value after the update; the output is held in between.
+"""
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+import spidersim
+from spidersim import ParameterError
+
+from .harness import Probe, simulate
+
+TS = 0.1
+T_END = 1.05                    # samples k = 0 .. 10
+
+
+def _run(block, src="{type: Ramp, slope: 1}", t_end=T_END):
+    return simulate(f"blocks:\n  u: {src}\n  b: {block}\nconnections:\n  - u.y -> b.{{}}\n"
+                    .replace("{}", "e" if "PI" in block else "u"), t_end=t_end,
+                    rtol=1e-8, atol=1e-10)
+
+
+def _held(r, name, ts=TS, offset=0.0):
+    """Output just after each sample time, and whether it is held constant in between."""
+    t, y = r.t, r[name]
+    ks = np.arange(int(np.floor((t[-1] - offset) / ts + 1e-9)) + 1)
+    out = []
+    for k in ks:
+        tk = offset + k * ts
+        at = np.flatnonzero(np.abs(t - tk) <= 1e-12)
+        assert at.size, f"sample time {tk} is not a record time"
+        out.append(y[at[-1]])
+        nxt = (t > tk + 1e-12) & (t < tk + ts - 1e-12)
+        assert np.all(y[nxt] == y[at[-1]]), f"{name} not held after t = {tk}"
+    return np.array(out)
+
+
+def test_zero_order_hold():
+    r = _run("{type: ZeroOrderHold, Ts: 0.1}")
+    y = _held(r, "b.y")
+    np.testing.assert_allclose(y, TS * np.arange(11), rtol=0, atol=1e-12)
+    assert [e[0] for e in r.events if e[1] == "b"] == pytest.approx(TS * np.arange(11),
+                                                                    abs=1e-12)
+
+
+def test_zero_order_hold_offset_and_vector():
+    r = simulate("blocks:\n  u: {type: Constant, value: [1, 2]}\n  s: {type: Sine, f: 1}\n"
+                 "  m: {type: Mux}\n  b: {type: ZeroOrderHold, Ts: 0.25, offset: 0.1}\n"
+                 "connections:\n  - u.y -> m.u1\n  - s.y -> m.u2\n  - m.y -> b.u\n",
+                 t_end=1.0, rtol=1e-8, atol=1e-10)
+    y = r["b.y"]
+    assert np.all(y[r.t < 0.1 - 1e-12] == 0.0)        # nothing sampled yet
+    tk = 0.1 + 0.25 * np.arange(4)
+    for k, t in enumerate(tk):
+        at = np.flatnonzero(np.abs(r.t - t) <= 1e-12)[-1]
+        np.testing.assert_allclose(y[at], [1.0, 2.0, np.sin(2 * np.pi * t)], atol=1e-12)
+
+
+def test_unit_delay():
+    """y = x0 on [0, Ts), then y(t_k) = u(t_k-1)."""
+    r = _run("{type: UnitDelay, Ts: 0.1, x0: -7}")
+    y = _held(r, "b.y")
+    assert y[0] == -7.0
+    np.testing.assert_allclose(y[1:], TS * np.arange(10), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("num,den", [([1.0], [1.0, -0.5]),
+                                     ([0.2, 0.1], [1.0, -0.9]),
+                                     ([0.5, 0.3, 0.1], [2.0, -1.0, 0.3]),
+                                     ([1.0], [1.0, -1.2, 0.5])])
+def test_discrete_transfer_function_difference_equation(num, den):
+    """Against scipy.signal.lfilter on the input samples (num padded to len(den): powers
+    of z, as control.tf(num, den, Ts))."""
+    r = _run(f"{{type: DiscreteTransferFunction, num: {num}, den: {den}, Ts: 0.1}}",
+             src="{type: Sine, f: 0.7, offset: 0.3}")
+    y = _held(r, "b.y")
+    uk = 0.3 + np.sin(2 * np.pi * 0.7 * TS * np.arange(len(y)))
+    b = np.r_[np.zeros(len(den) - len(num)), num]
+    np.testing.assert_allclose(y, lfilter(b, den, uk), rtol=1e-12, atol=1e-12)
+
+
+def test_discrete_transfer_function_rejects_improper():
+    with pytest.raises(ParameterError, match="improper"):
+        spidersim.loads("blocks:\n  b: {type: DiscreteTransferFunction, num: [1, 1], "
+                        "den: [1], Ts: 0.1}\n  c: {type: Constant}\nconnections:\n"
+                        "  - c.y -> b.u\n")
+
+
+def _pi_reference(ek, kp, ki, kd, y_min, y_max):
+    I, e_prev, out = 0.0, None, []
+    for k, e in enumerate(ek):
+        d = kd * (e - e_prev) / TS if e_prev is not None else 0.0
+        v = kp * e + I + d
+        out.append(min(max(v, y_min), y_max))
+        if not ((v > y_max and e > 0) or (v < y_min and e < 0)):
+            I += ki * TS * e
+        e_prev = e
+    return np.array(out)
+
+
+@pytest.mark.parametrize("ctrl,kd", [("DiscretePI", 0.0), ("DiscretePID", 0.05)])
+@pytest.mark.parametrize("limits", [(-np.inf, np.inf), (-0.4, 0.6)])
+def test_discrete_controllers(ctrl, kd, limits):
+    """y_k = sat(kp e_k + I_k + kd (e_k - e_k-1)/Ts), I_k+1 = I_k + ki Ts e_k unless the
+    output is limited and e_k drives it further (clamping)."""
+    lo, hi = limits
+    kp, ki = 0.5, 3.0
+    lim = "" if np.isinf(hi) else f", y_min: {lo}, y_max: {hi}"
+    extra = f", kd: {kd}" if ctrl == "DiscretePID" else ""
+    r = _run(f"{{type: {ctrl}, kp: {kp}, ki: {ki}, Ts: 0.1{lim}{extra}}}",
+             src="{type: Sine, f: 0.6, amplitude: 0.8}", t_end=2.05)
+    y = _held(r, "b.y")
+    ek = 0.8 * np.sin(2 * np.pi * 0.6 * TS * np.arange(len(y)))
+    np.testing.assert_allclose(y, _pi_reference(ek, kp, ki, kd, lo, hi), rtol=1e-12,
+                               atol=1e-12)
+    if np.isfinite(hi):
+        assert np.any(y == hi) and np.any(y == lo)
+
+
+def test_discrete_blocks_have_no_feedthrough():
+    for t, prm in (("ZeroOrderHold", {"Ts": 0.1}), ("UnitDelay", {"Ts": 0.1}),
+                   ("DiscretePI", {"Ts": 0.1}), ("DiscretePID", {"Ts": 0.1}),
+                   ("DiscreteTransferFunction", {"num": [1.0, 0.0], "den": [1.0, 0.5],
+                                                 "Ts": 0.1})):
+        p = Probe(t, prm)
+        assert all(v == () for v in p.layout.feedthrough.values()), t
