@@ -312,8 +312,8 @@ class Block:
             fail(f"must be a number, got the string '{value}'")
         try:
             arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            fail(f"must be numeric, got {value!r}")
+        except (TypeError, ValueError, OverflowError):
+            fail(f"must be numeric (and representable as a float), got {str(value)[:40]}")
         if decl.kind == "int":
             if arr.ndim != 0 or not float(arr).is_integer():
                 fail(f"must be an integer, got {value!r}")

@@ -45,14 +45,17 @@ def evaluate(text: str, names: dict):
         raise
     except ZeroDivisionError:
         raise ExprError(f"division by zero in '{text}'") from None
-    except (TypeError, ValueError, OverflowError) as exc:
+    except (TypeError, ValueError, OverflowError, IndexError) as exc:
         raise ExprError(f"cannot evaluate '{text}': {exc}") from None
 
 
 def _eval(node, names, text):
     if isinstance(node, ast.Constant):
         if isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
-            return node.value
+            try:
+                return float(node.value)   # floats only: no huge-integer arithmetic
+            except OverflowError:
+                raise ExprError(f"number too large in '{text}'") from None
         raise ExprError(f"only numbers are allowed in '{text}', got {node.value!r}")
     if isinstance(node, ast.Name):
         if node.id in names:
@@ -65,6 +68,10 @@ def _eval(node, names, text):
         raise ExprError(f"unknown name '{node.id}' in '{text}'{hint}")
     if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
         a, b = _eval(node.left, names, text), _eval(node.right, names, text)
+        if isinstance(a, int) and not isinstance(a, bool):
+            a = float(a)
+        if isinstance(b, int) and not isinstance(b, bool):
+            b = float(b)
         if isinstance(a, list) or isinstance(b, list):
             a, b = np.asarray(a, float), np.asarray(b, float)
             return _BINOPS[type(node.op)](a, b).tolist()
@@ -79,6 +86,8 @@ def _eval(node, names, text):
     if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name):
         seq = _eval(node.value, names, text)
         idx = _eval(node.slice, names, text)
+        if isinstance(idx, float) and idx.is_integer():
+            idx = int(idx)
         if not isinstance(seq, list) or not isinstance(idx, int):
             raise ExprError(f"only list[int] indexing is allowed in '{text}'")
         try:
@@ -95,14 +104,3 @@ def _eval(node, names, text):
                     f"('{text}'): use numbers, parameter names, + - * / ** and math functions")
 
 
-def resolve(value, names: dict):
-    """Evaluate a YAML value: strings are expressions, lists are resolved element-wise.
-
-    Strings that do not parse as expressions are returned unchanged only when they are not
-    expressions at all; use :func:`resolve_strict` for numeric parameters.
-    """
-    if isinstance(value, str):
-        return evaluate(value, names)
-    if isinstance(value, list):
-        return [resolve(v, names) for v in value]
-    return value

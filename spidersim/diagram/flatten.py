@@ -8,13 +8,14 @@ the subsystem's parameters. Overrides (``--set``) address ``name`` (a top-level 
 """
 from __future__ import annotations
 
+import difflib
 import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..blocks.base import REGISTRY, Block, lookup
-from ..errors import DiagramError, ParameterError, WiringError
+from ..errors import DiagramError, ParameterError, SpidersimError, WiringError
 from .expr import ExprError, evaluate
 from .spec import Address, DiagramSpec, parse_file
 
@@ -50,7 +51,7 @@ class Flat:
     aliases: dict = field(default_factory=dict)  # "sub.out" -> (path, port, start, stop)
 
 
-def _eval_value(value, scope, decl, file, line, what):
+def _eval_value(value, scope, decl, file, line, what, block=None):
     """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay."""
     if decl is not None and decl.kind == "str":
         return value
@@ -65,7 +66,10 @@ def _eval_value(value, scope, decl, file, line, what):
             return value
         raise ExprError(f"unsupported value {value!r}")
     except ExprError as exc:
-        raise ParameterError(f"{what}: {exc}", file=file, line=line) from None
+        lead = ("expected a number or an expression of parameters; "
+                if isinstance(value, str) else "")
+        raise ParameterError(f"{what}: {lead}{exc}", file=file, line=line,
+                             block=block) from None
 
 
 def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
@@ -89,7 +93,6 @@ def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
     for k, v in overrides.items():
         if "." not in k:
             if k not in spec.parameters:
-                import difflib
                 near = difflib.get_close_matches(k, list(spec.parameters), n=3)
                 hint = f"; did you mean {', '.join(near)}?" if near else ""
                 raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
@@ -115,6 +118,14 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
     """Add the blocks of ``spec`` under ``prefix``; return (in_map, out_map)."""
     sub_specs = {}
     local_subs = {}  # instance name -> (in_map, out_map)
+    for k in overrides:
+        head = k.partition(".")[0]
+        if head not in spec.blocks:
+            near = difflib.get_close_matches(head, list(spec.blocks), n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            where = f"in '{prefix[:-1]}'" if prefix else "in the diagram"
+            raise ParameterError(f"--set {prefix}{k}: there is no block '{head}' {where}{hint}",
+                                 file=spec.file)
     for bname, b in spec.blocks.items():
         path = prefix + bname
         own = {}  # overrides addressed to this block: param -> value
@@ -131,18 +142,17 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
             if os.path.abspath(sub_file) in stack:
                 chain = " -> ".join(os.path.basename(s) for s in stack + [sub_file])
                 raise DiagramError(f"subsystem type '{b.type}' includes itself ({chain})",
-                                   file=spec.file, line=b.line)
+                                   file=spec.file, line=b.line, block=path)
             if sub_file not in sub_specs:
                 if not os.path.isfile(sub_file):
                     raise DiagramError(f"subsystem file for type '{b.type}' not found: "
                                        f"{sub_file}", file=spec.file,
-                                       line=spec.subsystem_lines.get(b.type))
+                                       line=spec.subsystem_lines.get(b.type), block=path)
                 sub_specs[sub_file] = parse_file(sub_file)
             sub = sub_specs[sub_file]
             given = {}
             for pname, raw in b.params.items():
                 if pname not in sub.parameters:
-                    import difflib
                     near = difflib.get_close_matches(pname, list(sub.parameters), n=3)
                     hint = f"; did you mean {', '.join(near)}?" if near else ""
                     raise ParameterError(
@@ -150,12 +160,22 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
                         f"(parameters: {', '.join(sub.parameters) or 'none'})",
                         file=spec.file, line=b.param_lines.get(pname), block=path)
                 given[pname] = _eval_value(raw, scope, None, spec.file,
-                                           b.param_lines.get(pname), f"parameter '{pname}'")
+                                           b.param_lines.get(pname), f"parameter '{pname}'",
+                                           block=path)
             for pname, (key, v) in own.items():
                 if pname in sub.parameters:
-                    given[pname] = _eval_value(v, scope, None, spec.file, None, f"--set {key}")
+                    given[pname] = _eval_value(v, scope, None, spec.file, b.line,
+                                               f"--set {prefix}{key}", block=path)
                     used.add(key)
-                # else: may be a block of the subsystem addressed without param (error later)
+                else:
+                    near = difflib.get_close_matches(pname, list(sub.parameters), n=3)
+                    hint = f"; did you mean {', '.join(near)}?" if near else ""
+                    what = (f"'{pname}' is a block of it: write {prefix}{key}.param"
+                            if pname in sub.blocks else f"it has no parameter '{pname}'{hint}")
+                    raise ParameterError(
+                        f"--set {prefix}{key}: '{path}' is a subsystem of type '{b.type}'; "
+                        f"{what} (parameters: {', '.join(sub.parameters) or 'none'})",
+                        block=path, file=spec.file, line=b.line)
             sub_scope, _ = eval_parameters(sub, given, path + ".")
             sub_over = {k: v for k, (key, v) in deeper.items()}
             keymap = {k: key for k, (key, v) in deeper.items()}
@@ -168,27 +188,35 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
                 flat.aliases[f"{path}.{oname}"] = src
             flat.subsystem_instances[path] = sub_file
             continue
-        cls = lookup(b.type, spec.file, b.line, extra=list(spec.subsystems))
+        try:
+            cls = lookup(b.type, spec.file, b.line, extra=list(spec.subsystems))
+        except SpidersimError as exc:
+            exc.block = path
+            raise
         values = {}
         for pname, raw in b.params.items():
             decl = cls.parameters.get(pname)
             values[pname] = _eval_value(raw, scope, decl, spec.file, b.param_lines.get(pname),
-                                        f"parameter '{pname}'")
+                                        f"parameter '{pname}'", block=path)
         for pname, (key, v) in own.items():
             decl = cls.parameters.get(pname)
             if decl is None:
-                raise ParameterError(f"--set {key}: block type {cls.type_name} has no "
-                                     f"parameter '{pname}' (parameters: "
-                                     f"{', '.join(cls.parameters)})", block=path)
+                near = difflib.get_close_matches(pname, list(cls.parameters), n=3)
+                hint = f"; did you mean {', '.join(near)}?" if near else ""
+                raise ParameterError(f"--set {prefix}{key}: block type {cls.type_name} has no "
+                                     f"parameter '{pname}'{hint} (parameters: "
+                                     f"{', '.join(cls.parameters)})", block=path,
+                                     file=spec.file, line=b.line)
             if decl.kind == "str" and isinstance(v, str):
                 values[pname] = v
             else:
-                values[pname] = _eval_value(v, scope, decl, spec.file, None, f"--set {key}")
+                values[pname] = _eval_value(v, scope, decl, spec.file, b.line,
+                                            f"--set {prefix}{key}", block=path)
             used.add(key)
         if deeper:
             k = next(iter(deeper.values()))[0]
-            raise ParameterError(f"--set {k}: '{path}' is a {cls.type_name} block, not a "
-                                 f"subsystem", block=path)
+            raise ParameterError(f"--set {prefix}{k}: '{path}' is a {cls.type_name} block, "
+                                 f"not a subsystem", block=path, file=spec.file, line=b.line)
 
         def where(name, _b=b):
             return spec.file, (_b.param_lines.get(name) if name else _b.line)
@@ -231,7 +259,6 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
 
     def _check_block(a, line):
         if a.block not in spec.blocks:
-            import difflib
             near = difflib.get_close_matches(a.block, list(spec.blocks), n=3)
             hint = f"; did you mean {', '.join(near)}?" if near else ""
             raise WiringError(f"connection refers to unknown block '{a.block}'{hint}",

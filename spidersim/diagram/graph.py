@@ -122,12 +122,13 @@ def infer_sizes(flat: Flat):
                 word = "output" if kind == "out" else "input"
                 raise WiringError(
                     f"block '{path}' ({bl.cls.type_name}) has no {word} '{port}'{extra}{hint}; "
-                    f"{word}s: {', '.join(names) or 'none'}", file=c.file, line=c.line)
+                    f"{word}s: {', '.join(names) or 'none'}", file=c.file, line=c.line,
+                    block=path)
         if (dp, dport) in dst_seen:
             first = dst_seen[(dp, dport)]
             raise WiringError(f"input '{dp}.{dport}' has two sources: '{_src_text(first)}' "
                               f"(line {first.line}) and '{_src_text(c)}'",
-                              file=c.file, line=c.line)
+                              file=c.file, line=c.line, block=dp)
         dst_seen[(dp, dport)] = c
 
     # propagate sizes to a fixed point
@@ -169,7 +170,7 @@ def infer_sizes(flat: Flat):
                 raise WiringError(
                     f"size mismatch on '{c.text}': the source gives {width} element(s), "
                     f"input '{c.dst[0]}.{c.dst[1]}' expects {dpi.size}", file=c.file,
-                    line=c.line)
+                    line=c.line, block=c.dst[0])
         if not changed:
             changed = _seed_one_size(info)
     for bl in info.values():
@@ -226,7 +227,8 @@ def _norm_slice(s0, s1, n, c):
     b = s1 + n if s1 is not None and s1 < 0 else (n if s1 is None else s1)
     if not (0 <= a < b <= n):
         raise WiringError(f"element range [{s0}:{s1}] is outside output "
-                          f"'{c.src[0]}.{c.src[1]}' of size {n}", file=c.file, line=c.line)
+                          f"'{c.src[0]}.{c.src[1]}' of size {n}", file=c.file, line=c.line,
+                          block=c.src[0])
     return a, b
 
 
@@ -238,7 +240,8 @@ def _unconnected_msg(info, flat, bl, name):
             continue
         for o in other.outputs:
             po = other.ports[("out", o)]
-            if (pi.size is None or po.size == pi.size) and (pi.unit in ("1", po.unit)):
+            if (pi.size is None or po.size == pi.size) and "1" in (pi.unit, po.unit) or (
+                    po.unit == pi.unit and (pi.size is None or po.size == pi.size)):
                 cand.append(f"{other.path}.{o} [{po.unit}]")
     size = "any size" if pi.size is None else f"size {pi.size}"
     hint = (f"; outputs of matching size and unit: {', '.join(cand[:8])}"

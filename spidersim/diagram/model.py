@@ -196,9 +196,11 @@ class Diagram:
         out = []
         for lp in self.layout.loops:
             n = len(lp.zidx)
+            first = self.blocks[lp.tears[0][0]]
             out.append({"index": lp.index, "walk": lp.walk, "names": lp.names,
                         "tears": [f"{p}.{q}" for p, q, _ in lp.tears], "ws0": lp.ws0,
-                        "n": n})
+                        "n": n, "file": first.file, "line": first.line,
+                        "block": first.path})
         return out
 
     # ------------------------------------------------------------------ compile & run
@@ -261,10 +263,16 @@ class Diagram:
         system.p[r] = LOOP_TOL_FACTOR * cfg["rtol"]
         stats = {"diagram": self.spec.name, "jit": jit, "compile_time": self._compile_time,
                  "structure_key": system.structure_key}
-        return integrate(system, cfg["t_end"], method=cfg["method"], rtol=cfg["rtol"],
-                         atol=cfg["atol"], max_step=cfg["max_step"],
-                         first_step=cfg["first_step"], output_interval=cfg["output_interval"],
-                         progress=progress, stats=stats)
+        try:
+            return integrate(system, cfg["t_end"], method=cfg["method"], rtol=cfg["rtol"],
+                             atol=cfg["atol"], max_step=cfg["max_step"],
+                             first_step=cfg["first_step"],
+                             output_interval=cfg["output_interval"], progress=progress,
+                             stats=stats)
+        except SpidersimError as exc:
+            if exc.file is None:
+                exc.file = self.file
+            raise
 
     # ------------------------------------------------------------------ summary
     def summary(self):

@@ -26,6 +26,10 @@ METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau"
            "BDF": BDF}
 IMPLICIT = ("Radau", "BDF")
 MAX_EVENTS_AT_ONE_TIME = 1000
+#: a run stalls when this many consecutive accepted steps are each shorter than
+#: STALL_STEP * max(1, |t|): the solution is running into a singularity
+STALL_COUNT = 500
+STALL_STEP = 1e-10
 #: chattering: this many events of one block inside the window below is an error
 CHATTER_COUNT = 50
 
@@ -213,9 +217,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         st["t_reached"] = t
         st["wall_time"] = time.perf_counter() - wall0
         st["newton_iterations"] = system.newton_iterations()
-        loop = system.loop_failure()
+        loop, lp = system.loop_failure()
         if loop:
-            err = AlgebraicLoopError(loop)
+            err = AlgebraicLoopError(loop, file=lp.get("file"), line=lp.get("line"),
+                                     block=lp.get("block"))
             err.partial = rec.result(events, st, "failed", loop)
             raise err
         why = system.diagnose(t, x) if x is not None else ""
@@ -304,6 +309,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
             tk = grid_time(grid_k)
 
     t = float(t0)
+    tiny = 0
     x = system.x0.copy()
     system.initialize(t, x)
     fire_due(t, x)
@@ -326,6 +332,15 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
             if solver.status == "failed":
                 fail(msg or "solver failure", solver.t, solver.y)
             st["steps"] += 1
+            if solver.t - t_old < STALL_STEP * max(1.0, abs(solver.t)):
+                tiny += 1
+                if tiny >= STALL_COUNT:
+                    fail(f"the integration stalls: {STALL_COUNT} consecutive steps shorter "
+                         f"than {STALL_STEP:g} s (a singularity, e.g. a division by a "
+                         f"signal crossing zero, or a discontinuity without an event)",
+                         solver.t, solver.y)
+            else:
+                tiny = 0
             if n_g:
                 hit = handle_state_events(solver, t_old, g_old)
                 if hit is not None:

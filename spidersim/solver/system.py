@@ -150,7 +150,8 @@ class CompiledSystem:
         return int(sum(self.sig[lp["ws0"] + WS_TOTAL] for lp in self.loops))
 
     def loop_failure(self):
-        """Report of the most recent failed Newton solve of any loop, or ''.
+        """``(report, loop)`` of the most recent failed Newton solve of any loop, or
+        ``("", None)``.
 
         Failures during rejected trial steps are normal; this is read only once the
         integration itself has failed.
@@ -163,7 +164,7 @@ class CompiledSystem:
             if status and (worst is None or self.sig[ws0 + WS_FAIL_T] >= worst[1]):
                 worst = (lp, self.sig[ws0 + WS_FAIL_T], status)
         if worst is None:
-            return ""
+            return "", None
         lp, t, status = worst
         ws0 = lp["ws0"]
         why = {1: "did not converge", 2: "produced a non-finite residual",
@@ -179,7 +180,7 @@ class CompiledSystem:
         return (f"algebraic loop {lp['index'] + 1} {why} at t = {t:.9g} s after "
                 f"{int(self.sig[ws0 + WS_FAIL_ITERS])} Newton iterations.\n"
                 f"  loop: {lp['walk']}\n  unknowns (tear variables): "
-                f"{', '.join(lp['tears'])}\n  residuals: {res}\n  advice: {advice}")
+                f"{', '.join(lp['tears'])}\n  residuals: {res}\n  advice: {advice}"), lp
 
     def diagnose(self, t, x):
         """Name the first non-finite signal (schedule order) or state derivative."""
@@ -197,4 +198,17 @@ class CompiledSystem:
                 if not np.all(np.isfinite(xdot[a:b])):
                     return (f"the derivative of state '{name}' is {xdot[a:b].tolist()} "
                             f"at t = {t:.9g} s")
+            # all finite: name the largest signal and derivative (a singularity ahead)
+            parts = []
+            if self.sig_names:
+                name, a, b = max(self.sig_names, key=lambda r: np.max(np.abs(
+                    self.sig[r[1]:r[2]]), initial=0.0))
+                parts.append(f"largest signal '{name}' = {np.max(np.abs(self.sig[a:b])):.3g}")
+            if self.x_names:
+                name, a, b = max(self.x_names, key=lambda r: np.max(np.abs(xdot[r[1]:r[2]]),
+                                                                   initial=0.0))
+                parts.append(f"fastest state '{name}' (|derivative| "
+                             f"{np.max(np.abs(xdot[a:b])):.3g})")
+            if parts:
+                return "at t = " + f"{t:.9g} s: " + ", ".join(parts)
         return ""

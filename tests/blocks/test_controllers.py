@@ -182,10 +182,11 @@ def test_loop_without_antiwindup_winds_up(ctrl):
 def test_clamping_in_a_closed_loop_does_not_stall(ctrl):
     """The same loop with clamping: the command sits at y_max while the error decreases, and
     the free rate ki e would push v back above the limit at once (Filippov sliding on
-    v = y_max, where I = y_max - kp e). dI/dt switches between 0 and ki e at v = y_max, a
-    discontinuity of the right-hand side without an event, so the integrator crawls with
-    steps of ~1e-12 s from t = 1.06 s (LSODA and RK45 never finish; Radau fails with
-    "Required step size is less than spacing between numbers").
+    v = y_max, where I = y_max - kp e). Regression: when dI/dt switched between 0 and ki e
+    at v = y_max inside ``derivative`` (a discontinuity of the right-hand side without an
+    event), the integrator crawled with steps of ~1e-12 s from t = 1.06 s (LSODA and RK45
+    never finished; Radau failed with "Required step size is less than spacing between
+    numbers").
 
     The run must finish in a sensible number of steps, hold the limit, overshoot less than
     without anti-windup, and (integral action) drive the error to zero.

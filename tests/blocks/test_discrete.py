@@ -17,9 +17,9 @@ T_END = 1.05                    # samples k = 0 .. 10
 
 
 def _run(block, src="{type: Ramp, slope: 1}", t_end=T_END):
-    return simulate(f"blocks:\n  u: {src}\n  b: {block}\nconnections:\n  - u.y -> b.{{}}\n"
-                    .replace("{}", "e" if "PI" in block else "u"), t_end=t_end,
-                    rtol=1e-8, atol=1e-10)
+    port = "e" if "PI" in block else "u"          # DiscretePI/PID read the error e
+    return simulate(f"blocks:\n  u: {src}\n  b: {block}\nconnections:\n  - u.y -> b.{port}\n",
+                    t_end=t_end, rtol=1e-8, atol=1e-10)
 
 
 def _held(r, name, ts=TS, offset=0.0):

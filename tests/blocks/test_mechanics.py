@@ -85,8 +85,8 @@ def test_lift_off_when_force_exceeds_weight():
 def test_lift_off_when_force_steps_past_weight():
     """A force that *steps* past m g (a time event) must lift a resting mass at once: the
     lift-off guard f/m - g jumps from negative to positive at the event, so no step sees it
-    cross zero (the guards are re-evaluated after the event), and MassOnStop has no
-    ``initialize`` hook to leave the rest mode: the mass stays on the stop forever."""
+    cross zero. Regression: with guards only compared at step ends (and no ``initialize``
+    hook in MassOnStop) the mass stayed on the stop for ever."""
     r = _drop(e=0.5, v_rest=1.0, t_end=4.0, f="{type: Step, t_step: 3, after: 15}")
     acc = 15.0 - G
     assert r["m.x"][-1] == pytest.approx(acc / 2, rel=1e-6), "the mass never lifted off"

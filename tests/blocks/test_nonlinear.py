@@ -96,10 +96,11 @@ def test_deadzone_piecewise(start, end, zc):
 def test_mode_survives_an_event_located_exactly_on_the_corner(block, expect_end):
     """u = t - 2 (a ramp) reaches the corners +-0.5 at t = 1.5 and 2.5 *exactly*, so the
     located event sits where the guard is exactly 0.0. ``on_event`` picks the mode from the
-    crossing direction, but ``initialize`` (run right after every event) recomputes it with
-    strict inequalities (``u > upper``) and puts the block back in the middle mode; the
-    guard then starts the next step at 0.0, which ``crossed`` does not count, so the block
-    stays in the wrong mode for the rest of the run (Saturation outputs 2.0 at t = 4).
+    crossing direction; ``initialize`` (run right after every event) must keep it there.
+    Regression: it recomputed the mode with strict inequalities (``u > upper``) and put the
+    block back in the middle mode; the guard then started the next step at 0.0, which
+    ``crossed`` does not count, so the block stayed in the wrong mode for the rest of the
+    run (Saturation output 2.0 at t = 4).
     """
     r = simulate(f"blocks:\n  s: {{type: Ramp, offset: -2}}\n  nl: {block}\n"
                  "  i: {type: Integrator}\nconnections:\n  - s.y -> nl.u\n  - nl.y -> i.u\n",

@@ -53,8 +53,9 @@ def test_stateless_diagram_records_like_a_stateful_one():
     """A diagram without states must, like one with states, end its record at t_end and
     record both levels at an event time (so that plots show a vertical edge).
 
-    Fails while integrate.py's ``n_x == 0`` branch records ``np.linspace(t, t_seg, 51)[1:-1]``
-    (the segment end t_seg, hence t_end and the pre-event sample, is never recorded).
+    Regression: integrate.py's old ``n_x == 0`` branch recorded only
+    ``np.linspace(t, t_seg, 51)[1:-1]``, so neither t_end nor the pre-event sample at a
+    segment end was ever recorded.
     """
     r = _src("{type: Step, t_step: 0.37, before: -0.5, after: 2.25}", t_end=2.0)
     assert r.t[-1] == 2.0, f"last sample at t = {r.t[-1]}, t_end = 2.0"

@@ -1,0 +1,321 @@
+"""The CLI reports user errors as ``spidersim: error: file:line: block 'path': message``
+on stderr, without a traceback, and returns exit status 2; a run that fails part-way writes
+the data computed up to the failure (``result.npz``, ``report.txt`` with status failed).
+
+Runs are interpreted (``--no-jit``) and short.
+"""
+from __future__ import annotations
+
+import os
+import re
+import textwrap
+
+import numpy as np
+import pytest
+
+import spidersim.cli
+from spidersim.cli import main
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+LAG = os.path.join(ROOT, "diagrams", "lib", "lag.yaml")
+
+
+def write(tmp_path, text, name="main.yaml"):
+    p = tmp_path / name
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def line_of(path, needle):
+    for k, ln in enumerate(open(path).read().splitlines()):
+        if needle in ln:
+            return k + 1
+    raise AssertionError(f"{needle!r} not in {path}")
+
+
+def run_cli(argv, capsys):
+    """Exit code and the (stdout, stderr) of ``spidersim <argv>``; exceptions other than
+    SystemExit escaping ``main`` are failures (a raw traceback for the user)."""
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:           # argparse
+        rc = exc.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def assert_clean_error(rc, out, err, where=None, *parts):
+    """Exit 2, one ``spidersim: error:`` report naming ``where`` and every part; no
+    traceback on either stream."""
+    assert rc == 2, f"exit code {rc}\n{out}\n{err}"
+    assert "Traceback" not in out and "Traceback" not in err, err
+    assert "spidersim: error: " in err, err
+    report = err.split("spidersim: error: ", 1)[1]
+    if where is not None:
+        # ``file: `` also accepts ``file:LINE: `` (a --set error points at the block's line)
+        ok = report.startswith(where) or (
+            where.endswith(": ") and re.match(re.escape(where[:-2]) + r":\d+: ", report))
+        assert ok, f"expected {where!r} at the start of: {report}"
+    for part in parts:
+        assert part in report, f"{part!r} not in: {report}"
+
+
+# ---------------------------------------------------------------------------- load errors
+CASES = {
+    "unknown_type": ("""\
+        blocks:
+          src: {type: Constant, value: 1}
+          g:   {type: Gian, k: 2}
+        connections:
+          - src.y -> g.u
+        """, "type: Gian", ["block 'g': ", "unknown block type 'Gian'", "Gain"]),
+    "out_of_bounds": ("""\
+        blocks:
+          v: {type: Constant, value: 1}
+          motor:
+            type: DCMotor
+            R: -1
+        connections:
+          - v.y -> motor.v
+        """, "R: -1", ["block 'motor': ", "parameter 'R' must be > 0, got -1"]),
+    "choices": ("""\
+        blocks:
+          e: {type: Constant, value: 1}
+          pi: {type: PI, antiwindup: clamp}
+        connections:
+          - e.y -> pi.e
+        """, "antiwindup: clamp", ["block 'pi': ", "'clamp'", "clamping"]),
+    "unsafe_expression": ("""\
+        parameters:
+          a: "().__class__"
+        blocks:
+          src: {type: Constant, value: 1}
+          g: {type: Gain, k: a}
+        connections:
+          - src.y -> g.u
+        """, "a: ", ["not allowed"]),
+    "unknown_port": ("""\
+        blocks:
+          src: {type: Constant, value: 1}
+          g: {type: Gain, k: 2}
+        connections:
+          - src.y -> g.in
+        """, "src.y -> g.in", ["no input 'in'", "inputs: u"]),
+    "size_mismatch": ("""\
+        blocks:
+          c: {type: Constant, value: [1, 2]}
+          ss: {type: StateSpace, A: [[-1]], B: [[1]], C: [[1]]}
+        connections:
+          - c.y -> ss.u
+        """, "c.y -> ss.u", ["size mismatch", "gives 2", "expects 1"]),
+    "two_sources": ("""\
+        blocks:
+          a: {type: Constant, value: 1}
+          b: {type: Constant, value: 2}
+          g: {type: Gain}
+        connections:
+          - a.y -> g.u
+          - b.y -> g.u
+        """, "b.y -> g.u", ["two sources", "a.y", "b.y"]),
+    "unconnected": ("""\
+        blocks:
+          st: {type: Step}
+          ss: {type: StateSpace, A: [[-1]], B: [[1]], C: [[1]]}
+        """, "ss: {type", ["block 'ss': ", "input 'u'", "not connected", "st.y"]),
+    "duplicate_block": ("""\
+        blocks:
+          g: {type: Gain}
+          src: {type: Constant, value: 1}
+          g: {type: Gain, k: 3}
+        connections:
+          - src.y -> g.u
+        """, "g: {type: Gain, k: 3}", ["duplicate key 'g'"]),
+    "yaml_syntax": ("""\
+        blocks:
+          a: {type: Constant, value: 1}
+          g: {type: Gain, k: [1, 2}
+        """, "k: [1, 2}", ["YAML syntax error"]),
+    "unknown_section": ("""\
+        blocks:
+          a: {type: Constant, value: 1}
+        conections: []
+        """, "conections:", ["unknown section 'conections'", "did you mean 'connections'"]),
+    "unknown_setting": ("""\
+        blocks:
+          a: {type: Constant, value: 1}
+        simulation: {t_end: 1, rel_tol: 1e-6}
+        """, "simulation:", ["unknown simulation setting 'rel_tol'"]),
+    "missing_subsystem": ("""\
+        subsystems:
+          lag: lib/nolag.yaml
+        blocks:
+          step: {type: Step}
+          l: {type: lag}
+        connections:
+          - step.y -> l.u
+        """, "lag: lib/nolag.yaml", ["not found", "nolag.yaml"]),
+    "huge_integer": ("""\
+        blocks:
+          src: {type: Constant, value: 1}
+          g: {type: Gain, k: 2**10000}
+        connections:
+          - src.y -> g.u
+        """, "k: 2**10000", ["block 'g': ", "2**10000"]),
+}
+
+
+@pytest.mark.parametrize("command", ["check", "run"])
+@pytest.mark.parametrize("case", list(CASES))
+def test_load_error_is_reported_without_traceback(tmp_path, capsys, case, command):
+    text, needle, parts = CASES[case]
+    p = write(tmp_path, text)
+    extra = ["--no-jit", "--no-plots", "--out", tmp_path / "out"] if command == "run" else []
+    rc, out, err = run_cli([command, p] + extra, capsys)
+    assert_clean_error(rc, out, err, f"{p}:{line_of(p, needle)}: ", *parts)
+    assert not (tmp_path / "out").exists()        # nothing written for a diagram not loaded
+
+
+def test_missing_diagram_file(tmp_path, capsys):
+    rc, out, err = run_cli(["check", tmp_path / "nope.yaml"], capsys)
+    assert_clean_error(rc, out, err, None, "not found", "nope.yaml")
+
+
+# ---------------------------------------------------------------------------- --set
+@pytest.fixture
+def set_diagram(tmp_path):
+    write(tmp_path, open(LAG).read(), "lib/lag.yaml")
+    return write(tmp_path, """\
+        parameters:
+          gain: 2
+        subsystems:
+          lag: lib/lag.yaml
+        blocks:
+          a: {type: Constant, value: 1}
+          g: {type: Gain, k: gain}
+          l: {type: lag, tau: 0.1}
+        connections:
+          - a.y -> g.u
+          - g.y -> l.u
+        """)
+
+
+@pytest.mark.parametrize("command", ["check", "run"])
+def test_set_unknown_top_level_parameter(set_diagram, tmp_path, capsys, command):
+    extra = ["--no-jit", "--no-plots", "--out", tmp_path / "out"] if command == "run" else []
+    rc, out, err = run_cli([command, set_diagram, "--set", "gian=3"] + extra, capsys)
+    assert_clean_error(rc, out, err, f"{set_diagram}: ", "gian", "did you mean gain")
+
+
+def test_set_unknown_block_parameter(set_diagram, capsys):
+    rc, out, err = run_cli(["check", set_diagram, "--set", "g.kk=3"], capsys)
+    assert_clean_error(rc, out, err, f"{set_diagram}: ", "block 'g': ", "g.kk", "'kk'")
+
+
+def test_set_unknown_subsystem_parameter(set_diagram, capsys):
+    rc, out, err = run_cli(["check", set_diagram, "--set", "l.tauu=3"], capsys)
+    assert_clean_error(rc, out, err, f"{set_diagram}: ", "l.tauu")
+    assert "tau" in err.replace("tauu", ""), err         # suggests the near name
+
+
+def test_set_nested_block_parameter(set_diagram, capsys):
+    rc, out, err = run_cli(["check", set_diagram, "--set", "l.gain.kk=3"], capsys)
+    assert_clean_error(rc, out, err, None, "l.gain.kk")
+
+
+def test_set_without_equals_sign(set_diagram, capsys):
+    rc, out, err = run_cli(["check", set_diagram, "--set", "gain"], capsys)
+    assert_clean_error(rc, out, err, None, "--set expects path=value", "'gain'")
+
+
+def test_set_valid_value_still_works(set_diagram, capsys):
+    rc, out, err = run_cli(["check", set_diagram, "--set", "gain=3", "--set", "l.tau=0.2"],
+                           capsys)
+    assert rc == 0, err
+    assert "OK" in out
+
+
+# ---------------------------------------------------------------------------- run failures
+class Stalled(Exception):
+    pass
+
+
+class GuardedProgress(spidersim.cli.Progress):
+    """The CLI's progress bar, stopping a run after 50000 steps (a hang guard)."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.n = 0
+
+    def __call__(self, t):
+        self.n += 1
+        if self.n > 50000:
+            raise Stalled(f"the integrator took 50000 steps and stands at t = {t!r}")
+        super().__call__(t)
+
+
+DIVISION = """\
+    name: division
+    blocks:
+      one:  {type: Constant, value: 1}
+      ramp: {type: Ramp, slope: 1, offset: -0.5}   # crosses zero at t = 0.5
+      div:  {type: Product, ops: "*/"}
+      int:  {type: Integrator}
+    connections:
+      - one.y -> div.u1
+      - ramp.y -> div.u2
+      - div.y -> int.u
+    simulation: {t_end: 1.0}
+    """
+
+
+def _run_guarded(argv, capsys, monkeypatch):
+    monkeypatch.setattr(spidersim.cli, "Progress", GuardedProgress)
+    try:
+        return run_cli(argv, capsys)
+    except Stalled as exc:
+        pytest.fail(f"the run hangs instead of failing: {exc}")
+
+
+def test_run_failure_writes_partial_data_and_exits_non_zero(tmp_path, capsys, monkeypatch):
+    p = write(tmp_path, DIVISION)
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--out", out_dir],
+                                capsys, monkeypatch)
+    assert rc != 0 and rc is not None, err
+    assert "Traceback" not in out + err
+    assert "spidersim: error: " in err and "div" in err.split("spidersim: error: ", 1)[1]
+    assert "partial data" in err
+    with np.load(out_dir / "result.npz") as z:
+        t = z["t"]
+        assert len(t) > 2 and abs(t[-1] - 0.5) < 1e-3
+        assert "int.y" in z.files and len(z["int.y"]) == len(t)
+    report = (out_dir / "report.txt").read_text()
+    assert "status: failed" in report
+
+
+ALGEBRAIC_LOOP = """\
+    parameters:
+      K: -1          # y = u - K y = u + y: no solution
+    blocks:
+      u:   {type: Step, t_step: 0}
+      sum: {type: Sum, signs: "+-"}
+      fb:  {type: Gain, k: K}
+      x:   {type: Integrator}
+    connections:
+      - u.y -> sum.u1
+      - sum.y -> fb.u
+      - fb.y -> sum.u2
+      - sum.y -> x.u
+    """
+
+
+def test_run_unsolvable_loop_is_reported_and_keeps_data(tmp_path, capsys, monkeypatch):
+    p = write(tmp_path, ALGEBRAIC_LOOP)
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--t-end", "0.1",
+                                 "--out", out_dir], capsys, monkeypatch)
+    assert_clean_error(rc, out, err, None, "algebraic loop", "sum.y -> fb.u",
+                       "fb.y -> sum.u2")
+    assert (out_dir / "result.npz").exists()
+    assert "status: failed" in (out_dir / "report.txt").read_text()
