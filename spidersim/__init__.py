@@ -8,12 +8,14 @@ Quick use::
     r.t, r["motor.w"], r.stats
 """
 from . import blocks  # noqa: F401  (registers the block library)
+from .diagram.analysis import AnalysisError, OperatingPoint, linearize, loop_transfer, trim
 from .diagram.model import Diagram, load, loads
 from .errors import (AlgebraicLoopError, BlockTypeError, DiagramError, IntegrationError,
                      ParameterError, SpidersimError, WiringError)
 from .solver.result import Result
 
 __version__ = "0.1.0"
-__all__ = ["Diagram", "load", "loads", "Result", "SpidersimError", "DiagramError",
+__all__ = ["Diagram", "load", "loads", "Result", "linearize", "loop_transfer", "trim",
+           "OperatingPoint", "AnalysisError", "SpidersimError", "DiagramError",
            "BlockTypeError", "ParameterError", "WiringError", "AlgebraicLoopError",
            "IntegrationError"]

@@ -274,6 +274,25 @@ class Diagram:
                 exc.file = self.file
             raise
 
+    # ------------------------------------------------------------------ analysis
+    def linearize(self, inputs, outputs, at=None, open=(), jit=True):
+        """Named ``control.StateSpace`` from ``inputs`` to ``outputs`` (signal names) at the
+        operating point ``at``, loops cut at the signals in ``open``; see
+        :mod:`spidersim.diagram.analysis`."""
+        from .analysis import linearize
+        return linearize(self, inputs, outputs, at=at, open=open, jit=jit)
+
+    def loop_transfer(self, signal, at=None, jit=True):
+        """Loop transfer ``L`` with the loop opened at ``signal`` (closed loop L/(1+L))."""
+        from .analysis import loop_transfer
+        return loop_transfer(self, signal, at=at, jit=jit)
+
+    def trim(self, **kw):
+        """Operating point with chosen derivatives zero and target signal values; see
+        :func:`spidersim.diagram.analysis.trim`."""
+        from .analysis import trim
+        return trim(self, **kw)
+
     # ------------------------------------------------------------------ summary
     def summary(self):
         """Text for ``spidersim check``: blocks, states, signals, schedule."""

@@ -387,4 +387,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     st["newton_iterations"] = system.newton_iterations()
     st["samples"] = rec.n
     st["wall_time"] = time.perf_counter() - wall0
-    return rec.result(events, st)
+    result = rec.result(events, st)
+    x_final = x if not isinstance(system, _Clock) else x[:0]
+    result.final = (float(t), np.array(x_final, dtype=float), system.modes.copy())
+    return result

@@ -16,8 +16,11 @@ class Result:
     (n_samples, size) array for a vector signal; ``r.events`` a list of ``(t, block, event)``;
     ``r.stats`` a dict (method, rtol, atol, steps, rhs_calls, jacobian_calls, lu_decompositions,
     events, wall_time, compile_time, ...); ``r.status`` ``"ok"`` or ``"failed"`` with
-    ``r.message``.
+    ``r.message``; ``r.final`` is ``(t, x, modes)`` at the end of a successful run (the
+    operating point a linearization can start from).
     """
+
+    final = None
 
     def __init__(self, t, data, slices, units, events, stats, status="ok", message=""):
         self.t = np.asarray(t)

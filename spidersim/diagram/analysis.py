@@ -1,0 +1,362 @@
+"""Linearization of diagrams between named signals, loop openings, operating points, trim.
+
+Analysis points are inserted into the *flat* diagram as extra stateless blocks, so the state
+and mode layouts are those of the diagram itself and the same compiled code (with its loop
+solves) is differentiated:
+
+- an input ``S`` (a perturbation added to signal ``S``): every consumer of ``S`` reads
+  ``S + d`` from a new Sum fed by ``S`` and a Constant ``d``;
+- an opening at ``S``: every consumer of ``S`` reads ``S_op + d`` instead, where ``S_op``
+  is the value of ``S`` at the operating point of the closed diagram; ``S`` itself is then
+  the loop's return. The transfer from the opening's input to its output is ``-L`` for a
+  negative-feedback loop, so :func:`loop_transfer` returns ``L = -T``;
+- outputs are read at their source ports.
+
+python-control does not allow '.' in signal names, so the state space names its states,
+inputs and outputs with '/' in place of '.' (``j3.motor.w`` -> ``j3/motor/w``).
+
+The operating point (``at``) is the initial state (``None`` or ``"initial"``), the state at
+time ``T`` of a simulation (a number), an :class:`OperatingPoint` from :func:`trim`, or a
+``{"trim": {...}}`` mapping of :func:`trim`'s arguments.
+"""
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..blocks.base import REGISTRY
+from ..errors import SpidersimError
+from ..solver.linearize import jacobians
+from .flatten import FlatConn, Instance
+
+
+class AnalysisError(SpidersimError):
+    """Bad analysis request: unknown signal, opening on an unconnected signal, failed trim."""
+
+
+@dataclass
+class OperatingPoint:
+    """States ``x`` and modes at time ``t`` (and trimmed inputs by name, if any)."""
+
+    t: float
+    x: np.ndarray
+    modes: np.ndarray
+    inputs: dict = field(default_factory=dict)
+    residuals: dict = field(default_factory=dict)
+
+
+def _signal_ref(d, name):
+    """``(path, port, s0, s1, size, unit)`` of a signal name of diagram ``d``."""
+    base, idx = name, None
+    if name.endswith("]") and "[" in name:
+        base, _, rest = name.partition("[")
+        try:
+            idx = int(rest[:-1])
+        except ValueError:
+            raise AnalysisError(f"cannot read signal '{name}' (use block.port or "
+                                f"block.port[i])", file=d.file) from None
+    path, _, port = base.rpartition(".")
+    if base in d.flat.aliases:
+        path, port, s0, s1 = d.flat.aliases[base]
+    else:
+        s0 = s1 = None
+    bl = d.layout.blocks.get(path)
+    if bl is None or ("out", port) not in bl.ports:
+        near = difflib.get_close_matches(name, d.signals(), n=3)
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        raise AnalysisError(f"unknown signal '{name}'{hint} (signals are block.port)",
+                            file=d.file)
+    full = bl.ports[("out", port)].size
+    if s0 is None:
+        s0, s1 = 0, full
+    if idx is not None:
+        if not 0 <= idx < s1 - s0:
+            raise AnalysisError(f"signal '{name}': index out of range (size {s1 - s0})",
+                                file=d.file)
+        s0, s1 = s0 + idx, s0 + idx + 1
+    return path, port, s0, s1, s1 - s0, bl.ports[("out", port)].unit
+
+
+def _channel_names(name, n):
+    return [name] if n == 1 else [f"{name}[{i}]" for i in range(n)]
+
+
+def control_name(name):
+    """python-control forbids '.' in signal names: ``j3.motor.w`` becomes ``j3/motor/w``."""
+    return name.replace(".", "/")
+
+
+class Linearizer:
+    """A diagram transformed with analysis points, ready to be differentiated."""
+
+    def __init__(self, d, inputs, outputs, open=(), jit=True):
+        from .model import Diagram
+        self.d = d
+        inputs, outputs, open = list(inputs), list(outputs), list(open or ())
+        refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
+        flat = d.flat
+        blocks = dict(flat.blocks)
+        conns = list(flat.conns)
+        self.in_slots = []       # (name, const path, size)
+        self.op_consts = []      # (const path, (path, port, s0, s1)) for openings
+        points = [(n, "open") for n in open] + [(n, "input") for n in inputs if n not in open]
+        for k, (name, kind) in enumerate(points):
+            path, port, s0, s1, n, unit = refs[name]
+            consumers = [c for c in conns if c.src[0] == path and c.src[1] == port and
+                         _covers(c.src, s0, s1, d)]
+            if not consumers and kind == "open":
+                raise AnalysisError(f"cannot open '{name}': it is not a connection (no block "
+                                    f"reads it)", file=d.file)
+            delta = f"__lin_d{k}"
+            blocks[delta] = _instance(delta, "Constant", {"value": np.zeros(n)}, d.file)
+            add = f"__lin_s{k}"
+            blocks[add] = _instance(add, "Sum", {"signs": "++"}, d.file)
+            if kind == "open":
+                opc = f"__lin_op{k}"
+                blocks[opc] = _instance(opc, "Constant", {"value": np.zeros(n)}, d.file)
+                conns.append(FlatConn((opc, "y", None, None), (add, "u1"), d.file, 0, ""))
+                self.op_consts.append((opc, (path, port, s0, s1)))
+            else:
+                conns.append(FlatConn((path, port, s0, s1), (add, "u1"), d.file, 0, ""))
+            conns.append(FlatConn((delta, "y", None, None), (add, "u2"), d.file, 0, ""))
+            # consumers reading exactly this signal now read the sum (others are unchanged)
+            conns = [FlatConn((add, "y", None, None), c.dst, c.file, c.line, c.text)
+                     if c in consumers else c for c in conns]
+            if name in inputs:
+                self.in_slots.append((name, delta, n))
+        flat2 = type(flat)(blocks, conns, flat.subsystem_instances, flat.aliases)
+        self.dlin = Diagram.__new__(Diagram)
+        self.dlin.__dict__.update({k: v for k, v in d.__dict__.items()
+                                   if k not in ("_modules",)})
+        self.dlin._modules = {}
+        self.dlin.flat = flat2
+        self.dlin.blocks = blocks
+        from .graph import build_layout
+        self.dlin.layout = build_layout(flat2)
+        self.dlin.p = self.dlin._param_array()
+        self.dlin._log = self.dlin._log_spec("all")
+        if self.dlin.layout.n_x != d.layout.n_x:
+            raise RuntimeError("analysis points changed the state layout")
+        self.system = self.dlin.compile(jit)
+        a, r = self.dlin.layout.p_loop_tol
+        self.system.p[a] = 1e-14        # loops to round-off: central differences need it
+        self.system.p[r] = 1e-13
+        self.inputs, self.outputs, self.open = inputs, outputs, open
+        self.out_slices = []
+        for name in outputs:
+            path, port, s0, s1, n, unit = refs[name]
+            arr, a0, _b0 = self.dlin.layout.blocks[path].ports[("out", port)].loc
+            self.out_slices.append((name, arr, a0 + s0, a0 + s1))
+        self.in_p = []
+        for name, delta, n in self.in_slots:
+            a0 = self.dlin.layout.blocks[delta].pslots["value"][0]
+            self.in_p.append((name, a0, a0 + n))
+        self.op_p = []
+        for opc, src in self.op_consts:
+            a0, b0, _ = self.dlin.layout.blocks[opc].pslots["value"]
+            self.op_p.append((a0, b0, src))
+
+    def state_names(self):
+        names = [""] * self.d.layout.n_x
+        for bl in self.d.layout.blocks.values():
+            for s, (a, b) in bl.states.items():
+                for i, nm in enumerate(_channel_names(f"{bl.path}.{s}", b - a)):
+                    names[a + i] = nm
+        return names
+
+    def at(self, t, x, modes):
+        """Set the operating point; openings hold the closed-loop values of their signals."""
+        sys_ = self.system
+        self.t = float(t)
+        self.x = np.array(x, dtype=float)
+        sys_.modes[:] = modes
+        sys_.p[[i for _, a, b in self.in_p for i in range(a, b)]] = 0.0
+        if self.op_p:
+            # the closed diagram's value of each opened signal at this point
+            sys0 = self.d.compile(self.system_jit)
+            sys0.modes[:] = modes
+            sys0.outputs(self.t, self.x)
+            for a0, b0, (path, port, s0, s1) in self.op_p:
+                arr, l0, _ = self.d.layout.blocks[path].ports[("out", port)].loc
+                src = sys0.sig if arr == "sig" else self.x
+                sys_.p[a0:b0] = src[l0 + s0:l0 + s1]
+
+    def evaluate(self, x, u):
+        sys_ = self.system
+        k = 0
+        for name, a, b in self.in_p:
+            sys_.p[a:b] = u[k:k + b - a]
+            k += b - a
+        xdot = sys_.rhs(self.t, x)
+        y = np.concatenate([(sys_.sig if arr == "sig" else x)[a:b]
+                            for name, arr, a, b in self.out_slices])
+        return xdot, y
+
+    def state_space(self):
+        import control
+        nu = sum(b - a for _, a, b in self.in_p)
+        A, B, C, D = jacobians(self.evaluate, self.x, np.zeros(nu))
+        in_names = [nm for name, a, b in self.in_p for nm in _channel_names(name, b - a)]
+        out_names = [nm for name, arr, a, b in self.out_slices
+                     for nm in _channel_names(name, b - a)]
+        return control.ss(A, B, C, D, states=[control_name(n) for n in self.state_names()],
+                          inputs=[control_name(n) for n in in_names],
+                          outputs=[control_name(n) for n in out_names],
+                          name=control_name(self.d.spec.name))
+
+
+def _covers(src, s0, s1, d):
+    a = 0 if src[2] is None else src[2]
+    b = d.layout.blocks[src[0]].ports[("out", src[1])].size if src[3] is None else src[3]
+    return (a, b) == (s0, s1)
+
+
+def _instance(path, type_name, params, file):
+    cls = REGISTRY[type_name]
+    return Instance(path, cls, cls.validate_params(params), file, 0, {})
+
+
+def operating_point(d, at, jit=True):
+    """Resolve ``at`` into an :class:`OperatingPoint` of diagram ``d``."""
+    if isinstance(at, OperatingPoint):
+        return at
+    if isinstance(at, dict) and "trim" in at:
+        return trim(d, jit=jit, **(at["trim"] or {}))
+    if at is None or at == "initial":
+        system = d.compile(jit)
+        x = system.x0.copy()
+        modes = d.initial_modes()
+        system.modes[:] = modes
+        system.initialize(0.0, x)
+        tol = 1e-12
+        while system.next_time(0.0) <= tol:
+            system.time_events(0.0, x, tol)
+            system.initialize(0.0, x)
+        return OperatingPoint(0.0, x, system.modes.copy())
+    if isinstance(at, (int, float)) and not isinstance(at, bool):
+        if at == 0:
+            return operating_point(d, None, jit)
+        r = d.simulate(t_end=float(at), jit=jit)
+        t, x, modes = r.final
+        return OperatingPoint(t, x, modes)
+    raise AnalysisError(f"cannot use {at!r} as an operating point: give None, 'initial', a "
+                        f"time, an OperatingPoint or {{'trim': {{...}}}}", file=d.file)
+
+
+def linearize(d, inputs, outputs, at=None, open=(), jit=True):
+    """Linear model of diagram ``d`` from ``inputs`` to ``outputs`` (signal names) at ``at``,
+    with the connections named in ``open`` cut; a named ``control.StateSpace``."""
+    if not inputs or not outputs:
+        raise AnalysisError("linearize needs at least one input and one output signal",
+                            file=d.file)
+    lin = Linearizer(d, inputs, outputs, open, jit)
+    lin.system_jit = jit
+    op = operating_point(d, at, jit)
+    lin.at(op.t, op.x, op.modes)
+    return lin.state_space()
+
+
+def loop_transfer(d, signal, at=None, jit=True):
+    """Loop transfer ``L`` at ``signal``: the loop opened there, ``L = -T`` where ``T`` is
+    the transfer from the opening's input to its return (negative feedback: the closed loop
+    is ``L / (1 + L)``)."""
+    sys = linearize(d, [signal], [signal], at=at, open=[signal], jit=jit)
+    import control
+    return control.ss(sys.A, sys.B, -sys.C, -sys.D, states=sys.state_labels,
+                      inputs=sys.input_labels, outputs=sys.output_labels,
+                      name=f"L({control_name(signal)})")
+
+
+def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit=True,
+         tol=1e-10):
+    """Find states (and the values of ``free_inputs``, signals opened as unknown inputs) such
+    that the chosen state derivatives are zero and ``targets`` (signal -> value) hold.
+
+    ``derivatives``: ``"all"`` or a list of state names (``block.state`` or
+    ``block.state[i]``). Solved by ``scipy.optimize.least_squares`` from ``x0`` (default:
+    the initial state). Raises :class:`AnalysisError` naming the residuals when the solution
+    does not reach ``tol``.
+    """
+    from scipy.optimize import least_squares
+
+    targets = dict(targets or {})
+    free_inputs = list(free_inputs)
+    outs = list(targets)
+    lin = Linearizer(d, free_inputs, outs, (), jit) if free_inputs else None
+    names = _state_names(d)
+    if derivatives == "all":
+        rows = list(range(d.layout.n_x))
+    else:
+        rows = []
+        for nm in derivatives:
+            idx = [i for i, n in enumerate(names) if n == nm or n.startswith(nm + "[")]
+            if not idx:
+                near = difflib.get_close_matches(nm, names, n=3)
+                raise AnalysisError(f"trim: unknown state '{nm}'"
+                                    + (f"; did you mean {', '.join(near)}?" if near else ""),
+                                    file=d.file)
+            rows += idx
+    base = operating_point(d, None, jit)
+    x_start = base.x.copy() if x0 is None else np.asarray(x0, dtype=float)
+    if lin is None:
+        lin = _TrimEval(d, outs, jit)
+    lin.system_jit = jit
+    lin.at(t, x_start, base.modes)
+    nu = sum(b - a for _, a, b in getattr(lin, "in_p", []))
+    want = np.concatenate([np.ravel(targets[n]) for n in outs]) if outs else np.zeros(0)
+
+    def residual(z):
+        x, u = z[:len(x_start)], z[len(x_start):]
+        xdot, y = lin.evaluate(x, u)
+        return np.concatenate((xdot[rows], y - want))
+
+    sol = least_squares(residual, np.concatenate((x_start, np.zeros(nu))), xtol=1e-15,
+                        ftol=1e-15, gtol=1e-15, max_nfev=2000)
+    res = residual(sol.x)
+    labels = [f"d/dt {names[i]}" for i in rows] + [
+        nm for n in outs for nm in _channel_names(n, np.size(targets[n]))]
+    resid = dict(zip(labels, res))
+    if not np.all(np.isfinite(res)) or np.max(np.abs(res), initial=0.0) > tol:
+        worst = sorted(resid.items(), key=lambda kv: -abs(kv[1]))[:6]
+        raise AnalysisError("trim did not converge (" + sol.message + "); largest residuals: "
+                            + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
+    x = sol.x[:len(x_start)]
+    u = sol.x[len(x_start):]
+    inputs = {}
+    k = 0
+    for name, a, b in getattr(lin, "in_p", []):
+        inputs[name] = u[k:k + b - a].copy() if b - a > 1 else float(u[k])
+        k += b - a
+    return OperatingPoint(float(t), x, base.modes.copy(), inputs, resid)
+
+
+def _state_names(d):
+    names = [""] * d.layout.n_x
+    for bl in d.layout.blocks.values():
+        for s, (a, b) in bl.states.items():
+            for i, nm in enumerate(_channel_names(f"{bl.path}.{s}", b - a)):
+                names[a + i] = nm
+    return names
+
+
+class _TrimEval:
+    """Evaluate derivatives and target signals of the diagram itself (no free inputs)."""
+
+    def __init__(self, d, outs, jit):
+        self.d = d
+        self.system = d.compile(jit)
+        self.refs = [_signal_ref(d, n) for n in outs]
+
+    def at(self, t, x, modes):
+        self.t = t
+        self.system.modes[:] = modes
+
+    def evaluate(self, x, u):
+        xdot = self.system.rhs(self.t, x)
+        ys = []
+        for path, port, s0, s1, n, unit in self.refs:
+            arr, a0, _ = self.d.layout.blocks[path].ports[("out", port)].loc
+            ys.append((self.system.sig if arr == "sig" else x)[a0 + s0:a0 + s1])
+        return xdot, (np.concatenate(ys) if ys else np.zeros(0))

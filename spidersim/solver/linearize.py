@@ -1,0 +1,137 @@
+"""Linearization by central differences and frequency-domain figures of merit.
+
+:func:`jacobians` differentiates ``xdot = f(x, u)`` and ``y = g(x, u)`` around an operating
+point by central differences, each variable with its own step
+``h_j = 6e-6 max(1, |v_j|)`` (about eps^(1/3), where truncation and round-off errors of a
+central difference balance). ``f`` and ``g`` come from the compiled diagram, so algebraic
+loops are solved at every perturbation, and blocks stay in their current event mode.
+
+:func:`siso_figures` reads poles, zeros, DC gain, -3 dB bandwidth, gain and phase crossover
+frequencies and margins from a SISO ``control.StateSpace``. The bandwidth is computed here
+rather than by ``control.bandwidth``: it is the first frequency where ``|G(jw)|`` falls
+3 dB below ``|G(0)|``, for a negative DC gain as well; it is undefined (reported as
+``None`` with the reason) when the DC gain is infinite (an integrator) or zero.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+STEP = 6e-6
+
+
+def jacobians(evaluate, x0, u0):
+    """``(A, B, C, D)`` of ``evaluate(x, u) -> (xdot, y)`` at ``(x0, u0)``."""
+    x0 = np.asarray(x0, dtype=float)
+    u0 = np.asarray(u0, dtype=float)
+    f0, y0 = evaluate(x0, u0)
+    nx, nu, ny = len(x0), len(u0), len(y0)
+    A, C = np.zeros((nx, nx)), np.zeros((ny, nx))
+    B, D = np.zeros((nx, nu)), np.zeros((ny, nu))
+    for j in range(nx):
+        h = STEP * max(1.0, abs(x0[j]))
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += h
+        xm[j] -= h
+        fp, yp = evaluate(xp, u0)
+        fm, ym = evaluate(xm, u0)
+        A[:, j] = (fp - fm) / (2 * h)
+        C[:, j] = (yp - ym) / (2 * h)
+    for j in range(nu):
+        h = STEP * max(1.0, abs(u0[j]))
+        up, um = u0.copy(), u0.copy()
+        up[j] += h
+        um[j] -= h
+        fp, yp = evaluate(x0, up)
+        fm, ym = evaluate(x0, um)
+        B[:, j] = (fp - fm) / (2 * h)
+        D[:, j] = (yp - ym) / (2 * h)
+    evaluate(x0, u0)
+    return A, B, C, D
+
+
+def _mag(sys, w):
+    return np.abs(np.atleast_1d(sys(1j * np.atleast_1d(w))).ravel())
+
+
+def bandwidth(sys, w_max=None):
+    """-3 dB bandwidth [rad/s] of a SISO system and a note: ``(value, note)``.
+
+    ``value`` is None when undefined: infinite DC gain (integrator), zero DC gain, or no
+    crossing below ``w_max`` (then the note says so).
+    """
+    import control
+    from scipy.optimize import brentq
+
+    poles = control.poles(sys)
+    if np.any(np.abs(poles) < 1e-12):
+        return None, "undefined: infinite DC gain (the system has an integrator)"
+    g0 = abs(complex(np.atleast_1d(sys(0j)).ravel()[0]))
+    if not np.isfinite(g0):
+        return None, "undefined: infinite DC gain"
+    if g0 == 0.0:
+        return None, "undefined: zero DC gain"
+    level = g0 / math.sqrt(2.0)
+    scale = max([abs(p) for p in poles if abs(p) > 0] + [1.0])
+    w_max = w_max or 1e4 * scale
+    w = np.logspace(np.log10(scale) - 6, np.log10(w_max), 4000)
+    m = _mag(sys, w)
+    below = np.flatnonzero(m < level)
+    if not len(below):
+        return None, f"undefined: |G| stays above -3 dB up to {w_max:.3g} rad/s"
+    k = below[0]
+    if k == 0:
+        return float(w[0]), "below the lowest frequency examined"
+    wb = brentq(lambda v: _mag(sys, v)[0] - level, w[k - 1], w[k], xtol=1e-12 * w[k])
+    return float(wb), ""
+
+
+def siso_figures(sys):
+    """Dict of poles, zeros, DC gain, bandwidth, crossovers and margins of SISO ``sys``."""
+    import control
+
+    out = {"poles": control.poles(sys), "zeros": control.zeros(sys)}
+    with np.errstate(all="ignore"):
+        try:
+            out["dc_gain"] = float(np.real(control.dcgain(sys)))
+        except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
+            out["dc_gain"] = math.inf
+        bw, note = bandwidth(sys)
+        out["bandwidth"] = bw
+        out["bandwidth_note"] = note
+        gm, pm, wcg, wcp = control.margin(sys)
+    out["gain_margin"] = float(gm)
+    out["phase_margin"] = float(pm)
+    out["phase_crossover"] = float(wcg)    # where the phase is -180 deg
+    out["gain_crossover"] = float(wcp)     # where |G| = 1
+    return out
+
+
+def format_figures(fig, name=""):
+    """Text table of :func:`siso_figures`."""
+    def num(v, unit=""):
+        if v is None or (isinstance(v, float) and not np.isfinite(v)):
+            return "none" if v is None else ("inf" if v > 0 else "-inf") if not np.isnan(
+                v) else "none"
+        return f"{v:.6g}{unit}"
+
+    def cplx(vals):
+        return ", ".join(f"{z.real:.6g}{z.imag:+.6g}j" if abs(z.imag) > 1e-12 * max(1, abs(z))
+                         else f"{z.real:.6g}" for z in sorted(vals, key=lambda z: (
+                             z.real, z.imag))) or "none"
+
+    bw = fig["bandwidth"]
+    lines = [f"  {name}" if name else "",
+             f"    poles [rad/s]:         {cplx(fig['poles'])}",
+             f"    zeros [rad/s]:         {cplx(fig['zeros'])}",
+             f"    DC gain:               {num(fig['dc_gain'])}",
+             "    -3 dB bandwidth:       " + (f"{bw:.6g} rad/s ({bw / 2 / math.pi:.6g} Hz)"
+                                             if bw is not None else fig["bandwidth_note"]),
+             f"    gain crossover:        {num(fig['gain_crossover'], ' rad/s')}",
+             f"    phase crossover:       {num(fig['phase_crossover'], ' rad/s')}",
+             f"    gain margin:           {num(fig['gain_margin'])}"
+             + (f" ({20 * math.log10(fig['gain_margin']):.3g} dB)"
+                if np.isfinite(fig["gain_margin"]) and fig["gain_margin"] > 0 else ""),
+             f"    phase margin:          {num(fig['phase_margin'], ' deg')}"]
+    return "\n".join(ln for ln in lines if ln)
