@@ -1,4 +1,4 @@
-"""Command line: ``spidersim run | check | blocks``.
+"""Command line: ``spidersim run | check | linearize | blocks``.
 
 Errors of the user's making (:class:`~spidersim.errors.SpidersimError`) are printed as
 ``file:line: block 'path': message`` without a traceback, and the exit status is 2. A run
@@ -122,6 +122,45 @@ def cmd_blocks(args):
     return 0
 
 
+def cmd_linearize(args):
+    from . import load
+    from .linreport import analysis_request, bode_png, parse_at, report, save_matrices
+
+    d = load(args.file, set=_parse_sets(args.set))
+    name = args.name
+    if name is None and not (args.input or args.loop):
+        if len(d.spec.analysis) == 1:
+            name = next(iter(d.spec.analysis))
+        else:
+            raise SpidersimError(
+                "give an analysis name or --input/--output (or --loop); analyses in the file: "
+                + (", ".join(d.spec.analysis) or "none"), file=d.file)
+    if name is not None:
+        inputs, outputs, opened, at, loop = analysis_request(d, name)
+        if isinstance(at, str):
+            at = parse_at(at)
+    else:
+        inputs, outputs, opened = args.input or [], args.output or [], args.open or []
+        at, loop = None, args.loop
+    if args.at is not None:
+        at = parse_at(args.at)
+    jit = not args.no_jit
+    title = name or (f"loop at {loop}" if loop else d.spec.name)
+    if loop:
+        sys = d.loop_transfer(loop, at=at, jit=jit)
+    else:
+        if not outputs:
+            raise SpidersimError("give at least one --output signal", file=d.file)
+        sys = d.linearize(inputs, outputs, at=at, open=opened, jit=jit)
+    print(report(sys, title))
+    out = args.out or os.path.join("results", d.spec.name, "linearize" + (
+        f"_{name}" if name else ""))
+    save_matrices(sys, out)
+    bode_png(sys, os.path.join(out, "bode.png"), title)
+    print(f"spidersim: wrote {out}/linearization.npz, linearization.json and bode.png")
+    return 0
+
+
 def build_parser():
     ap = argparse.ArgumentParser(prog="spidersim", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -139,6 +178,22 @@ def build_parser():
     c.add_argument("file")
     c.add_argument("--set", action="append", metavar="PATH=VALUE")
     c.set_defaults(fn=cmd_check)
+    lz = sub.add_parser("linearize", help="linear model between signals: poles, zeros, "
+                                          "bandwidth, margins, Bode plot, matrices")
+    lz.add_argument("file")
+    lz.add_argument("name", nargs="?", help="an entry of the file's 'analysis' section")
+    lz.add_argument("--input", action="append", metavar="SIGNAL",
+                    help="perturbation added to this signal (repeatable)")
+    lz.add_argument("--output", action="append", metavar="SIGNAL", help="measured signal")
+    lz.add_argument("--open", action="append", metavar="SIGNAL",
+                    help="cut the connection carrying this signal")
+    lz.add_argument("--loop", metavar="SIGNAL",
+                    help="loop transfer L with the loop opened at this signal")
+    lz.add_argument("--at", help="operating point: a time [s], 'initial' (default) or 'trim'")
+    lz.add_argument("--set", action="append", metavar="PATH=VALUE")
+    lz.add_argument("--out", help="folder for the matrices and the Bode plot")
+    lz.add_argument("--no-jit", action="store_true")
+    lz.set_defaults(fn=cmd_linearize)
     b = sub.add_parser("blocks", help="list block types or document one")
     b.add_argument("type", nargs="?")
     b.set_defaults(fn=cmd_blocks)

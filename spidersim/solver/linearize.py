@@ -91,7 +91,21 @@ def siso_figures(sys):
     """Dict of poles, zeros, DC gain, bandwidth, crossovers and margins of SISO ``sys``."""
     import control
 
-    out = {"poles": control.poles(sys), "zeros": control.zeros(sys)}
+    # states that this pair cannot see or move (e.g. an angle behind a speed loop) would
+    # put cancelling pole-zero pairs at the origin: cancel them on the transfer function
+    # (python-control's state-space minreal needs slycot)
+    if sys.nstates:
+        scale = max(1.0, float(np.max(np.abs(sys.A))))
+        tf = control.ss2tf(sys)
+        num = np.atleast_1d(np.squeeze(tf.num[0][0])).astype(float)
+        den = np.atleast_1d(np.squeeze(tf.den[0][0])).astype(float)
+        big = np.max(np.abs(num), initial=0.0)
+        while len(num) > 1 and abs(num[0]) <= 1e-10 * big:   # round-off leading terms
+            num = num[1:]
+        sys = control.tf(num, den).minreal(tol=1e-7 * scale)
+    order = len(np.atleast_1d(np.squeeze(sys.den[0][0]))) - 1 if isinstance(
+        sys, control.TransferFunction) else sys.nstates
+    out = {"poles": control.poles(sys), "zeros": control.zeros(sys), "states": order}
     with np.errstate(all="ignore"):
         try:
             out["dc_gain"] = float(np.real(control.dcgain(sys)))
@@ -123,6 +137,7 @@ def format_figures(fig, name=""):
 
     bw = fig["bandwidth"]
     lines = [f"  {name}" if name else "",
+             f"    minimal states:        {fig['states']}",
              f"    poles [rad/s]:         {cplx(fig['poles'])}",
              f"    zeros [rad/s]:         {cplx(fig['zeros'])}",
              f"    DC gain:               {num(fig['dc_gain'])}",

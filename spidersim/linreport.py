@@ -1,0 +1,120 @@
+"""Linearization reports for the CLI: figures per SISO pair, Bode plot, matrices on disk."""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+
+from .errors import DiagramError
+
+ANALYSIS_KEYS = ("inputs", "outputs", "open", "at", "loop")
+
+
+def analysis_request(d, name):
+    """``(inputs, outputs, open, at, loop)`` of the named entry of the ``analysis`` section."""
+    section = d.spec.analysis
+    if name not in section:
+        import difflib
+        near = difflib.get_close_matches(name, list(section), n=3)
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        raise DiagramError(f"no analysis named '{name}'{hint} (analyses: "
+                           f"{', '.join(section) or 'none'})", file=d.file)
+    entry = section[name]
+    line = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)(name)
+    if not isinstance(entry, dict):
+        raise DiagramError(f"analysis '{name}' must be a mapping with inputs/outputs or loop",
+                           file=d.file, line=line)
+    for k in entry:
+        if k not in ANALYSIS_KEYS:
+            raise DiagramError(f"analysis '{name}': unknown key '{k}' (keys: "
+                               f"{', '.join(ANALYSIS_KEYS)})", file=d.file, line=line)
+
+    def names(key):
+        v = entry.get(key, [])
+        v = [v] if isinstance(v, str) else v
+        if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
+            raise DiagramError(f"analysis '{name}': '{key}' must be a list of signal names",
+                               file=d.file, line=line)
+        return list(v)
+
+    loop = entry.get("loop")
+    return names("inputs"), names("outputs"), names("open"), entry.get("at"), loop
+
+
+def parse_at(text):
+    """CLI ``--at``: a time, 'initial' or 'trim'."""
+    if text is None or text == "initial":
+        return None
+    if text == "trim":
+        return {"trim": {}}
+    try:
+        return float(text)
+    except ValueError:
+        raise DiagramError(f"--at expects a time [s], 'initial' or 'trim', got '{text}'")
+
+
+def report(sys, title=""):
+    """Text: poles of the whole model, then the figures of each input/output pair."""
+    import control
+
+    from .solver.linearize import format_figures, siso_figures
+
+    lines = [f"linear model{(' ' + title) if title else ''}: {sys.nstates} states, "
+             f"{sys.ninputs} inputs, {sys.noutputs} outputs"]
+    poles = control.poles(sys) if sys.nstates else []
+    lines.append("  poles [rad/s]: " + (", ".join(
+        f"{p.real:.6g}{p.imag:+.6g}j" if abs(p.imag) > 1e-12 * max(1, abs(p)) else
+        f"{p.real:.6g}" for p in sorted(poles, key=lambda z: (z.real, z.imag))) or "none"))
+    for j, u in enumerate(sys.input_labels):
+        for i, y in enumerate(sys.output_labels):
+            sub = control.ss(sys.A, sys.B[:, [j]], sys.C[[i], :], sys.D[[i], [j]])
+            lines.append(format_figures(siso_figures(sub), f"{u} -> {y}:"))
+    return "\n".join(lines)
+
+
+def bode_png(sys, path, title=""):
+    """Magnitude and phase of every input/output pair."""
+    import control
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    poles = [abs(p) for p in control.poles(sys) if abs(p) > 0] if sys.nstates else []
+    lo = min(poles + [1.0]) / 100
+    hi = max(poles + [1.0]) * 100
+    w = np.logspace(np.log10(lo), np.log10(hi), 600)
+    fig, (am, ap) = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
+    resp = sys(1j * w)
+    resp = np.asarray(resp).reshape(sys.noutputs, sys.ninputs, len(w))
+    for j, u in enumerate(sys.input_labels):
+        for i, y in enumerate(sys.output_labels):
+            g = resp[i, j]
+            with np.errstate(divide="ignore"):
+                am.semilogx(w / (2 * math.pi), 20 * np.log10(np.abs(g)), label=f"{u} -> {y}")
+            ap.semilogx(w / (2 * math.pi), np.degrees(np.unwrap(np.angle(g))))
+    am.set_ylabel("magnitude [dB]")
+    ap.set_ylabel("phase [deg]")
+    ap.set_xlabel("frequency [Hz]")
+    for a in (am, ap):
+        a.grid(True, which="both", alpha=0.3)
+    am.legend(fontsize="small")
+    am.set_title(f"Bode: {title}" if title else "Bode")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def save_matrices(sys, folder, stem="linearization"):
+    """``stem.npz`` and ``stem.json`` with A, B, C, D and the state/input/output names."""
+    os.makedirs(folder, exist_ok=True)
+    names = {"states": list(sys.state_labels), "inputs": list(sys.input_labels),
+             "outputs": list(sys.output_labels)}
+    np.savez(os.path.join(folder, stem + ".npz"), A=sys.A, B=sys.B, C=sys.C, D=sys.D,
+             **{k: np.array(v) for k, v in names.items()})
+    with open(os.path.join(folder, stem + ".json"), "w") as fh:
+        json.dump(dict(names, A=sys.A.tolist(), B=sys.B.tolist(), C=sys.C.tolist(),
+                       D=sys.D.tolist()), fh, indent=1)
+    return folder

@@ -1,0 +1,60 @@
+"""`spidersim linearize`: named analyses, ad-hoc signals, files written, errors."""
+import json
+import os
+import re
+
+import numpy as np
+
+from spidersim.cli import main
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SERVO = os.path.join(ROOT, "diagrams", "servo.yaml")
+
+
+def _run(capsys, *argv):
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_named_analysis_prints_figures_and_writes_files(tmp_path, capsys):
+    rc, out, err = _run(capsys, "linearize", SERVO, "speed_closed", "--no-jit", "--out",
+                        tmp_path)
+    assert rc == 0, err
+    # speed loop closed, position loop opened: unity DC gain, a finite bandwidth
+    assert re.search(r"DC gain:\s+1\b", out), out
+    bw = float(re.search(r"-3 dB bandwidth:\s+([0-9.eE+-]+) rad/s", out).group(1))
+    assert 10 < bw < 200
+    data = np.load(tmp_path / "linearization.npz")
+    assert data["A"].shape == (5, 5) and list(data["inputs"]) == ["pos_ctrl/y"]
+    js = json.loads((tmp_path / "linearization.json").read_text())
+    assert js["outputs"] == ["motor/w"] and len(js["states"]) == 5
+    assert (tmp_path / "bode.png").stat().st_size > 10000
+
+
+def test_loop_transfer_from_the_command_line(tmp_path, capsys):
+    rc, out, err = _run(capsys, "linearize", SERVO, "--loop", "pos_ctrl.y", "--no-jit",
+                        "--out", tmp_path)
+    assert rc == 0, err
+    assert "integrator" in out          # the position loop transfer has a free integrator
+    pm = float(re.search(r"phase margin:\s+([0-9.eE+-]+) deg", out).group(1))
+    assert 20 < pm < 90
+
+
+def test_ad_hoc_signals(tmp_path, capsys):
+    rc, out, err = _run(capsys, "linearize", SERVO, "--input", "sat.y", "--output",
+                        "motor.i", "--output", "motor.w", "--no-jit", "--out", tmp_path)
+    assert rc == 0, err
+    assert "sat/y -> motor/i" in out and "sat/y -> motor/w" in out
+
+
+def test_errors(tmp_path, capsys):
+    rc, out, err = _run(capsys, "linearize", SERVO, "--no-jit", "--out", tmp_path)
+    assert rc == 2 and "current_loop, speed_closed, position_loop" in err
+    rc, out, err = _run(capsys, "linearize", SERVO, "speed_closd", "--no-jit")
+    assert rc == 2 and "did you mean speed_closed" in err
+    rc, out, err = _run(capsys, "linearize", SERVO, "--input", "sat.yy", "--output", "motor.w",
+                        "--no-jit")
+    assert rc == 2 and "unknown signal 'sat.yy'" in err and "Traceback" not in err
+    rc, out, err = _run(capsys, "linearize", SERVO, "--at", "soon", "--loop", "pos_ctrl.y")
+    assert rc == 2 and "--at expects" in err
