@@ -10,6 +10,12 @@ A plot entry::
       t_max: 1.0
 
 Signals with different units go to separate panels sharing the time axis.
+
+``kind: spectrum`` draws the amplitude spectrum of each signal over ``[t_min, t_max]``: the
+samples are resampled on a uniform grid (the run's ``output_interval`` makes this exact),
+the mean removed, a Hann window applied, and the FFT scaled so that a sinusoid of amplitude
+A shows a peak of height A. ``f_max`` limits the frequency axis; the ``peaks`` highest local
+maxima are labelled with their frequency in Hz.
 """
 from __future__ import annotations
 
@@ -17,14 +23,15 @@ import os
 import re
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from .errors import DiagramError  # noqa: E402
 
-KINDS = ("time",)
-KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel")
+KINDS = ("time", "spectrum")
+KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks")
 
 
 def _slug(text):
@@ -93,6 +100,64 @@ def time_plot(result, spec, path):
     return path
 
 
+def amplitude_spectrum(t, y, t_min=None, t_max=None):
+    """``(f [Hz], amplitude)`` of ``y(t)`` over the window (see the module docstring)."""
+    t = np.asarray(t)
+    y = np.asarray(y, dtype=float)
+    lo = t[0] if t_min is None else t_min
+    hi = t[-1] if t_max is None else t_max
+    sel = (t >= lo) & (t <= hi)
+    if sel.sum() < 8:               # window outside a (short) run: use what there is
+        sel = np.ones_like(t, bool)
+    ts, ys = t[sel], y[sel]
+    if len(ts) < 2:
+        return np.zeros(1), np.zeros(1)
+    # uniform grid at the median spacing of the samples in the window
+    dt = float(np.median(np.diff(ts)))
+    n = int(round((ts[-1] - ts[0]) / dt)) + 1
+    grid = ts[0] + dt * np.arange(n)
+    # drop duplicate times (two samples at an event instant): keep the later one
+    keep = np.append(np.diff(ts) > 0, True)
+    yu = np.interp(grid, ts[keep], ys[keep])
+    yu = yu - yu.mean()
+    w = np.hanning(n)
+    amp = 2.0 * np.abs(np.fft.rfft(yu * w)) / w.sum()
+    return np.fft.rfftfreq(n, dt), amp
+
+
+def spectrum_plot(result, spec, path):
+    """Draw the amplitude spectra of the plot's signals, peaks labelled in Hz."""
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    f_max = spec.get("f_max")
+    n_peaks = int(spec.get("peaks", 3))
+    for s in spec["signals"]:
+        f, a = amplitude_spectrum(result.t, result[s], spec.get("t_min"), spec.get("t_max"))
+        sel = f <= f_max if f_max else np.ones_like(f, bool)
+        f, a = f[sel], a[sel]
+        ax.plot(f, a, label=f"{s} [{result.units.get(s, '1')}]")
+        if n_peaks and len(a) > 3:
+            loc = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
+            loc = loc[np.argsort(a[loc])[::-1][:n_peaks]]
+            df = f[1] - f[0]
+            for k in loc:
+                # parabolic interpolation of the peak between bins
+                al, be, ga = a[k - 1], a[k], a[k + 1]
+                den = al - 2 * be + ga
+                fk = f[k] + (0.5 * (al - ga) / den * df if den != 0 else 0.0)
+                ax.annotate(f"{fk:.1f} Hz", (f[k], a[k]), textcoords="offset points",
+                            xytext=(4, 4), fontsize="small")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("amplitude")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    window = f"{spec.get('t_min', result.t[0]):g}-{spec.get('t_max', result.t[-1]):g} s"
+    ax.set_title(f"{spec.get('title', 'Spectrum')} (Hann window, {window})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def make_plots(result, plots, folder):
     """Draw every plot of ``plots`` into ``folder``; return the written paths."""
     os.makedirs(folder, exist_ok=True)
@@ -103,5 +168,6 @@ def make_plots(result, plots, folder):
         while name in used:
             name = name.replace(".png", f"_{k + 1}.png")
         used.add(name)
-        written.append(time_plot(result, spec, os.path.join(folder, name)))
+        draw = spectrum_plot if spec.get("kind", "time") == "spectrum" else time_plot
+        written.append(draw(result, spec, os.path.join(folder, name)))
     return written

@@ -2,11 +2,11 @@
 
 See :mod:`spidersim.blocks.base` for the contract a block implements.
 """
-from . import (continuous, controllers, discrete, electromechanical, mathops, mechanics, nonlinear,
-               routing, sources)
+from . import (continuous, controllers, discrete, electromechanical, friction, gearbox, mathops,
+               mechanics, nonlinear, routing, sensors, sources, trajectory)
 from .base import REGISTRY, Block, Dim, Event, FromInputs, Mode, Param, Port, State, lookup
 
 __all__ = ["REGISTRY", "Block", "Dim", "Event", "FromInputs", "Mode", "Param", "Port", "State",
-           "lookup", "continuous", "controllers", "discrete", "electromechanical", "mathops", "mechanics",
-           "nonlinear",
-           "routing", "sources"]
+           "lookup", "continuous", "controllers", "discrete", "electromechanical", "friction",
+           "gearbox", "mathops", "mechanics", "nonlinear", "routing", "sensors", "sources",
+           "trajectory"]

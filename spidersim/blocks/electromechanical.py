@@ -1,9 +1,12 @@
-"""Electromechanical actuators: the brushed DC motor.
+"""Electromechanical actuators: the brushed DC motor, the two-phase brushless motor and its
+NRPI current driver.
 
 Sign convention: positive voltage drives positive current, torque and speed; ``tau_load`` is
 the torque the load applies *against* the rotor (positive load torque decelerates a rotor
 turning forward).
 """
+import math
+
 from .base import Block, Dim, Param, Port, State
 
 
@@ -57,3 +60,147 @@ class DCMotor(Block):
             der_i[0] = (v[0] - R * i[0] - K * w[0]) / L
         der_w[0] = (K * i[0] - b * w[0] - tau_load[0]) / J
         der_phi[0] = w[0]
+
+
+class BrushlessMotor(Block):
+    """Two-phase permanent-magnet brushless motor (SPIDER's actuator)::
+
+        theta_e = p theta
+        f_a = -sin(theta_e) - h3 sin(3 theta_e),   f_b = cos(theta_e) - h3 cos(3 theta_e)
+        K_a = K_t (1 + unbalance / 2),             K_b = K_t (1 - unbalance / 2)
+        L di_a/dt = v_a - R i_a - K_a w f_a        (phase b alike)
+        tau = K_a f_a i_a + K_b f_b i_b + tau_cog sin(2 theta_e)
+        J dw/dt = tau - B w - tau_load,   dtheta/dt = w
+
+    Imperfections, each a fraction: ``h3`` is the amplitude of the third BEMF harmonic
+    relative to the fundamental (0.008 in the paper); ``unbalance`` is the relative
+    difference of the two phases' torque (and BEMF) constants, ``(K_a - K_b) / K_t``
+    (0.015); ``tau_cog`` the amplitude of a cogging torque at twice the electrical
+    frequency [N.m]. With the commutated currents ``i_a = -I sin theta_e``,
+    ``i_b = I cos theta_e`` and no imperfections, ``tau = K_t I``; ``h3`` adds
+    ``-K_t I h3 cos(4 theta_e)`` (a line at 4 f_e); ``unbalance`` adds
+    ``-K_t I (unbalance / 2) cos(2 theta_e)`` (2 f_e). The per-phase constant appears in
+    both the torque and the BEMF, so electrical power balances mechanical power:
+    ``v.i = R |i|^2 + d/dt(L |i|^2 / 2) + (tau - cogging) w``.
+
+    Sign convention: positive torque accelerates positively; ``tau_load`` opposes.
+    """
+
+    category = "electromechanical"
+    parameters = {
+        "p": Param(7, "1", "pole pairs", kind="int", ge=1),
+        "R": Param(1.5, "Ohm", "phase resistance", gt=0.0),
+        "L": Param(1.5e-3, "H", "phase inductance", gt=0.0),
+        "K_t": Param(0.15, "N.m/A", "torque constant = BEMF constant [V.s/rad], phase "
+                                    "amplitude convention", gt=0.0),
+        "J": Param(1.0e-4, "kg.m2", "rotor inertia (with the wave generator)", gt=0.0),
+        "B": Param(0.0, "N.m.s/rad", "viscous friction", ge=0.0),
+        "h3": Param(0.0, "1", "third BEMF harmonic relative to the fundamental"),
+        "unbalance": Param(0.0, "1", "(K_a - K_b) / K_t, phase torque-constant unbalance",
+                           gt=-2.0, lt=2.0),
+        "tau_cog": Param(0.0, "N.m", "cogging torque amplitude at 2 theta_e"),
+        "w0": Param(0.0, "rad/s", "initial speed"),
+        "theta0": Param(0.0, "rad", "initial rotor angle"),
+    }
+    inputs = {"v_a": Port("V", doc="phase a voltage"), "v_b": Port("V", doc="phase b voltage"),
+              "tau_load": Port("N.m", optional=True, doc="load torque opposing the rotor")}
+    outputs = {"i_a": Port("A", doc="phase a current"), "i_b": Port("A", doc="phase b current"),
+               "w": Port("rad/s", doc="rotor speed"), "theta": Port("rad", doc="rotor angle"),
+               "theta_e": Port("rad", doc="electrical angle p theta"),
+               "tau": Port("N.m", doc="electromagnetic torque (with cogging)"),
+               "bemf_a": Port("V", doc="phase a back EMF K_a w f_a"),
+               "bemf_b": Port("V", doc="phase b back EMF K_b w f_b")}
+    states = {"i_a": State("A", doc="phase a current"), "i_b": State("A", doc="phase b current"),
+              "w": State("rad/s", initial="w0", doc="rotor speed"),
+              "theta": State("rad", initial="theta0", doc="rotor angle")}
+
+    @staticmethod
+    def output(t, i_a, i_b, w, theta, p, K_t, h3, unbalance, tau_cog, theta_e, tau, bemf_a,
+               bemf_b):
+        te = p * theta[0]
+        fa = -math.sin(te) - h3 * math.sin(3.0 * te)
+        fb = math.cos(te) - h3 * math.cos(3.0 * te)
+        ka = K_t * (1.0 + 0.5 * unbalance)
+        kb = K_t * (1.0 - 0.5 * unbalance)
+        theta_e[0] = te
+        tau[0] = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
+        bemf_a[0] = ka * w[0] * fa
+        bemf_b[0] = kb * w[0] * fb
+
+    @staticmethod
+    def derivative(t, i_a, i_b, w, theta, v_a, v_b, tau_load, p, R, L, K_t, J, B, h3,
+                   unbalance, tau_cog, der_i_a, der_i_b, der_w, der_theta):
+        te = p * theta[0]
+        fa = -math.sin(te) - h3 * math.sin(3.0 * te)
+        fb = math.cos(te) - h3 * math.cos(3.0 * te)
+        ka = K_t * (1.0 + 0.5 * unbalance)
+        kb = K_t * (1.0 - 0.5 * unbalance)
+        der_i_a[0] = (v_a[0] - R * i_a[0] - ka * w[0] * fa) / L
+        der_i_b[0] = (v_b[0] - R * i_b[0] - kb * w[0] * fb) / L
+        tau = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
+        der_w[0] = (tau - B * w[0] - tau_load[0]) / J
+        der_theta[0] = w[0]
+
+
+class NRPIDriver(Block):
+    """Analog current driver of SPIDER ("NRPI"): sinusoidal current references commutated
+    from the electrical angle, two independent PI current loops, linear amplifier::
+
+        I = min(max(i_cmd, -I_max), I_max)
+        i_a* = -I sin(theta_e),  i_b* = I cos(theta_e)
+        i_x,meas = (1 + gain_x) i_x + offset_x                  (current sensors)
+        e_x = i_x* - i_x,meas,   v_x = sat(kp e_x + I_x, +-V_supply)
+        dI_x/dt = ki e_x + kb (v_x - (kp e_x + I_x))            (back-calculation)
+
+    A sensor ``offset_a`` [A] makes the loop regulate ``i_a = i_a* - offset_a``: a torque
+    line at the electrical frequency of amplitude ``K_t offset``. The paper's 1.5 % offset
+    is of the rated current (2 A): 0.03 A. No PWM: the amplifier is linear.
+    """
+
+    category = "electromechanical"
+    parameters = {
+        "kp": Param(18.85, "V/A", "current PI proportional gain (L w_c)", ge=0.0),
+        "ki": Param(18850.0, "V/(A.s)", "current PI integral gain (R w_c)", ge=0.0),
+        "kb": Param(1000.0, "1/s", "anti-windup back-calculation gain", ge=0.0),
+        "V_supply": Param(28.0, "V", "supply voltage: output limit", gt=0.0),
+        "I_max": Param(4.0, "A", "current command limit", gt=0.0),
+        "gain_a": Param(0.0, "1", "phase a current-sensor gain error"),
+        "gain_b": Param(0.0, "1", "phase b current-sensor gain error"),
+        "offset_a": Param(0.0, "A", "phase a current-sensor offset"),
+        "offset_b": Param(0.0, "A", "phase b current-sensor offset"),
+    }
+    inputs = {"i_cmd": Port("A", doc="current amplitude command (torque / K_t)"),
+              "theta_e": Port("rad", doc="electrical angle for commutation"),
+              "i_a": Port("A", doc="phase a current"), "i_b": Port("A", doc="phase b current")}
+    outputs = {"v_a": Port("V", feedthrough=("i_cmd", "theta_e", "i_a"), doc="phase a voltage"),
+               "v_b": Port("V", feedthrough=("i_cmd", "theta_e", "i_b"), doc="phase b voltage"),
+               "i_a_ref": Port("A", feedthrough=("i_cmd", "theta_e"),
+                               doc="phase a current reference"),
+               "i_b_ref": Port("A", feedthrough=("i_cmd", "theta_e"),
+                               doc="phase b current reference")}
+    states = {"I_a": State("V", doc="phase a integral term"),
+              "I_b": State("V", doc="phase b integral term")}
+
+    @staticmethod
+    def output(t, I_a, I_b, i_cmd, theta_e, i_a, i_b, kp, V_supply, I_max, gain_a, gain_b,
+               offset_a, offset_b, v_a, v_b, i_a_ref, i_b_ref):
+        amp = min(max(i_cmd[0], -I_max), I_max)
+        ra = -amp * math.sin(theta_e[0])
+        rb = amp * math.cos(theta_e[0])
+        ea = ra - ((1.0 + gain_a) * i_a[0] + offset_a)
+        eb = rb - ((1.0 + gain_b) * i_b[0] + offset_b)
+        v_a[0] = min(max(kp * ea + I_a[0], -V_supply), V_supply)
+        v_b[0] = min(max(kp * eb + I_b[0], -V_supply), V_supply)
+        i_a_ref[0] = ra
+        i_b_ref[0] = rb
+
+    @staticmethod
+    def derivative(t, I_a, I_b, i_cmd, theta_e, i_a, i_b, kp, ki, kb, V_supply, I_max, gain_a,
+                   gain_b, offset_a, offset_b, der_I_a, der_I_b):
+        amp = min(max(i_cmd[0], -I_max), I_max)
+        ea = -amp * math.sin(theta_e[0]) - ((1.0 + gain_a) * i_a[0] + offset_a)
+        eb = amp * math.cos(theta_e[0]) - ((1.0 + gain_b) * i_b[0] + offset_b)
+        va = kp * ea + I_a[0]
+        vb = kp * eb + I_b[0]
+        der_I_a[0] = ki * ea + kb * (min(max(va, -V_supply), V_supply) - va)
+        der_I_b[0] = ki * eb + kb * (min(max(vb, -V_supply), V_supply) - vb)

@@ -214,7 +214,10 @@ def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
     sim = _section(data, "simulation", LineDict, file)
     for k in sim:
         if k not in SIM_KEYS:
-            raise DiagramError(f"unknown simulation setting '{k}'; settings are "
+            import difflib
+            near = difflib.get_close_matches(str(k), list(SIM_KEYS), n=1)
+            hint = f" (did you mean '{near[0]}'?)" if near else ""
+            raise DiagramError(f"unknown simulation setting '{k}'{hint}; settings are "
                                f"{', '.join(SIM_KEYS)}", file=file, line=sim.line_of(k))
     log = data.get("log", "all")
     if not (log == "all" or isinstance(log, list)):

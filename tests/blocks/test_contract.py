@@ -93,6 +93,21 @@ EXAMPLES = {
                      lo=-24.0, hi=24.0, moves=True)],
     "Inertia": [dict(params={"J": 0.5, "w0": 1.0}, moves=True)],
     "MassOnStop": [dict(params={"m": 2.0, "x0": 0.5}, lo=-5.0, hi=5.0)],
+    "BrushlessMotor": [dict(params={"h3": 0.01, "unbalance": 0.02, "tau_cog": 0.01},
+                            lo=-20.0, hi=20.0)],
+    "NRPIDriver": [dict(params={"offset_a": 0.03, "gain_b": 0.01, "V_supply": 1e4},
+                        lo=-2.0, hi=2.0, moves=True)],
+    "LuGre": [dict(params={}, lo=-2.0, hi=2.0, moves=True)],
+    "HarmonicDrive": [dict(params={"backlash": 2.9e-4}, lo=-1.0, hi=1.0),
+                      dict(params={"stiffness": "three_slope"}, lo=-1.0, hi=1.0, moves=True),
+                      dict(params={"friction": False}, lo=-1.0, hi=1.0)],
+    "Resolver": [dict(params={"bits": 12}, lo=-3.0, hi=3.0),
+                 dict(params={"bits": 10, "Ts": 1e-3, "noise": 1e-3}, lo=-3.0, hi=3.0)],
+    "TrapezoidalProfile": [dict(params={"q0": 0.1, "q1": 1.0, "v_max": 0.5, "a_max": 2.0})],
+    "QuinticProfile": [dict(params={"q0": 0.1, "q1": 1.0, "T": 2.0})],
+    "ConstantSpeed": [dict(params={"q0": 0.1, "speed": 0.3, "t_start": 0.2})],
+    "JointCascade": [dict(params={"N": 100.0, "kp_q": 5.0, "kp_w": 0.1, "ki_w": 0.5,
+                                  "I_max": 1e4}, lo=-0.1, hi=0.1, moves=True)],
 }
 
 CASES = [pytest.param(t, k, c, id=f"{t}-{k}") for t, cases in sorted(EXAMPLES.items())

@@ -1,0 +1,66 @@
+"""Friction: the LuGre model (Canudas de Wit, Olsson, Astrom, Lischinsky, IEEE TAC 1995)::
+
+    dz/dt = v - sigma0 |v| z / g(v)
+    g(v)  = T_c + (T_s - T_c) exp(-|v / v_s|^delta)
+    tau_f = sigma0 z + sigma1 dz/dt + D v
+
+``z`` is the mean bristle deflection [rad]; ``tau_f`` opposes the motion (positive for
+positive ``v``). In steady sliding ``z = g(v) sgn(v) / sigma0`` and ``tau_f = g(v) sgn(v) +
+D v``; below break-away the bristles act as a spring of stiffness ``sigma0``. The ``z``
+equation is stiff (eigenvalue ``-sigma0 |v| / g(v)``): use an implicit method or LSODA.
+Defaults are PHYSICS.md's motor-side values.
+"""
+import math
+
+from .base import Block, Param, Port, State
+
+LUGRE_PARAMS = {
+    "T_c": Param(0.05, "N.m", "Coulomb friction level", ge=0.0),
+    "T_s": Param(0.07, "N.m", "static (break-away) friction level", ge=0.0),
+    "v_s": Param(1.0, "rad/s", "Stribeck velocity", gt=0.0),
+    "delta": Param(2.0, "1", "Stribeck exponent", gt=0.0),
+    "sigma0": Param(80.0, "N.m/rad", "bristle stiffness", gt=0.0),
+    "sigma1": Param(0.1, "N.m.s/rad", "bristle damping", ge=0.0),
+    "D": Param(2e-4, "N.m.s/rad", "viscous friction", ge=0.0),
+}
+
+
+def lugre_rates(v, z, T_c, T_s, v_s, delta, sigma0, sigma1, D):
+    """``(dz/dt, tau_f)`` of the LuGre model."""
+    g = T_c + (T_s - T_c) * math.exp(-abs(v / v_s) ** delta)
+    dz = v - sigma0 * abs(v) * z / g if g > 0.0 else v
+    return dz, sigma0 * z + sigma1 * dz + D * v
+
+
+def _jit(fn):
+    import numba
+    return numba.njit(cache=True, inline="always", error_model="numpy")(fn)
+
+
+lugre_rates_jit = _jit(lugre_rates)
+
+
+class LuGre(Block):
+    """LuGre friction (see the module docstring): relative velocity in, friction out."""
+
+    category = "friction"
+    parameters = dict(LUGRE_PARAMS, z0=Param(0.0, "rad", "initial bristle deflection"))
+    inputs = {"v": Port("rad/s", doc="relative velocity")}
+    outputs = {"tau": Port("N.m", feedthrough=("v",), doc="friction, opposing v"),
+               "z": Port("rad", doc="bristle deflection")}
+    states = {"z": State("rad", initial="z0", doc="bristle deflection")}
+
+    @classmethod
+    def check(cls, params):
+        if params["T_s"] < params["T_c"]:
+            raise ValueError(f"T_s ({params['T_s']}) must not be below T_c ({params['T_c']})")
+
+    @staticmethod
+    def output(t, z, v, T_c, T_s, v_s, delta, sigma0, sigma1, D, tau):
+        dz, f = lugre_rates_jit(v[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
+        tau[0] = f
+
+    @staticmethod
+    def derivative(t, z, v, T_c, T_s, v_s, delta, sigma0, sigma1, D, der_z):
+        dz, f = lugre_rates_jit(v[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
+        der_z[0] = dz

@@ -1,0 +1,159 @@
+"""Harmonic Drive gearbox: ratio, torsional compliance (linear or the catalogue's
+three-slope law) with damping, backlash with contact events, LuGre friction on the motor side.
+
+Angles: ``phi_m`` motor (wave generator) side, ``phi_l`` load (output) side; the motor turns
+``N`` times the output. Deflection at the output ``delta = phi_m / N - phi_l``. With total
+backlash ``b`` the teeth are in contact when ``|delta| >= b/2``; the transmitted torque::
+
+    tau_s = k(delta_e) + d d(delta)/dt     in contact (delta_e = delta -+ b/2), 0 in the gap
+
+where ``k`` is ``K1 delta_e`` (linear) or the three-slope law inverted from PHYSICS.md::
+
+    phi(T) = T/K1                 |T| <= T1
+           = T1/K1 + (T-T1)/K2    T1 < |T| <= T2
+           = T1/K1 + (T2-T1)/K2 + (T-T2)/K3 above   (odd in T)
+
+Contact starts when ``|delta|`` reaches ``b/2`` and ends when the contact torque would
+pull (``tau_s`` changes sign): both are events. Outputs: ``tau_l = tau_s`` drives the load;
+``tau_m = tau_s / N + tau_f`` is the torque the gearbox applies against the motor
+(connect it to the motor's ``tau_load``); ``tau_f`` is the LuGre friction at the motor-side
+speed (with ``friction: false`` it is zero).
+"""
+import math
+
+from .base import Block, Event, Mode, Param, Port, State
+from .friction import LUGRE_PARAMS, lugre_rates_jit
+
+
+def three_slope(phi, K1, K2, K3, T1, T2):
+    """Torque of the three-slope stiffness at deflection ``phi`` (odd)."""
+    a = abs(phi)
+    p1 = T1 / K1
+    p2 = p1 + (T2 - T1) / K2
+    if a <= p1:
+        t = K1 * a
+    elif a <= p2:
+        t = T1 + K2 * (a - p1)
+    else:
+        t = T2 + K3 * (a - p2)
+    return t if phi >= 0.0 else -t
+
+
+
+def _spring(delta, w_rel, contact, half, linear, K1, K2, K3, T1, T2, d):
+    """Transmitted torque for the contact mode (see the module docstring)."""
+    if half > 0.0 and contact == 0.0:
+        return 0.0
+    de = delta - half * contact if half > 0.0 else delta
+    k = K1 * de if linear else three_slope_jit(de, K1, K2, K3, T1, T2)
+    return k + d * w_rel
+
+
+def _jit(fn):
+    import numba
+    return numba.njit(cache=True, inline="always", error_model="numpy")(fn)
+
+
+three_slope_jit = _jit(three_slope)
+spring_jit = _jit(_spring)
+
+
+class HarmonicDrive(Block):
+    """Harmonic Drive gearbox (see the module docstring for equations and conventions)."""
+
+    category = "mechanics"
+    parameters = dict({
+        "N": Param(160.0, "1", "ratio: motor angle / output angle", gt=0.0),
+        "stiffness": Param("linear", kind="str", choices=("linear", "three_slope"),
+                           doc="linear K1 spring or the catalogue's three-slope law"),
+        "K1": Param(5.4e4, "N.m/rad", "stiffness below T1 (the linear spring)", gt=0.0),
+        "K2": Param(7.8e4, "N.m/rad", "stiffness between T1 and T2", gt=0.0),
+        "K3": Param(1.1e5, "N.m/rad", "stiffness above T2", gt=0.0),
+        "T1": Param(29.0, "N.m", "first corner torque", gt=0.0),
+        "T2": Param(108.0, "N.m", "second corner torque", gt=0.0),
+        "d": Param(20.0, "N.m.s/rad", "torsional damping at the output", ge=0.0),
+        "backlash": Param(0.0, "rad", "total backlash at the output (about 2.9e-4)", ge=0.0),
+        "friction": Param(True, kind="bool", doc="LuGre friction on the motor side"),
+    }, **LUGRE_PARAMS)
+    inputs = {"phi_m": Port("rad", doc="motor-side angle"),
+              "w_m": Port("rad/s", doc="motor-side speed"),
+              "phi_l": Port("rad", doc="output (load) angle"),
+              "w_l": Port("rad/s", doc="output speed")}
+    outputs = {"tau_l": Port("N.m", feedthrough="all", doc="torque driving the load"),
+               "tau_m": Port("N.m", feedthrough="all",
+                             doc="torque against the motor: tau_l / N + tau_f"),
+               "tau_f": Port("N.m", feedthrough=("w_m",), doc="motor-side friction"),
+               "deflection": Port("rad", feedthrough=("phi_m", "phi_l"),
+                                  doc="phi_m / N - phi_l")}
+    states = {"z": State("rad", doc="LuGre bristle deflection")}
+    modes = {"contact": Mode(doc="-1 / +1 teeth in contact on either side, 0 in the gap")}
+    events = {"contact_pos": Event(1, "deflection reaches +b/2"),
+              "contact_neg": Event(-1, "deflection reaches -b/2"),
+              "separate": Event(-1, "the contact torque would pull")}
+
+    @classmethod
+    def check(cls, params):
+        if params["T2"] <= params["T1"]:
+            raise ValueError(f"T2 ({params['T2']}) must exceed T1 ({params['T1']})")
+        if params["T_s"] < params["T_c"]:
+            raise ValueError(f"T_s ({params['T_s']}) must not be below T_c ({params['T_c']})")
+
+    @classmethod
+    def derive(cls, params):
+        return {"half": params["backlash"] / 2.0,
+                "linear": float(params["stiffness"] == "linear")}
+
+    @staticmethod
+    def output(t, z, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear,
+               friction, T_c, T_s, v_s, delta, sigma0, sigma1, D, contact, tau_l, tau_m,
+               tau_f, deflection):
+        de = phi_m[0] / N - phi_l[0]
+        ts = spring_jit(de, w_m[0] / N - w_l[0], contact[0], half, linear > 0.5, K1, K2, K3,
+                        T1, T2, d)
+        f = 0.0
+        if friction:
+            dz, f = lugre_rates_jit(w_m[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
+        tau_l[0] = ts
+        tau_m[0] = ts / N + f
+        tau_f[0] = f
+        deflection[0] = de
+
+    @staticmethod
+    def derivative(t, z, w_m, friction, T_c, T_s, v_s, delta, sigma0, sigma1, D, der_z):
+        if friction:
+            dz, f = lugre_rates_jit(w_m[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
+            der_z[0] = dz
+        else:
+            der_z[0] = 0.0
+
+    @staticmethod
+    def initialize(t, phi_m, phi_l, N, half, contact):
+        if half > 0.0 and contact[0] == 0.0:
+            de = phi_m[0] / N - phi_l[0]
+            if de > half:
+                contact[0] = 1.0
+            elif de < -half:
+                contact[0] = -1.0
+
+    @staticmethod
+    def guard(t, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear, contact, zc):
+        zc[0] = -1.0
+        zc[1] = 1.0
+        zc[2] = 1.0
+        if half > 0.0:
+            de = phi_m[0] / N - phi_l[0]
+            if contact[0] == 0.0:
+                zc[0] = de - half
+                zc[1] = de + half
+            else:
+                zc[2] = contact[0] * spring_jit(de, w_m[0] / N - w_l[0], contact[0], half,
+                                                linear > 0.5, K1, K2, K3, T1, T2, d)
+
+    @staticmethod
+    def on_event(t, which, direction, contact):
+        if which == 0:
+            contact[0] = 1.0
+        elif which == 1:
+            contact[0] = -1.0
+        else:
+            contact[0] = 0.0

@@ -1,0 +1,88 @@
+"""Sensors: the resolver (angle quantization, noise, optional sampling).
+
+A resolver with an R/D converter of ``bits`` bits reports the angle in steps of
+``q = 2 pi / 2^bits``: ``theta_q = q round(theta / q)``. With ``Ts > 0`` the converter is
+sampled (time events) and each sample gets Gaussian noise of standard deviation
+``noise`` [rad], drawn from a counter-based generator seeded by ``seed`` (the same noise in
+compiled and interpreted runs, and for any step size). With ``Ts = 0`` the output is the
+continuous staircase without noise: every step is a discontinuity the step-size control
+sees, so prefer sampling in a closed loop.
+"""
+import math
+
+from .base import Block, Mode, Param, Port
+
+
+def _gauss(seed, k):
+    """Standard normal number ``k`` of stream ``seed`` (splitmix64 + Box-Muller)."""
+    mask = 0xFFFFFFFFFFFFFFFF
+    x = (int(seed) * 0x9E3779B97F4A7C15 + int(k) * 0xBF58476D1CE4E5B9 + 1) & mask
+    vals = [0.0, 0.0]
+    for j in range(2):
+        x = (x + 0x9E3779B97F4A7C15) & mask
+        z = x
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & mask
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & mask
+        z = z ^ (z >> 31)
+        vals[j] = ((z >> 11) + 0.5) / 9007199254740992.0
+    return math.sqrt(-2.0 * math.log(vals[0])) * math.cos(2.0 * math.pi * vals[1])
+
+
+def _quantize(theta, bits):
+    if bits <= 0:
+        return theta
+    q = 2.0 * math.pi / 2.0 ** bits
+    return q * math.floor(theta / q + 0.5)
+
+
+def _jit(fn):
+    import numba
+    return numba.njit(cache=True, error_model="numpy")(fn)
+
+
+quantize_jit = _jit(_quantize)
+
+
+class Resolver(Block):
+    """Angle sensor: quantization to ``bits`` bits per revolution, optional sampling and
+    noise (see the module docstring); the speed is passed through (the R/D converter's
+    velocity output)."""
+
+    category = "sensors"
+    parameters = {
+        "bits": Param(16, "1", "bits per revolution (0: no quantization)", kind="int", ge=0,
+                      le=40),
+        "Ts": Param(0.0, "s", "sample period (0: continuous, no noise)", ge=0.0),
+        "noise": Param(0.0, "rad", "standard deviation of the angle noise (sampled only)",
+                       ge=0.0),
+        "seed": Param(1, "1", "noise stream", kind="int", ge=0),
+    }
+    inputs = {"theta": Port("rad", doc="true angle"),
+              "w": Port("rad/s", optional=True, doc="true speed")}
+    outputs = {"theta_m": Port("rad", feedthrough=lambda p: ("theta",) if p["Ts"] == 0 else (),
+                               doc="measured angle"),
+               "w_m": Port("rad/s", feedthrough=("w",), doc="measured speed")}
+    modes = {"held": Mode(doc="last sample (sampled mode)"), "k": Mode(doc="samples taken")}
+
+    @classmethod
+    def check(cls, params):
+        if params["noise"] > 0 and params["Ts"] == 0:
+            raise ValueError("noise needs a sample period Ts > 0")
+
+    @staticmethod
+    def output(t, theta, w, bits, Ts, held, theta_m, w_m):
+        theta_m[0] = quantize_jit(theta[0], bits) if Ts == 0.0 else held[0]
+        w_m[0] = w[0]
+
+    @staticmethod
+    def next_time(t, Ts, k):
+        return k[0] * Ts if Ts > 0.0 else math.inf
+
+    @staticmethod
+    def time_event(t, theta, bits, noise, seed, held, k):
+        n = noise * gauss_jit(seed, k[0]) if noise > 0.0 else 0.0
+        held[0] = quantize_jit(theta[0] + n, bits)
+        k[0] += 1.0
+
+
+gauss_jit = _jit(_gauss)
