@@ -17,6 +17,10 @@ loop
     solver and tolerances. Target: overhead ratio <= 2.
 ball
     ``diagrams/bouncing_ball.yaml`` with e = 0.95 through its first 100 impacts: wall time.
+ripple
+    1 s of ``diagrams/joint_ripple.yaml`` (NRPI driver + two-phase brushless motor at
+    955 rpm with the three imperfections) against a hand-written numba right-hand side of
+    the same equations under the same solver and tolerances. Target <= 1.5x.
 """
 from __future__ import annotations
 
@@ -200,7 +204,76 @@ def bench_ball():
     print()
 
 
-BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball}
+def _ripple_hand_written():
+    """diagrams/joint_ripple.yaml's equations (NRPI driver + two-phase motor) by hand."""
+    from numba import njit
+    from scipy.integrate import LSODA
+
+    p, R, L, Kt, J = 7, 1.5, 1.5e-3, 0.15, 10.0
+    h3, unb, off_a = 0.008, 0.015, 0.015 * 2.0
+    kp, ki, kb, V, Imax = 1.5e-3 * 2 * np.pi * 2000, 1.5 * 2 * np.pi * 2000, 1000.0, 28.0, 4.0
+    I_cmd, tau_load = 2.0, 0.15 * 2.0
+
+    @njit(cache=True)
+    def f(t, y):
+        ia, ib, w, th, Ia, Ib = y
+        te = p * th
+        fa = -np.sin(te) - h3 * np.sin(3 * te)
+        fb = np.cos(te) - h3 * np.cos(3 * te)
+        ka, kb_ = Kt * (1 + 0.5 * unb), Kt * (1 - 0.5 * unb)
+        amp = min(max(I_cmd, -Imax), Imax)
+        ea = -amp * np.sin(te) - (ia + off_a)
+        eb = amp * np.cos(te) - ib
+        va_u, vb_u = kp * ea + Ia, kp * eb + Ib
+        va, vb = min(max(va_u, -V), V), min(max(vb_u, -V), V)
+        out = np.empty(6)
+        out[0] = (va - R * ia - ka * w * fa) / L
+        out[1] = (vb - R * ib - kb_ * w * fb) / L
+        out[2] = (ka * fa * ia + kb_ * fb * ib - tau_load) / J
+        out[3] = w
+        out[4] = ki * ea + kb * (va - va_u)
+        out[5] = ki * eb + kb * (vb - vb_u)
+        return out
+
+    def run(t_end=1.0):
+        y0 = np.array([0.0, 0.0, 2 * np.pi * 955 / 60, 0.0, 0.0, 0.0])
+        s = LSODA(f, 0.0, y0, t_end, rtol=1e-7, atol=1e-9, max_step=t_end / 50)
+        ts, ys, steps = [0.0], [y0], 0
+        while s.status == "running":
+            s.step()
+            ts.append(s.t)
+            ys.append(s.y.copy())
+            steps += 1
+        return np.array(ts), np.array(ys), steps, s.nfev
+
+    f(0.0, np.zeros(6))
+    return run
+
+
+def bench_ripple():
+    """1 s of diagrams/joint_ripple.yaml against the same equations by hand."""
+    import spidersim
+
+    d = spidersim.load(os.path.join(ROOT, "diagrams", "joint_ripple.yaml"))
+    d.simulation["output_interval"] = None         # record at the steps, as the hand loop
+    d.compile(jit=True)
+    best_c, med_c, r = _best(lambda: d.simulate(t_end=1.0, jit=True), repeat=3)
+    run = _ripple_hand_written()
+    best_h, med_h, (th, yh, steps_h, nfev_h) = _best(run, repeat=3)
+    print("== ripple: diagrams/joint_ripple.yaml, 1 s at 955 rpm, LSODA 1e-7/1e-9 ==")
+    print(f"{'variant':24s} {'best [ms]':>10s} {'median [ms]':>12s} {'steps':>7s} "
+          f"{'RHS calls':>10s}")
+    print(f"{'spidersim compiled':24s} {1e3 * best_c:10.1f} {1e3 * med_c:12.1f} "
+          f"{r.stats['steps']:7d} {r.stats['rhs_calls']:10d}")
+    print(f"{'hand-written numba':24s} {1e3 * best_h:10.1f} {1e3 * med_h:12.1f} "
+          f"{steps_h:7d} {nfev_h:10d}")
+    print(f"final speed: spidersim {r['motor.w'][-1]:.9f}, hand-written {yh[-1, 2]:.9f} rad/s")
+    print(f"ratio compiled / hand-written (target <= 1.5): {best_c / best_h:.2f}")
+    print()
+
+
+BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball,
+           "ripple": bench_ripple}
 
 
 def main(argv):
