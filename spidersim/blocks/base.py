@@ -30,7 +30,8 @@ Contract for block implementers
    ``bool`` parameters as constants; ``str`` parameters are structural and not passed. The
    functions must be numba-compilable, allocation-free (write loops, not array expressions)
    and must never clip a state or integrate by hand: discontinuities are events.
-5. Optional class methods: ``derive(params) -> dict`` for numeric parameters computed from the
+5. ``scratch`` (name -> size) gives kernels workspace arrays by name, allocated once.
+6. Optional class methods: ``derive(params) -> dict`` for numeric parameters computed from the
    user's (e.g. a state-space realisation of a transfer function), ``check(params)`` for
    cross-parameter validation (raise ``ValueError`` with a message), and
    ``kernel_source(params, kernel) -> str`` for kernels whose argument list depends on a
@@ -175,6 +176,9 @@ class Block:
     states: dict[str, State] = {}
     modes: dict[str, Mode] = {}
     events: dict[str, Event] = {}
+    #: name -> size of scratch memory a kernel may use freely (allocated once in the signal
+    #: array, never logged): workspaces of compiled algorithms, so nothing is allocated
+    scratch: dict = {}
 
     def __init_subclass__(cls, abstract=False, **kw):
         super().__init_subclass__(**kw)

@@ -60,6 +60,9 @@ def _arg_expr(bl, kernel, name):
     if name in bl.modes:
         a, b = bl.modes[name]
         return _slice("modes", a, b)
+    if name in bl.scratch:
+        a, b = bl.scratch[name]
+        return _slice("sig", a, b)
     if name in bl.pslots:
         return _param_expr(bl.pslots[name])
     if name in bl.constants:

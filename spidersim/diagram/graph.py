@@ -49,6 +49,7 @@ class BlockLayout:
     state_outputs: set = field(default_factory=set)
     input_src: dict = field(default_factory=dict)    # input -> ("x"|"sig", start, stop)
     guard_slice: tuple = (0, 0)                      # this block's events in the guard array
+    scratch: dict = field(default_factory=dict)      # name -> (start, stop) in sig
 
 
 @dataclass
@@ -343,6 +344,11 @@ def build_layout(flat: Flat) -> Layout:
                    if (bl.path, i) not in dst_seen] + [0])
     zero_slot = ("sig", n_sig, n_sig + max_opt)
     n_sig += max_opt
+    for bl in info.values():
+        for name, spec in bl.cls.scratch.items():
+            n = bl.cls.size_of(spec, bl.params)
+            bl.scratch[name] = (n_sig, n_sig + n)
+            n_sig += n
     from ..solver.newton import workspace_size
     for lp in loops:
         for path, port, kind in lp.tears:

@@ -1,0 +1,183 @@
+"""The arm: an n-DOF serial chain (standard DH) with an optional payload, compiled dynamics.
+
+    M(q) qdd + b(q, qd) = tau + J^T f_ext           (b: Coriolis, centrifugal, gravity)
+
+The link table comes from a data file (``model: spider`` for the SPIDER-like arm shipped
+with spidersim, or a path); see :mod:`spidersim.multibody`. The joint states (link side)
+live here; the joint torques come from the gearboxes. ``f_ext`` (force, moment about the
+flange origin, base frame) is applied by the environment to the arm.
+
+Payload: a rigid body (mass, COM offset and principal inertia in the flange frame) that is
+part of the last link while ``latched``. Before the latch it is fixed in space (at rest);
+when the ``latch`` input rises through 0.5 the joint velocities jump so that the
+generalized momentum is conserved, ``M'(q) qd+ = M(q) qd-`` (a plastic capture).
+
+``base_force`` and ``base_moment`` (about the base origin, base frame) are the wrench the
+arm applies to its mounting (the ISS truss): the opposite of the wrench the mounting
+applies to the arm. With ``gravity = 0`` they equal minus the rate of change of the arm's
+(and latched payload's) momentum.
+"""
+import math
+import os
+
+import numpy as np
+
+from .base import Block, Dim, Event, Mode, Param, Port, State
+
+_CHAINS = {}
+
+
+def _chain(model):
+    from ..multibody.chain import SPIDER, Chain
+    path = SPIDER if model == "spider" else model
+    if path not in _CHAINS:
+        _CHAINS[path] = Chain.from_yaml(path)
+    return _CHAINS[path]
+
+
+def _n(p):
+    return _chain(p["model"]).n
+
+
+_N = Dim("number of joints of the model", _n)
+
+
+def _with_payload(P, mass, com, inertia):
+    """Link table with the payload merged into the last link (link coordinates)."""
+    P = P.copy()
+    last = P[-1]
+    m0, c0 = last[3], last[4:7].copy()
+    I0 = last[7:16].reshape(3, 3)
+    # flange frame = frame n: the payload COM and inertia are given in it already
+    mp, cp, Ip = mass, np.asarray(com, float), np.diag(np.asarray(inertia, float))
+    m = m0 + mp
+    if m <= 0:
+        return P
+    c = (m0 * c0 + mp * cp) / m
+
+    def shift(I, mass_, r):
+        return I + mass_ * (np.dot(r, r) * np.eye(3) - np.outer(r, r))
+
+    Inew = shift(I0, m0, c0 - c) + shift(Ip, mp, cp - c)
+    last[3] = m
+    last[4:7] = c
+    last[7:16] = Inew.ravel()
+    return P
+
+
+class Arm(Block):
+    """n-DOF serial arm with payload (see the module docstring)."""
+
+    category = "multibody"
+    parameters = {
+        "model": Param("spider", kind="str", doc="'spider' (shipped SPIDER-like data) or the "
+                                                 "path of an arm data file"),
+        "gravity": Param([0.0, 0.0, 0.0], "m/s2", "gravity in the base frame", shape=3),
+        "q0": Param(0.0, "rad", "initial joint angles", shape=_N),
+        "qd0": Param(0.0, "rad/s", "initial joint speeds", shape=_N),
+        "payload_mass": Param(0.0, "kg", "payload mass", ge=0.0),
+        "payload_com": Param([0.0, 0.0, 0.0], "m", "payload COM in the flange frame", shape=3),
+        "payload_inertia": Param([0.0, 0.0, 0.0], "kg.m2",
+                                 "payload principal inertia about its COM, flange axes",
+                                 shape=3, ge=0.0),
+        "latched": Param(False, kind="bool", doc="payload attached from the start"),
+    }
+    inputs = {"tau": Port("N.m", size=_N, doc="joint torques (from the gearboxes)"),
+              "f_ext": Port("1", size=6, optional=True,
+                            doc="external wrench on the flange: force [N], moment [N.m]"),
+              "latch": Port("1", optional=True, doc="rising through 0.5: capture the payload")}
+    outputs = {
+        "q": Port("rad", size=_N, doc="joint angles (link side)"),
+        "qd": Port("rad/s", size=_N, doc="joint speeds"),
+        "qdd": Port("rad/s2", size=_N, feedthrough=("tau", "f_ext"), doc="joint accelerations"),
+        "flange_pos": Port("m", size=3, doc="flange origin, base frame"),
+        "flange_rot": Port("1", size=9, doc="flange rotation matrix, row-major"),
+        "flange_twist": Port("1", size=6, doc="flange linear [m/s] and angular [rad/s] velocity"),
+        "base_force": Port("N", size=3, feedthrough=("tau", "f_ext"),
+                           doc="force the arm applies to its mounting"),
+        "base_moment": Port("N.m", size=3, feedthrough=("tau", "f_ext"),
+                            doc="moment about the base origin the arm applies to its mounting"),
+    }
+    states = {"q": State("rad", size=_N, initial="q0", doc="joint angles"),
+              "qd": State("rad/s", size=_N, initial="qd0", doc="joint speeds")}
+    modes = {"attached": Mode(initial=lambda p: 1.0 if p["latched"] else 0.0,
+                              doc="1 once the payload is attached")}
+    events = {"latch": Event(1, "the latch input rises: the payload is captured")}
+    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
+               "Mw": Dim("n^2", lambda p: _n(p) ** 2),
+               "Mw2": Dim("n^2", lambda p: _n(p) ** 2),
+               "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
+               "v1": Dim("n", _n)}
+
+    @classmethod
+    def check(cls, params):
+        model = params["model"]
+        if model != "spider" and not os.path.isfile(model):
+            raise ValueError(f"arm data file not found: {model} (use 'spider' for the "
+                             f"shipped SPIDER-like arm)")
+
+    @classmethod
+    def derive(cls, params):
+        P = _chain(params["model"]).P
+        return {"P": P, "P_lat": _with_payload(P, params["payload_mass"],
+                                               params["payload_com"],
+                                               params["payload_inertia"])}
+
+    @staticmethod
+    def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, qdd,
+               flange_pos, flange_rot, flange_twist, base_force, base_moment):
+        n = q.size
+        M = Mw.reshape((n, n))
+        PP = P_lat if attached[0] > 0.5 else P
+        forward_dynamics(q, qd, tau, gravity, f_ext, PP, ws, M, tmp, bw, qdd)
+        for k in range(3):
+            base_force[k] = -bw[k]
+            base_moment[k] = -bw[3 + k]
+        b = n * 48
+        for k in range(9):
+            flange_rot[k] = ws[b + k]
+        for k in range(3):
+            flange_pos[k] = ws[b + 9 + k]
+            flange_twist[3 + k] = ws[b + 12 + k]
+        vx = vy = vz = 0.0
+        for i in range(n):
+            bi = i * 48
+            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
+            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
+            vx += qd[i] * (zy * rz - zz * ry)
+            vy += qd[i] * (zz * rx - zx * rz)
+            vz += qd[i] * (zx * ry - zy * rx)
+        flange_twist[0], flange_twist[1], flange_twist[2] = vx, vy, vz
+
+    @staticmethod
+    def derivative(t, qd, qdd, der_q, der_qd):
+        for i in range(qd.size):
+            der_q[i] = qd[i]
+            der_qd[i] = qdd[i]
+
+    @staticmethod
+    def guard(t, latch, attached, zc):
+        zc[0] = latch[0] - 0.5 if attached[0] < 0.5 else -1.0
+
+    @staticmethod
+    def on_event(t, which, direction, q, qd, P, P_lat, attached, ws, Mw, Mw2, tmp, bw, v1):
+        n = q.size
+        M = Mw.reshape((n, n))
+        M2 = Mw2.reshape((n, n))
+        mass_matrix(q, P, ws, M, tmp, bw)
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += M[i, j] * qd[j]
+            v1[i] = acc                               # generalized momentum M qd-
+        mass_matrix(q, P_lat, ws, M2, tmp, bw)
+        cholesky_solve(M2, v1, qd)                    # M' qd+ = M qd-
+        attached[0] = 1.0
+
+
+def _bind():
+    from ..multibody import kernels as K
+    return K.forward_dynamics, K.mass_matrix, K.cholesky_solve
+
+
+forward_dynamics, mass_matrix, cholesky_solve = _bind()

@@ -1,0 +1,216 @@
+"""Compiled rigid-body algorithms for a serial chain of revolute joints (standard DH).
+
+Everything is expressed in the base frame. Links are packed in ``P`` (n x 16 rows):
+``d, a, alpha, m, c_x, c_y, c_z, I_xx .. I_zz`` with the COM ``c`` and the inertia about the
+COM in *link* coordinates. ``ws`` is a workspace of :data:`WS_PER_LINK` ``* (n + 1)``
+floats; nothing is allocated.
+
+Conventions: joint ``i`` rotates about ``z_{i-1}`` through ``o_{i-1}`` (frame ``i-1``);
+``A_i = Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``; gravity ``g`` is the acceleration of free
+fall in the base frame (``[0, 0, -9.81]`` on the ground). The external wrench ``f_ext``
+(force, moment about the flange origin ``o_n``, base frame) is applied *by the environment
+to the arm*. The base wrench ``(f_0, n_0)`` is the force and the moment about the base
+origin that the mounting applies to the arm; the arm applies the opposite to the mounting.
+"""
+import math
+
+import numpy as np
+
+ROW = 16
+WS_PER_LINK = 48
+# workspace layout per link k (0 = base): R 0..8, o 9..11, w 12..14, al 15..17, ap 18..20,
+# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44
+
+
+def fk(q, P, ws):
+    """Frame rotations and origins of every link into ``ws``; the flange is link n."""
+    n = q.size
+    for j in range(9):
+        ws[j] = 0.0
+    ws[0] = ws[4] = ws[8] = 1.0
+    ws[9] = ws[10] = ws[11] = 0.0
+    for i in range(n):
+        b0 = i * WS_PER_LINK
+        b1 = (i + 1) * WS_PER_LINK
+        th, d, a, al = q[i], P[i, 0], P[i, 1], P[i, 2]
+        ct, st, ca, sa = math.cos(th), math.sin(th), math.cos(al), math.sin(al)
+        # A = [[ct, -st ca, st sa, a ct], [st, ct ca, -ct sa, a st], [0, sa, ca, d]]
+        A00, A01, A02, A03 = ct, -st * ca, st * sa, a * ct
+        A10, A11, A12, A13 = st, ct * ca, -ct * sa, a * st
+        A20, A21, A22, A23 = 0.0, sa, ca, d
+        for r in range(3):
+            R0, R1, R2 = ws[b0 + 3 * r], ws[b0 + 3 * r + 1], ws[b0 + 3 * r + 2]
+            ws[b1 + 3 * r] = R0 * A00 + R1 * A10 + R2 * A20
+            ws[b1 + 3 * r + 1] = R0 * A01 + R1 * A11 + R2 * A21
+            ws[b1 + 3 * r + 2] = R0 * A02 + R1 * A12 + R2 * A22
+            ws[b1 + 9 + r] = ws[b0 + 9 + r] + R0 * A03 + R1 * A13 + R2 * A23
+
+
+def _cross(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
+    """Inverse dynamics: ``tau`` (n) and the base wrench ``base`` (6) for ``q, qd, qdd``.
+
+    Calls :func:`fk` first. Recursive Newton-Euler in the base frame.
+    """
+    n = q.size
+    fk(q, P, ws)
+    # base: w = al = 0, acceleration of the origin -g (gravity as a base acceleration)
+    for j in range(12, 21):
+        ws[j] = 0.0
+    ws[18], ws[19], ws[20] = -g[0], -g[1], -g[2]
+    for i in range(n):
+        bp = i * WS_PER_LINK
+        b = (i + 1) * WS_PER_LINK
+        zx, zy, zz = ws[bp + 2], ws[bp + 5], ws[bp + 8]            # z_{i-1}
+        wpx, wpy, wpz = ws[bp + 12], ws[bp + 13], ws[bp + 14]
+        wx, wy, wz = wpx + qd[i] * zx, wpy + qd[i] * zy, wpz + qd[i] * zz
+        cx, cy, cz = _cross(wpx, wpy, wpz, qd[i] * zx, qd[i] * zy, qd[i] * zz)
+        alx = ws[bp + 15] + qdd[i] * zx + cx
+        aly = ws[bp + 16] + qdd[i] * zy + cy
+        alz = ws[bp + 17] + qdd[i] * zz + cz
+        ws[b + 12], ws[b + 13], ws[b + 14] = wx, wy, wz
+        ws[b + 15], ws[b + 16], ws[b + 17] = alx, aly, alz
+        ox, oy, oz = ws[bp + 9], ws[bp + 10], ws[bp + 11]          # o_{i-1}
+        # origin acceleration of frame i
+        rx, ry, rz = ws[b + 9] - ox, ws[b + 10] - oy, ws[b + 11] - oz
+        t1 = _cross(alx, aly, alz, rx, ry, rz)
+        w_r = _cross(wx, wy, wz, rx, ry, rz)
+        t2 = _cross(wx, wy, wz, w_r[0], w_r[1], w_r[2])
+        ws[b + 18] = ws[bp + 18] + t1[0] + t2[0]
+        ws[b + 19] = ws[bp + 19] + t1[1] + t2[1]
+        ws[b + 20] = ws[bp + 20] + t1[2] + t2[2]
+        # COM in the base frame, relative to o_{i-1}
+        lcx, lcy, lcz = P[i, 4], P[i, 5], P[i, 6]
+        gx = ws[b + 9] + ws[b] * lcx + ws[b + 1] * lcy + ws[b + 2] * lcz
+        gy = ws[b + 10] + ws[b + 3] * lcx + ws[b + 4] * lcy + ws[b + 5] * lcz
+        gz = ws[b + 11] + ws[b + 6] * lcx + ws[b + 7] * lcy + ws[b + 8] * lcz
+        ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        rcx, rcy, rcz = gx - ox, gy - oy, gz - oz
+        t1 = _cross(alx, aly, alz, rcx, rcy, rcz)
+        w_r = _cross(wx, wy, wz, rcx, rcy, rcz)
+        t2 = _cross(wx, wy, wz, w_r[0], w_r[1], w_r[2])
+        m = P[i, 3]
+        acx = ws[bp + 18] + t1[0] + t2[0]
+        acy = ws[bp + 19] + t1[1] + t2[1]
+        acz = ws[bp + 20] + t1[2] + t2[2]
+        ws[b + 39], ws[b + 40], ws[b + 41] = m * acx, m * acy, m * acz
+        # inertia in the base frame: Iw = R I R^T
+        for r in range(3):
+            for c in range(3):
+                acc = 0.0
+                for k in range(3):
+                    rk = ws[b + 3 * r + k]
+                    for l in range(3):
+                        acc += rk * P[i, 7 + 3 * k + l] * ws[b + 3 * c + l]
+                ws[b + 24 + 3 * r + c] = acc
+        Iwx = ws[b + 24] * wx + ws[b + 25] * wy + ws[b + 26] * wz
+        Iwy = ws[b + 27] * wx + ws[b + 28] * wy + ws[b + 29] * wz
+        Iwz = ws[b + 30] * wx + ws[b + 31] * wy + ws[b + 32] * wz
+        gyr = _cross(wx, wy, wz, Iwx, Iwy, Iwz)
+        ws[b + 42] = ws[b + 24] * alx + ws[b + 25] * aly + ws[b + 26] * alz + gyr[0]
+        ws[b + 43] = ws[b + 27] * alx + ws[b + 28] * aly + ws[b + 29] * alz + gyr[1]
+        ws[b + 44] = ws[b + 30] * alx + ws[b + 31] * aly + ws[b + 32] * alz + gyr[2]
+    # backward: f, n on link i from link i-1, moments about o_{i-1}
+    fx, fy, fz = -f_ext[0], -f_ext[1], -f_ext[2]
+    nx_, ny_, nz_ = -f_ext[3], -f_ext[4], -f_ext[5]
+    for i in range(n - 1, -1, -1):
+        bp = i * WS_PER_LINK
+        b = (i + 1) * WS_PER_LINK
+        ox, oy, oz = ws[bp + 9], ws[bp + 10], ws[bp + 11]
+        rx, ry, rz = ws[b + 9] - ox, ws[b + 10] - oy, ws[b + 11] - oz
+        rcx, rcy, rcz = ws[b + 21] - ox, ws[b + 22] - oy, ws[b + 23] - oz
+        Fx, Fy, Fz = ws[b + 39], ws[b + 40], ws[b + 41]
+        m1 = _cross(rcx, rcy, rcz, Fx, Fy, Fz)
+        m2 = _cross(rx, ry, rz, fx, fy, fz)
+        nx_ = nx_ + m1[0] + m2[0] + ws[b + 42]
+        ny_ = ny_ + m1[1] + m2[1] + ws[b + 43]
+        nz_ = nz_ + m1[2] + m2[2] + ws[b + 44]
+        fx, fy, fz = fx + Fx, fy + Fy, fz + Fz
+        tau[i] = nx_ * ws[bp + 2] + ny_ * ws[bp + 5] + nz_ * ws[bp + 8]
+    base[0], base[1], base[2] = fx, fy, fz
+    base[3], base[4], base[5] = nx_, ny_, nz_
+
+
+def mass_matrix(q, P, ws, M, tmp, base):
+    """Joint-space inertia ``M(q)``: column j is the RNEA torque for ``qdd = e_j`` with
+    ``qd = 0``, no gravity and no external wrench (n passes; ``tmp`` holds 3 n floats)."""
+    n = q.size
+    zero = tmp[:n]
+    e = tmp[n:2 * n]
+    col = tmp[2 * n:3 * n]
+    for k in range(n):
+        zero[k] = 0.0
+        e[k] = 0.0
+    g0 = base[:3]
+    fz = base[3:6]
+    for j in range(n):
+        for k in range(6):
+            base[k] = 0.0
+        e[j] = 1.0
+        rnea(q, zero, e, g0, fz, P, ws, col, base)
+        for k in range(n):
+            M[k, j] = col[k]
+        e[j] = 0.0
+        for k in range(6):
+            base[k] = 0.0
+
+
+def cholesky_solve(M, b, x):
+    """Solve ``M x = b`` for symmetric positive definite ``M`` (factored in place)."""
+    n = b.size
+    for j in range(n):
+        s = M[j, j]
+        for k in range(j):
+            s -= M[j, k] * M[j, k]
+        d = math.sqrt(s) if s > 0.0 else math.nan
+        M[j, j] = d
+        for i in range(j + 1, n):
+            s = M[i, j]
+            for k in range(j):
+                s -= M[i, k] * M[j, k]
+            M[i, j] = s / d
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= M[i, k] * x[k]
+        x[i] = s / M[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= M[k, i] * x[k]
+        x[i] = s / M[i, i]
+
+
+def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd):
+    """``qdd`` from ``M(q) qdd = tau - b(q, qd)`` (``b``: RNEA with ``qdd = 0``), then the
+    base wrench of the resulting motion into ``base``."""
+    n = q.size
+    zero = tmp[3 * n:4 * n]
+    bias = tmp[4 * n:5 * n]
+    rhs = tmp[5 * n:6 * n]
+    for k in range(n):
+        zero[k] = 0.0
+    mass_matrix(q, P, ws, M, tmp, base)
+    rnea(q, qd, zero, g, f_ext, P, ws, bias, base)
+    for k in range(n):
+        rhs[k] = tau[k] - bias[k]
+    cholesky_solve(M, rhs, qdd)
+    rnea(q, qd, qdd, g, f_ext, P, ws, bias, base)
+
+
+def _jit(fn):
+    import numba
+    return numba.njit(cache=True, error_model="numpy")(fn)
+
+
+# the kernels call each other: rebind every name to its compiled version (numba resolves
+# the globals when a function is first compiled)
+_cross = _jit(_cross)
+fk = _jit(fk)
+rnea = _jit(rnea)
+mass_matrix = _jit(mass_matrix)
+cholesky_solve = _jit(cholesky_solve)
+forward_dynamics = _jit(forward_dynamics)
