@@ -130,11 +130,18 @@ def spectrum_plot(result, spec, path):
     fig, ax = plt.subplots(figsize=(8, 4.5))
     f_max = spec.get("f_max")
     n_peaks = int(spec.get("peaks", 3))
+    traces = []
     for s in spec["signals"]:
-        f, a = amplitude_spectrum(result.t, result[s], spec.get("t_min"), spec.get("t_max"))
+        y = result[s]
+        if y.ndim == 1:
+            traces.append((s, y))
+        else:
+            traces += [(f"{s}[{i}]", y[:, i]) for i in range(y.shape[1])]
+    for label, y in traces:
+        f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
         sel = f <= f_max if f_max else np.ones_like(f, bool)
         f, a = f[sel], a[sel]
-        ax.plot(f, a, label=f"{s} [{result.units.get(s, '1')}]")
+        ax.plot(f, a, label=f"{label} [{result.units.get(label.split('[')[0], '1')}]")
         if n_peaks and len(a) > 3:
             loc = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
             loc = loc[np.argsort(a[loc])[::-1][:n_peaks]]

@@ -181,3 +181,98 @@ def _bind():
 
 
 forward_dynamics, mass_matrix, cholesky_solve = _bind()
+
+
+class CartesianLineIK(Block):
+    """Joint references for a straight line of the flange, by damped least squares::
+
+        p_d(s) = p_0 + s u,  R_d = R_0                     (p_0, R_0: flange pose at q0)
+        v = [sd u + K (p_d - p(q_r)); K e_R]               (e_R: orientation error)
+        dq_r/dt = J^T (J J^T + lambda^2 I)^-1 v
+
+    ``s`` and ``sd`` (path length [m] and speed [m/s], e.g. from a TrapezoidalProfile) are
+    inputs; the joint references ``q_ref`` are states integrated from ``q0``, ``qd_ref`` is
+    their rate (the controllers' speed feed-forward).
+    """
+
+    category = "multibody"
+    parameters = {
+        "model": Param("spider", kind="str", doc="arm data ('spider' or a path)"),
+        "q0": Param(0.0, "rad", "initial joint angles", shape=_N),
+        "direction": Param([1.0, 0.0, 0.0], "1", "line direction (normalised)", shape=3),
+        "K": Param(20.0, "1/s", "task-space error gain", ge=0.0),
+        "damping": Param(0.01, "1", "damped-least-squares lambda", gt=0.0),
+    }
+    inputs = {"s": Port("m", doc="path length"), "sd": Port("m/s", doc="path speed")}
+    outputs = {"q_ref": Port("rad", size=_N, doc="joint references"),
+               "qd_ref": Port("rad/s", size=_N, feedthrough=("sd", "s"),
+                              doc="joint reference speeds"),
+               "p_ref": Port("m", size=3, feedthrough=("s",), doc="desired flange position")}
+    states = {"q_ref": State("rad", size=_N, initial="q0", doc="joint references")}
+    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
+               "A6": Dim("36", lambda p: 36), "v6": Dim("6", lambda p: 6),
+               "y6": Dim("6", lambda p: 6)}
+
+    @classmethod
+    def check(cls, params):
+        if np.linalg.norm(params["direction"]) == 0:
+            raise ValueError("direction must not be the zero vector")
+
+    @classmethod
+    def derive(cls, params):
+        ch = _chain(params["model"])
+        T = ch.fk(params["q0"])
+        u = params["direction"] / np.linalg.norm(params["direction"])
+        return {"P": ch.P, "p0": T[:3, 3].copy(), "R0": T[:3, :3].ravel().copy(), "u": u}
+
+    @staticmethod
+    def output(t, q_ref, s, sd, P, p0, R0, u, K, damping, ws, A6, v6, y6, qd_ref, p_ref):
+        n = q_ref.size
+        fk(q_ref, P, ws)
+        b = n * 48
+        for k in range(3):
+            p_ref[k] = p0[k] + s[0] * u[k]
+            v6[k] = sd[0] * u[k] + K * (p_ref[k] - ws[b + 9 + k])
+        # orientation error 0.5 sum_i (r_i x r_d,i), columns of R and R0
+        ex = ey = ez = 0.0
+        for c in range(3):
+            ax, ay, az = ws[b + c], ws[b + 3 + c], ws[b + 6 + c]
+            dx, dy, dz = R0[c], R0[3 + c], R0[6 + c]
+            ex += 0.5 * (ay * dz - az * dy)
+            ey += 0.5 * (az * dx - ax * dz)
+            ez += 0.5 * (ax * dy - ay * dx)
+        v6[3], v6[4], v6[5] = K * ex, K * ey, K * ez
+        A = A6.reshape((6, 6))
+        # J columns: [z_i x (p - o_i); z_i]; A = J J^T + lambda^2 I
+        for r in range(6):
+            for c in range(6):
+                A[r, c] = damping * damping if r == c else 0.0
+        for i in range(n):
+            bi = i * 48
+            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
+            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
+            col0, col1, col2 = zy * rz - zz * ry, zz * rx - zx * rz, zx * ry - zy * rx
+            for r in range(6):
+                jr = (col0, col1, col2, zx, zy, zz)[r]
+                for c in range(6):
+                    A[r, c] += jr * (col0, col1, col2, zx, zy, zz)[c]
+        cholesky_solve(A, v6, y6)
+        for i in range(n):
+            bi = i * 48
+            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
+            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
+            qd_ref[i] = ((zy * rz - zz * ry) * y6[0] + (zz * rx - zx * rz) * y6[1]
+                         + (zx * ry - zy * rx) * y6[2] + zx * y6[3] + zy * y6[4] + zz * y6[5])
+
+    @staticmethod
+    def derivative(t, qd_ref, der_q_ref):
+        for i in range(qd_ref.size):
+            der_q_ref[i] = qd_ref[i]
+
+
+def _bind_fk():
+    from ..multibody import kernels as K
+    return K.fk
+
+
+fk = _bind_fk()

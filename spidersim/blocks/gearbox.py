@@ -127,12 +127,18 @@ class HarmonicDrive(Block):
             der_z[0] = 0.0
 
     @staticmethod
-    def initialize(t, phi_m, phi_l, N, half, contact):
+    def initialize(t, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear,
+                   contact):
+        # in contact only where the contact torque would push: just after a separation the
+        # deflection is still beyond b/2 (by d |d delta/dt| / K1) while the teeth part
         if half > 0.0 and contact[0] == 0.0:
             de = phi_m[0] / N - phi_l[0]
-            if de > half:
+            wr = w_m[0] / N - w_l[0]
+            if de > half and spring_jit(de, wr, 1.0, half, linear > 0.5, K1, K2, K3, T1, T2,
+                                        d) > 0.0:
                 contact[0] = 1.0
-            elif de < -half:
+            elif de < -half and spring_jit(de, wr, -1.0, half, linear > 0.5, K1, K2, K3, T1,
+                                           T2, d) < 0.0:
                 contact[0] = -1.0
 
     @staticmethod

@@ -65,7 +65,10 @@ def bandwidth(sys, w_max=None):
     from scipy.optimize import brentq
 
     poles = control.poles(sys)
-    if np.any(np.abs(poles) < 1e-12):
+    top = max([abs(p) for p in poles] + [1.0])
+    # a pole at the origin comes out as round-off ~eps ||A||, a multiple one (rigid-body
+    # modes) splits to ~sqrt(eps ||A||): compare with the lowest frequency examined below
+    if np.any(np.abs(poles) < 1e-6 * top):
         return None, "undefined: infinite DC gain (the system has an integrator)"
     g0 = abs(complex(np.atleast_1d(sys(0j)).ravel()[0]))
     if not np.isfinite(g0):

@@ -106,6 +106,11 @@ EXAMPLES = {
     "TrapezoidalProfile": [dict(params={"q0": 0.1, "q1": 1.0, "v_max": 0.5, "a_max": 2.0})],
     "QuinticProfile": [dict(params={"q0": 0.1, "q1": 1.0, "T": 2.0})],
     "ConstantSpeed": [dict(params={"q0": 0.1, "speed": 0.3, "t_start": 0.2})],
+    "Arm": [dict(params={"q0": [0.1, 0.5, 0.0, -1.0, 0.2, 0.6, 0.0]},
+                 sizes={"tau": 7, "f_ext": 6}, lo=-5.0, hi=5.0,
+                 moves=True)],
+    "CartesianLineIK": [dict(params={"q0": [0.0, 0.6, 0.0, -1.3, 0.0, 0.8, 0.0]},
+                             lo=-0.05, hi=0.05, moves=True)],
     "JointCascade": [dict(params={"N": 100.0, "kp_q": 5.0, "kp_w": 0.1, "ki_w": 0.5,
                                   "I_max": 1e4}, lo=-0.1, hi=0.1, moves=True)],
 }

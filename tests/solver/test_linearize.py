@@ -1,0 +1,446 @@
+"""Linearization, loop transfers, operating points and trim against hand-derived models.
+
+Every reference here is derived independently of spidersim: transfer functions written by
+hand (or assembled with python-control from hand-written pieces), the analytic Jacobian of
+a pendulum, ``scipy.integrate.solve_ivp`` for a simulated state, python-control's
+``bandwidth``/``margin`` for the figures of merit.
+"""
+import math
+
+import control
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import spidersim
+from spidersim.diagram.analysis import AnalysisError
+from spidersim.solver.linearize import bandwidth, siso_figures
+
+S = control.tf("s")
+FREQS = np.logspace(-1, 5, 20)                   # rad/s
+HALF_POWER_DB = 20 * math.log10(1 / math.sqrt(2))   # spidersim's "-3 dB" is |G(0)|/sqrt(2)
+
+
+# ----------------------------------------------------------------------------- helpers
+def _coeffs(tf):
+    num = np.atleast_1d(np.squeeze(tf.num[0][0])).astype(float)
+    den = np.atleast_1d(np.squeeze(tf.den[0][0])).astype(float)
+    return num, den
+
+
+def _normalised_minimal(sys):
+    """(num, den) of a SISO system: minimal, monic denominator, no round-off leading zeros."""
+    tf = control.ss2tf(sys) if isinstance(sys, control.StateSpace) else sys
+    num, den = _coeffs(tf)
+    big = np.max(np.abs(num))
+    while len(num) > 1 and abs(num[0]) <= 1e-10 * big:
+        num = num[1:]
+    num, den = _coeffs(control.tf(num, den).minreal(tol=1e-6))
+    return num / den[0], den / den[0]
+
+
+def _assert_same_tf(sys, ref):
+    num, den = _normalised_minimal(sys)
+    num_ref, den_ref = _normalised_minimal(ref)
+    assert len(den) == len(den_ref), (den, den_ref)
+    assert len(num) == len(num_ref), (num, num_ref)
+    np.testing.assert_allclose(den, den_ref, rtol=1e-6, atol=0)
+    np.testing.assert_allclose(num, num_ref, rtol=1e-6, atol=0)
+
+
+def _freq(sys, w):
+    return np.atleast_1d(np.squeeze(sys(1j * np.asarray(w))))
+
+
+def _assert_same_response(sys, ref, w=FREQS):
+    g, g_ref = _freq(sys, w), _freq(ref, w)
+    rel = np.abs(g - g_ref) / np.abs(g_ref)
+    assert np.max(rel) < 1e-6, (w[np.argmax(rel)], np.max(rel))
+
+
+def _state(sys, name):
+    return sys.state_labels.index(name)
+
+
+# ----------------------------------------------------------------------------- round trip
+SERIES = """
+name: series
+blocks:
+  r:   {type: Constant, value: 1.0}
+  g1:  {type: TransferFunction, num: [2, 3], den: [1, 2, 5]}
+  g2:  {type: StateSpace, A: [[0, 1], [-6, -5]], B: [[0], [1]], C: [[4, 1]], D: [[0.5]]}
+  g3:  {type: TransferFunction, num: [1.5, 8], den: [0.5, 10]}
+connections:
+  - r.y -> g1.u
+  - g1.y -> g2.u
+  - g2.y -> g3.u
+"""
+
+FEEDBACK = """
+name: feedback
+blocks:
+  r:   {type: Constant, value: 1.0}
+  e:   {type: Sum, signs: "+-"}
+  g1:  {type: TransferFunction, num: [2, 3], den: [1, 2, 5]}
+  g2:  {type: StateSpace, A: [[0, 1], [-6, -5]], B: [[0], [1]], C: [[4, 1]]}
+  h:   {type: TransferFunction, num: [1.5, 8], den: [0.5, 10]}
+connections:
+  - r.y -> e.u1
+  - h.y -> e.u2
+  - e.y -> g1.u
+  - g1.y -> g2.u
+  - g2.y -> h.u
+"""
+
+
+def _round_trip_reference(kind):
+    g1 = (2 * S + 3) / (S ** 2 + 2 * S + 5)
+    # C (sI - A)^-1 B of the companion pair above is (s + 4) / (s^2 + 5 s + 6)
+    g2 = (S + 4) / (S ** 2 + 5 * S + 6)
+    h = (1.5 * S + 8) / (0.5 * S + 10)
+    if kind == "series":
+        return g1 * (g2 + 0.5) * h, SERIES, "g3.y"
+    return control.feedback(g1 * g2, h), FEEDBACK, "g2.y"
+
+
+@pytest.mark.parametrize("kind", ["series", "feedback"])
+def test_round_trip_transfer_function_and_state_space_blocks(kind):
+    ref, text, out = _round_trip_reference(kind)
+    sys = spidersim.loads(text).linearize(["r.y"], [out], jit=False)
+    assert sys.input_labels == ["r/y"] and sys.output_labels == [out.replace(".", "/")]
+    assert sys.nstates == 5
+    _assert_same_tf(sys, ref)
+
+
+def test_round_trip_opening_removes_the_feedback_path():
+    # opened at the error signal, the feedback path h no longer reaches g1: G1 G2 remains
+    # (the h state stays in the model, uncontrollable, and cancels)
+    sys = spidersim.loads(FEEDBACK).linearize(["e.y"], ["g2.y"], open=["e.y"], jit=False)
+    g1 = (2 * S + 3) / (S ** 2 + 2 * S + 5)
+    g2 = (S + 4) / (S ** 2 + 5 * S + 6)
+    _assert_same_tf(sys, g1 * g2)
+
+
+# ----------------------------------------------------------------------------- DC motor + PI
+MOTOR = dict(R=1.0, L=1e-3, K=0.05, J=1e-4, b=1e-5)
+KP, KI = 0.3, 30.0
+
+MOTOR_PI = f"""
+name: motor_pi
+blocks:
+  ref:   {{type: Constant, value: 0.0}}
+  err:   {{type: Sum, signs: "+-"}}
+  pi:    {{type: PI, kp: {KP}, ki: {KI}, antiwindup: none}}
+  motor: {{type: DCMotor, R: {MOTOR['R']}, L: {MOTOR['L']}, K: {MOTOR['K']}, J: {MOTOR['J']},
+          b: {MOTOR['b']}}}
+connections:
+  - ref.y -> err.u1
+  - motor.w -> err.u2
+  - err.y -> pi.e
+  - pi.y -> motor.v
+"""
+
+
+def _motor_hand():
+    """Speed loop by hand: (L s + R) I = V - K W, (J s + b) W = K I  =>  W/V = P(s)."""
+    R, L, K, J, b = (MOTOR[k] for k in "RLKJb")
+    plant = K / ((L * S + R) * (J * S + b) + K ** 2)
+    pi = KP + KI / S
+    loop = pi * plant                       # the PI output, around the loop, back to itself
+    closed = control.feedback(loop, 1)      # reference -> speed: L / (1 + L)
+    return closed, loop
+
+
+def test_dc_motor_pi_closed_loop_and_loop_transfer_match_hand_derivation():
+    d = spidersim.loads(MOTOR_PI)
+    closed_ref, loop_ref = _motor_hand()
+    closed = d.linearize(["ref.y"], ["motor.w"], jit=False)
+    assert closed.input_labels == ["ref/y"] and closed.output_labels == ["motor/w"]
+    assert sorted(closed.state_labels) == ["motor/i", "motor/phi", "motor/w", "pi/I"]
+    _assert_same_response(closed, closed_ref)
+
+    loop = d.loop_transfer("pi.y", jit=False)
+    _assert_same_response(loop, loop_ref)
+    # the opening itself: from the opening's input to the returning pi.y is -L
+    opened = d.linearize(["pi.y"], ["pi.y"], open=["pi.y"], jit=False)
+    _assert_same_response(opened, -loop_ref)
+
+
+def test_dc_motor_pi_figures_match_python_control_on_hand_model():
+    d = spidersim.loads(MOTOR_PI)
+    closed_ref, loop_ref = _motor_hand()
+    fig_closed = siso_figures(d.linearize(["ref.y"], ["motor.w"], jit=False))
+    fig_loop = siso_figures(d.loop_transfer("pi.y", jit=False))
+
+    assert fig_closed["dc_gain"] == pytest.approx(1.0, rel=1e-9)
+    # spidersim's -3 dB point is the half-power point |G(0)|/sqrt(2): ask python-control
+    # for exactly that drop (its default -3 dB is 10^(-3/20), 0.24 % different)
+    bw_ref = float(control.bandwidth(closed_ref, dbdrop=HALF_POWER_DB))
+    assert fig_closed["bandwidth"] == pytest.approx(bw_ref, rel=1e-6)
+    assert fig_closed["states"] == 3         # the angle is invisible from the speed
+
+    gm, pm, wcg, wcp = control.margin(loop_ref)
+    assert np.isfinite(pm) and 30 < pm < 90 and np.isfinite(wcp)
+    assert fig_loop["phase_margin"] == pytest.approx(float(pm), rel=1e-6)
+    assert fig_loop["gain_crossover"] == pytest.approx(float(wcp), rel=1e-6)
+    # relative degree 2 with an integrator: the phase never reaches -180 deg
+    assert math.isinf(gm) and math.isinf(fig_loop["gain_margin"])
+    assert math.isnan(wcg) and math.isnan(fig_loop["phase_crossover"])
+    assert fig_loop["bandwidth"] is None and "integrator" in fig_loop["bandwidth_note"]
+
+
+def test_jit_linearization_agrees_with_interpreted():
+    d = spidersim.loads(MOTOR_PI)
+    for make in (lambda jit: d.linearize(["ref.y"], ["motor.w", "motor.i"], jit=jit),
+                 lambda jit: d.loop_transfer("pi.y", jit=jit)):
+        a, b = make(True), make(False)
+        assert a.state_labels == b.state_labels
+        for m in "ABCD":
+            x, y = getattr(a, m), getattr(b, m)
+            np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9 * np.max(np.abs(y)))
+
+
+# ----------------------------------------------------------------------------- pendulum
+G, LEN, C = 9.81, 0.5, 0.4
+
+PENDULUM = f"""
+name: pendulum
+parameters: {{g: {G}, l: {LEN}, c: {C}, theta0: 0.0}}
+blocks:
+  th:   {{type: Integrator, x0: theta0}}
+  om:   {{type: Integrator, x0: 0.0}}
+  s:    {{type: Function, fn: sin}}
+  kg:   {{type: Gain, k: -g/l}}
+  kc:   {{type: Gain, k: -c}}
+  acc:  {{type: Sum, signs: "++"}}
+connections:
+  - om.y -> th.u
+  - th.y -> s.u
+  - s.y -> kg.u
+  - om.y -> kc.u
+  - kg.y -> acc.u1
+  - kc.y -> acc.u2
+  - acc.y -> om.u
+simulation: {{t_end: 1.0, rtol: 1e-11, atol: 1e-13}}
+"""
+
+
+def _pendulum_A(theta):
+    return np.array([[0.0, 1.0], [-G / LEN * math.cos(theta), -C]])
+
+
+def _ordered(sys):
+    """A of the pendulum with states ordered (theta, omega)."""
+    idx = [_state(sys, "th/y"), _state(sys, "om/y")]
+    return sys.A[np.ix_(idx, idx)]
+
+
+@pytest.mark.parametrize("theta0", [0.0, math.pi], ids=["lower", "upper"])
+def test_pendulum_A_at_equilibria_is_analytic(theta0):
+    d = spidersim.loads(PENDULUM, set={"theta0": theta0})
+    sys = d.linearize(["acc.y"], ["th.y", "s.y"], jit=False)       # at: initial state
+    A = _ordered(sys)
+    np.testing.assert_allclose(A, _pendulum_A(theta0), rtol=1e-7, atol=1e-8)
+    # the perturbation enters the speed's derivative; s.y = sin(theta) reads cos(theta0)
+    it, io = _state(sys, "th/y"), _state(sys, "om/y")
+    assert sys.B[io, 0] == pytest.approx(1.0, rel=1e-9) and sys.B[it, 0] == 0.0
+    assert sys.C[1, it] == pytest.approx(math.cos(theta0), rel=1e-7)
+
+
+def test_pendulum_trim_from_near_start_finds_upper_equilibrium():
+    d = spidersim.loads(PENDULUM)
+    probe = d.linearize(["acc.y"], ["th.y"], jit=False)
+    it, io = _state(probe, "th/y"), _state(probe, "om/y")
+    x0 = np.zeros(2)
+    x0[it] = 3.0
+    op = d.trim(x0=x0, jit=False)
+    assert abs(op.x[it] - math.pi) < 1e-8
+    assert abs(op.x[io]) < 1e-8
+    # zero derivatives, by the analytic model and by trim's own residuals
+    assert abs(-G / LEN * math.sin(op.x[it]) - C * op.x[io]) < 1e-8
+    assert set(op.residuals) == {"d/dt th.y", "d/dt om.y"}
+    assert max(abs(v) for v in op.residuals.values()) < 1e-10
+    # linearized there: the upper (unstable) equilibrium
+    A = _ordered(d.linearize(["acc.y"], ["th.y"], at=op, jit=False))
+    np.testing.assert_allclose(A, _pendulum_A(math.pi), rtol=1e-7, atol=1e-8)
+
+
+def test_linearize_at_time_uses_the_simulated_state():
+    theta0, T = 0.3, 0.5
+    d = spidersim.loads(PENDULUM, set={"theta0": theta0})
+    sol = solve_ivp(lambda t, x: [x[1], -G / LEN * math.sin(x[0]) - C * x[1]], (0.0, T),
+                    [theta0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14)
+    theta_T = sol.y[0, -1]
+    # the test discriminates: A differs between the initial and the simulated state
+    assert abs(math.cos(theta_T) - math.cos(theta0)) * G / LEN > 0.1
+
+    sys = d.linearize(["acc.y"], ["th.y", "s.y"], at=T, jit=False)
+    np.testing.assert_allclose(_ordered(sys), _pendulum_A(theta_T), rtol=1e-7, atol=1e-8)
+    assert sys.C[1, _state(sys, "th/y")] == pytest.approx(math.cos(theta_T), rel=1e-7)
+
+
+# ----------------------------------------------------------------------------- algebraic loop
+LOOP = """
+parameters: {K: 3.0}
+blocks:
+  u:   {type: Constant, value: 0.7}
+  sum: {type: Sum, signs: "+-"}
+  fb:  {type: Gain, k: K}
+  x:   {type: Integrator}
+connections:
+  - u.y -> sum.u1
+  - sum.y -> fb.u
+  - fb.y -> sum.u2
+  - sum.y -> x.u
+"""
+
+LOOP_FREE = """
+parameters: {K: 3.0}
+blocks:
+  u:   {type: Constant, value: 0.7}
+  sum: {type: Gain, k: 1/(1+K)}
+  x:   {type: Integrator}
+connections:
+  - u.y -> sum.u
+  - sum.y -> x.u
+"""
+
+
+@pytest.mark.parametrize("K", [3.0, 0.25])
+def test_algebraic_loop_linearizes_like_its_loop_free_equivalent(K):
+    a = spidersim.loads(LOOP, set={"K": K}).linearize(["u.y"], ["x.y", "sum.y"], jit=False)
+    b = spidersim.loads(LOOP_FREE, set={"K": K}).linearize(["u.y"], ["x.y", "sum.y"],
+                                                            jit=False)
+    assert a.state_labels == b.state_labels == ["x/y"]
+    for m in "ABCD":
+        np.testing.assert_allclose(getattr(a, m), getattr(b, m), rtol=1e-9, atol=1e-12)
+    # and both are x' = u / (1 + K), sum.y = u / (1 + K)
+    assert a.B[0, 0] == pytest.approx(1 / (1 + K), rel=1e-9)
+    assert a.D[1, 0] == pytest.approx(1 / (1 + K), rel=1e-9)
+
+
+# ----------------------------------------------------------------------------- bandwidth
+def _tf_diagram(num, den):
+    return f"""
+blocks:
+  u: {{type: Constant}}
+  g: {{type: TransferFunction, num: {list(num)}, den: {list(den)}}}
+connections: [u.y -> g.u]
+"""
+
+
+@pytest.mark.parametrize("num, den, wb", [
+    ([-3.0], [1.0, 2.0], 2.0),
+    # wn = 2, zeta = 0.5: wb = wn sqrt(1 - 2 z^2 + sqrt((1 - 2 z^2)^2 + 1))
+    ([-5.0], [1.0, 2.0, 4.0], 2 * math.sqrt(0.5 + math.sqrt(1.25))),
+], ids=["first_order", "second_order"])
+def test_bandwidth_of_negative_dc_gain_system(num, den, wb):
+    sys = spidersim.loads(_tf_diagram(num, den)).linearize(["u.y"], ["g.y"], jit=False)
+    value, note = bandwidth(sys)
+    assert value == pytest.approx(wb, rel=1e-9) and note == ""
+    fig = siso_figures(sys)
+    assert fig["dc_gain"] == pytest.approx(num[0] / den[-1], rel=1e-9)
+    assert fig["bandwidth"] == pytest.approx(wb, rel=1e-9)
+
+
+LAG_INTEGRATOR = """
+blocks:
+  u: {type: Constant}
+  g: {type: TransferFunction, num: [5], den: [1, 50]}
+  i: {type: Integrator}
+connections: [u.y -> g.u, g.y -> i.u]
+"""
+
+# two inertias coupled by a spring (a flexible joint): torque -> motor speed has the
+# rigid-body integrator; its pole at 0 is a double eigenvalue of A (common angle and speed)
+TWO_MASS = """
+parameters: {J1: 1.0e-4, J2: 2.0e-4, k: 1000.0}
+blocks:
+  tau:  {type: Constant}
+  a1:   {type: Sum, signs: "+-"}
+  j1:   {type: Gain, k: 1/J1}
+  w1:   {type: Integrator}
+  p1:   {type: Integrator}
+  j2:   {type: Gain, k: 1/J2}
+  w2:   {type: Integrator}
+  p2:   {type: Integrator}
+  dp:   {type: Sum, signs: "+-"}
+  ks:   {type: Gain, k: k}
+connections:
+  - tau.y -> a1.u1
+  - ks.y -> a1.u2
+  - a1.y -> j1.u
+  - j1.y -> w1.u
+  - w1.y -> p1.u
+  - p1.y -> dp.u1
+  - p2.y -> dp.u2
+  - dp.y -> ks.u
+  - ks.y -> j2.u
+  - j2.y -> w2.u
+  - w2.y -> p2.u
+"""
+
+
+@pytest.mark.parametrize("text, inp, out", [
+    (LAG_INTEGRATOR, "u.y", "i.y"),
+    (TWO_MASS, "tau.y", "w1.y"),
+], ids=["lag_integrator", "two_mass_rigid_body"])
+def test_bandwidth_undefined_for_system_with_integrator(text, inp, out):
+    sys = spidersim.loads(text).linearize([inp], [out], jit=False)
+    # sanity, independent of spidersim's figures: |G(jw)| grows like 1/w at low frequency
+    g = np.abs(_freq(sys, [1e-3, 1e-2]))
+    assert g[0] / g[1] == pytest.approx(10.0, rel=1e-2)
+    value, note = bandwidth(sys)
+    fig = siso_figures(sys)
+    got = {"bandwidth()": (value, note),
+           "siso_figures()": (fig["bandwidth"], fig["bandwidth_note"])}
+    assert all(v is None and "integrator" in n for v, n in got.values()), (
+        got, "poles:", control.poles(sys), "figure poles:", fig["poles"])
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("call, bad, near", [
+    (lambda d: d.linearize(["acc.yy"], ["th.y"], jit=False), "acc.yy", "acc.y"),
+    (lambda d: d.linearize(["acc.y"], ["th.z"], jit=False), "th.z", "th.y"),
+    (lambda d: d.linearize(["acc.y"], ["th.y"], open=["kgg.y"], jit=False), "kgg.y", "kg.y"),
+    (lambda d: d.loop_transfer("om.yy", jit=False), "om.yy", "om.y"),
+    (lambda d: d.trim(targets={"sx.y": 0.0}, jit=False), "sx.y", "s.y"),
+], ids=["input", "output", "open", "loop_transfer", "trim_target"])
+def test_unknown_signal_is_reported_with_near_name(call, bad, near):
+    d = spidersim.loads(PENDULUM)
+    with pytest.raises(AnalysisError) as ei:
+        call(d)
+    msg = str(ei.value)
+    assert f"unknown signal '{bad}'" in msg
+    assert "did you mean" in msg and near in msg.split("did you mean", 1)[1]
+
+
+def test_opening_a_signal_that_is_not_a_connection():
+    d = spidersim.loads(LOOP)          # nothing reads the integrator's output x.y
+    with pytest.raises(AnalysisError, match="cannot open 'x.y': it is not a connection"):
+        d.linearize(["u.y"], ["x.y"], open=["x.y"], jit=False)
+    with pytest.raises(AnalysisError, match="not a connection"):
+        d.loop_transfer("x.y", jit=False)
+
+
+CONST_INTO_INTEGRATOR = """
+blocks:
+  c:  {type: Constant, value: 2.0}
+  x:  {type: Integrator}
+  sq: {type: Function, fn: square}
+connections: [c.y -> x.u, x.y -> sq.u]
+"""
+
+
+def test_trim_that_cannot_converge_names_the_residuals():
+    d = spidersim.loads(CONST_INTO_INTEGRATOR)
+    # x' = 2 whatever x is
+    with pytest.raises(AnalysisError) as ei:
+        d.trim(jit=False)
+    msg = str(ei.value)
+    assert "trim did not converge" in msg and "d/dt x.y = 2" in msg
+    # a target no state reaches: x^2 = -1
+    with pytest.raises(AnalysisError) as ei:
+        d.trim(targets={"sq.y": -1.0}, derivatives=[], jit=False)
+    msg = str(ei.value)
+    assert "trim did not converge" in msg and "sq.y = 1" in msg
