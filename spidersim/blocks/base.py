@@ -153,10 +153,16 @@ class Mode:
 
 @dataclass(frozen=True)
 class Event:
-    """A zero-crossing event: ``direction`` +1 rising, -1 falling, 0 either."""
+    """A zero-crossing event: ``direction`` +1 rising, -1 falling, 0 either.
+
+    ``size`` guards of this event (one per element, e.g. ``"@u"``); the block's guard array
+    ``zc`` holds its events one after the other, and ``on_event`` receives the index into
+    it as ``which``.
+    """
 
     direction: int = 0
     doc: str = ""
+    size: Any = 1
 
 
 def _fmt(v):
@@ -479,6 +485,9 @@ class Block:
 
 def lookup(type_name, file=None, line=None, extra=()):
     """The Block class registered as ``type_name``; suggests near names when unknown."""
+    if not isinstance(type_name, str):
+        raise BlockTypeError(f"block type must be a name, got {type_name!r}", file=file,
+                             line=line)
     cls = REGISTRY.get(type_name)
     if cls is None:
         names = list(REGISTRY) + list(extra)

@@ -24,8 +24,8 @@ class Saturation(Block):
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="limited input")}
     modes = {"m": Mode(size="@u", doc="-1 at lower, 0 linear, +1 at upper")}
-    events = {"upper": Event(0, "u crosses the upper limit (per element: first of them)"),
-              "lower": Event(0, "u crosses the lower limit")}
+    events = {"upper": Event(0, "u crosses the upper limit (one guard per element)", "@u"),
+              "lower": Event(0, "u crosses the lower limit (one guard per element)", "@u")}
 
     @classmethod
     def check(cls, params):
@@ -56,29 +56,19 @@ class Saturation(Block):
 
     @staticmethod
     def guard(t, lower, upper, zero_crossing, u, zc):
-        # the element closest to a corner drives each guard
-        zc[0] = 1.0
-        zc[1] = 1.0
-        if zero_crossing:
-            best_u, best_l = 1e300, 1e300
-            for i in range(u.size):
-                if abs(u[i] - upper) < abs(best_u):
-                    best_u = u[i] - upper
-                if abs(u[i] - lower) < abs(best_l):
-                    best_l = u[i] - lower
-            zc[0] = best_u
-            zc[1] = best_l
+        n = u.size
+        for i in range(n):
+            zc[i] = u[i] - upper if zero_crossing else 1.0
+            zc[n + i] = u[i] - lower if zero_crossing else 1.0
 
     @staticmethod
-    def on_event(t, which, direction, lower, upper, u, m):
-        for i in range(u.size):
-            m[i] = 1.0 if u[i] > upper else (-1.0 if u[i] < lower else 0.0)
+    def on_event(t, which, direction, u, m):
         # at the crossing u sits on the corner: the direction decides
-        for i in range(u.size):
-            if which == 0 and abs(u[i] - upper) <= 1e-9 * (1.0 + abs(upper)):
-                m[i] = 1.0 if direction > 0 else 0.0
-            if which == 1 and abs(u[i] - lower) <= 1e-9 * (1.0 + abs(lower)):
-                m[i] = -1.0 if direction < 0 else 0.0
+        n = u.size
+        if which < n:
+            m[which] = 1.0 if direction > 0 else 0.0
+        else:
+            m[which - n] = -1.0 if direction < 0 else 0.0
 
 
 class DeadZone(Block):
@@ -91,8 +81,8 @@ class DeadZone(Block):
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="output")}
     modes = {"m": Mode(size="@u", doc="-1 below, 0 inside, +1 above the zone")}
-    events = {"end": Event(0, "u crosses the upper edge"),
-              "start": Event(0, "u crosses the lower edge")}
+    events = {"end": Event(0, "u crosses the upper edge (one guard per element)", "@u"),
+              "start": Event(0, "u crosses the lower edge (one guard per element)", "@u")}
 
     @classmethod
     def check(cls, params):
@@ -122,26 +112,18 @@ class DeadZone(Block):
 
     @staticmethod
     def guard(t, start, end, zero_crossing, u, zc):
-        zc[0] = 1.0
-        zc[1] = 1.0
-        if zero_crossing:
-            best_e, best_s = 1e300, 1e300
-            for i in range(u.size):
-                if abs(u[i] - end) < abs(best_e):
-                    best_e = u[i] - end
-                if abs(u[i] - start) < abs(best_s):
-                    best_s = u[i] - start
-            zc[0] = best_e
-            zc[1] = best_s
+        n = u.size
+        for i in range(n):
+            zc[i] = u[i] - end if zero_crossing else 1.0
+            zc[n + i] = u[i] - start if zero_crossing else 1.0
 
     @staticmethod
-    def on_event(t, which, direction, start, end, u, m):
-        for i in range(u.size):
-            m[i] = 1.0 if u[i] > end else (-1.0 if u[i] < start else 0.0)
-            if which == 0 and abs(u[i] - end) <= 1e-9 * (1.0 + abs(end)):
-                m[i] = 1.0 if direction > 0 else 0.0
-            if which == 1 and abs(u[i] - start) <= 1e-9 * (1.0 + abs(start)):
-                m[i] = -1.0 if direction < 0 else 0.0
+    def on_event(t, which, direction, u, m):
+        n = u.size
+        if which < n:
+            m[which] = 1.0 if direction > 0 else 0.0
+        else:
+            m[which - n] = -1.0 if direction < 0 else 0.0
 
 
 class Relay(Block):

@@ -8,7 +8,7 @@ class Mux(Block):
     """Concatenate inputs ``u1 .. un`` into one vector ``y``."""
 
     category = "routing"
-    parameters = {"n": Param(2, kind="int", ge=1, doc="number of inputs")}
+    parameters = {"n": Param(2, kind="int", ge=1, le=1000, doc="number of inputs")}
     inputs = {"u1": Port(size=None, doc="inputs u1 .. un")}
     outputs = {"y": Port(size=FromInputs("sum of input sizes",
                                          lambda p, s: sum(s.values())),
@@ -45,7 +45,8 @@ class Demux(Block):
     """Split ``u`` into outputs ``y1 .. yk`` of the given sizes."""
 
     category = "routing"
-    parameters = {"sizes": Param(doc="size of each output", shape="*", ge=1)}
+    parameters = {"sizes": Param(doc="size of each output", shape="*", ge=1, le=1e6,
+                                 structural=True)}
     inputs = {"u": Port(size=None, doc="vector to split")}
     outputs = {"y1": Port(size=None, feedthrough=("u",), doc="outputs y1 .. yk")}
 
@@ -97,7 +98,7 @@ class Selector(Block):
 
     category = "routing"
     parameters = {"index": Param(doc="0-based indices of the elements to pick", shape="*",
-                                 ge=0)}
+                                 ge=0, structural=True)}
     inputs = {"u": Port(size=None, doc="input vector")}
     outputs = {"y": Port(size=FromInputs("len(index)", lambda p, s: len(p["index"])),
                          feedthrough=("u",), doc="selected elements")}

@@ -52,7 +52,8 @@ class Resolver(Block):
     parameters = {
         "bits": Param(16, "1", "bits per revolution (0: no quantization)", kind="int", ge=0,
                       le=40),
-        "Ts": Param(0.0, "s", "sample period (0: continuous, no noise)", ge=0.0),
+        "Ts": Param(0.0, "s", "sample period (0: continuous, no noise)", ge=0.0,
+                    structural=True),
         "noise": Param(0.0, "rad", "standard deviation of the angle noise (sampled only)",
                        ge=0.0),
         "seed": Param(1, "1", "noise stream", kind="int", ge=0),

@@ -49,6 +49,7 @@ class BlockLayout:
     state_outputs: set = field(default_factory=set)
     input_src: dict = field(default_factory=dict)    # input -> ("x"|"sig", start, stop)
     guard_slice: tuple = (0, 0)                      # this block's events in the guard array
+    event_sizes: list = field(default_factory=list)  # guards per declared event
     scratch: dict = field(default_factory=dict)      # name -> (start, stop) in sig
 
 
@@ -362,7 +363,15 @@ def build_layout(flat: Flat) -> Layout:
     n_p = 0
     n_g = 0
     for bl in info.values():
-        ne = len(bl.cls.events)
+        sizes = []
+        for ev in bl.cls.events.values():
+            spec = ev.size
+            if isinstance(spec, str) and spec.startswith("@"):
+                sizes.append(bl.ports[("in", spec[1:])].size)
+            else:
+                sizes.append(bl.cls.size_of(spec, bl.params))
+        bl.event_sizes = sizes
+        ne = sum(sizes)
         if ne:
             if not bl.states and not bl.cls.modes:
                 inst = flat.blocks[bl.path]

@@ -73,14 +73,18 @@ class _Clock:
         return self._s.diagnose(t, x[:0])
 
 
-def crossed(g_old, g_new, direction):
+def crossed(g_old, g_new, direction, armed=None):
     """Which guards crossed zero in the allowed direction over a step.
 
-    A guard must be strictly on one side at the start of the step: one sitting at zero
-    (just fired) has to leave zero before it can fire again.
+    A guard that starts the step exactly at zero crosses when it leaves zero in the allowed
+    direction, unless it is not ``armed``: a guard zeroed by its own block's event has to
+    leave zero before it can fire again.
     """
     rising = (g_old < 0.0) & (g_new >= 0.0)
     falling = (g_old > 0.0) & (g_new <= 0.0)
+    if armed is not None:
+        rising |= (g_old == 0.0) & armed & (g_new > 0.0)
+        falling |= (g_old == 0.0) & armed & (g_new < 0.0)
     return np.flatnonzero(((direction >= 0) & rising) | ((direction <= 0) & falling))
 
 
@@ -229,19 +233,22 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
 
     n_g = system.n_g
     directions = np.array([d for _, _, d in system.event_table], dtype=float)
+    armed = np.ones(n_g, dtype=bool)
     recent = {}
     chatter_window = max(1e-9, 1e-6 * (t_end - t0))
 
-    def handle_state_events(solver, t_old, g_old):
+    def handle_state_events(solver, t_old, g_old, g_new):
         """Locate and apply the earliest crossing of this step; return (t, x) or None."""
-        g_new = system.guards(solver.t, solver.y)
-        hits = crossed(g_old, g_new, directions)
+        hits = crossed(g_old, g_new, directions, armed)
         if not len(hits):
             return None
         dense = solver.dense_output()
         xtol = 1e-13 * max(1.0, abs(solver.t))
         times = {}
         for i in hits:
+            if g_old[i] == 0.0:           # left zero at the start of the step
+                times[i] = t_old
+                continue
             times[i] = locate(lambda s, i=i: system.guards(s, dense(s))[i], t_old, solver.t,
                               g_old[i], xtol)
         t_ev = min(times.values())
@@ -271,8 +278,16 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                 raise IntegrationError(msg, partial=rec.result(events, st, "failed", msg),
                                        block=block)
         system.initialize(t_ev, x_ev)
-        settle(t_ev, x_ev, g_before, {system.event_table[i][0] for i in now})
+        fired = {system.event_table[i][0] for i in now}
+        settle(t_ev, x_ev, g_before, fired)
+        disarm(fired)
         return t_ev, x_ev
+
+    def disarm(blocks):
+        """Guards of blocks that have just fired must leave zero before firing again."""
+        for i, (blk, _n, _d) in enumerate(system.event_table):
+            if blk in blocks:
+                armed[i] = False
 
     def settle(t, x, g_before, fired_blocks):
         """Fire the crossings caused by a jump at an event instant: a guard of another block
@@ -313,12 +328,16 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     x = system.x0.copy()
     system.initialize(t, x)
     fire_due(t, x)
-    rec.add(t, x)
+    if not rec.add(t, x):
+        fail("non-finite value at the start", t, x)
     grid_k = 1
     while t < t_end:
+        if system.next_time(t) <= t + 1e-12 * max(1.0, abs(t)):
+            # a time event due here (a state event may have stopped exactly on it)
+            fire_due(t, x)
+            if output_interval is None:
+                rec.add(t, x)
         t_seg = min(system.next_time(t), t_end)
-        if t_seg <= t:
-            t_seg = t_end
         st["segments"] += 1
         try:
             solver = cls(system.rhs, t, x, t_seg, **kw)
@@ -342,7 +361,8 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
             else:
                 tiny = 0
             if n_g:
-                hit = handle_state_events(solver, t_old, g_old)
+                g_new = system.guards(solver.t, solver.y)
+                hit = handle_state_events(solver, t_old, g_old, g_new)
                 if hit is not None:
                     st["rhs_calls"] += int(solver.nfev)
                     st["jacobian_calls"] += int(getattr(solver, "njev", 0))
@@ -352,7 +372,8 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                         fail("non-finite value after an event", t, x)
                     restarted = True
                     break
-                g_old = system.guards(solver.t, solver.y)
+                g_old = g_new
+                armed |= g_new != 0.0          # re-armed once it has left zero
             if output_interval is None:
                 if not rec.add(solver.t, solver.y):
                     fail("non-finite value", solver.t, solver.y)

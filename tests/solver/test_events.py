@@ -223,3 +223,49 @@ connections: [u.y -> b.u]
         assert ei.value.block == "b" and "no states or modes" in str(ei.value)
     finally:
         del REGISTRY["_NoStateEvent"]
+
+
+# ---------------------------------------------------------------- review regressions
+def test_time_event_at_the_instant_of_a_state_event_still_fires():
+    r = spidersim.loads("""
+blocks:
+  r:   {type: Ramp, slope: 1}
+  rel: {type: Relay, on_point: 0.5, off_point: -1}
+  s:   {type: Step, t_step: 0.5}
+  i:   {type: Integrator}
+connections: [r.y -> rel.u, s.y -> i.u]
+simulation: {t_end: 1, rtol: 1e-10, atol: 1e-12}
+""").simulate(jit=False)
+    assert abs(r["i.y"][-1] - 0.5) < 1e-9
+    assert (0.5, "s", "time") in r.events
+
+
+def test_guard_starting_exactly_at_zero_fires_when_it_leaves():
+    r = spidersim.loads("""
+blocks:
+  s:   {type: Sine, amplitude: -1}
+  sat: {type: Saturation, lower: 0, upper: 2}
+  i:   {type: Integrator}
+connections: [s.y -> sat.u, sat.y -> i.u]
+simulation: {t_end: 1, rtol: 1e-9, atol: 1e-12}
+""").simulate(jit=False)
+    assert r["sat.y"].min() >= 0.0
+    assert abs(r["i.y"][-1] - 1 / np.pi) < 1e-8
+    rm = spidersim.loads("blocks:\n  m: {type: MassOnStop, x0: 0}\n").simulate(t_end=1,
+                                                                             jit=False)
+    assert rm["m.x"][-1] == 0.0                 # starts on the stop and stays there
+
+
+def test_vector_saturation_has_one_guard_per_element():
+    r = spidersim.loads("""
+blocks:
+  r:   {type: Ramp, slope: 1}
+  c:   {type: Constant, value: 1.01}
+  mx:  {type: Mux, n: 2}
+  sat: {type: Saturation, lower: -1, upper: 1}
+connections: [r.y -> mx.u1, c.y -> mx.u2, mx.y -> sat.u]
+simulation: {t_end: 3}
+""").simulate(jit=False)
+    assert np.array_equal(r["sat.y"][-1], [1.0, 1.0])
+    assert [e for e in r.events if e[1] == "sat"] == [(1.0, "sat", "upper[0]")] or \
+        abs([e for e in r.events if e[1] == "sat"][0][0] - 1.0) < 1e-9
