@@ -21,6 +21,9 @@ ripple
     1 s of ``diagrams/joint_ripple.yaml`` (NRPI driver + two-phase brushless motor at
     955 rpm with the three imperfections) against a hand-written numba right-hand side of
     the same equations under the same solver and tolerances. Target <= 1.5x.
+spider
+    10 s of ``spider.yaml``: wall time, steps, RHS calls, compile time, real-time factor
+    (target >= 1.0 on one core), and the arm's forward dynamics per call (target <= 30 us).
 """
 from __future__ import annotations
 
@@ -272,8 +275,44 @@ def bench_ripple():
     print()
 
 
+def bench_spider():
+    """10 s of spider.yaml (the main job) and the cost of one arm forward dynamics."""
+    import spidersim
+    from spidersim.multibody import Chain
+    from spidersim.multibody import kernels as K
+
+    d = spidersim.load(os.path.join(ROOT, "spider.yaml"))
+    t0 = time.perf_counter()
+    d.compile(jit=True)
+    compile_s = time.perf_counter() - t0
+    best, med, r = _best(lambda: d.simulate(t_end=10.0, jit=True), repeat=2)
+    s = r.stats
+    print("== spider: spider.yaml, 10 s simulated (7 joints + arm + 30 kg payload), "
+          "LSODA 1e-6/1e-8 ==")
+    print(f"wall time {best:.2f} s (median {med:.2f} s); steps {s['steps']}, RHS calls "
+          f"{s['rhs_calls']}, Jacobians {s['jacobian_calls']}; compile {compile_s:.1f} s "
+          f"(this process: cold or from cache)")
+    print(f"real-time factor (simulated / wall, target >= 1.0): {10.0 / best:.2f}")
+    arm = Chain.from_yaml()
+    rng = np.random.default_rng(0)
+    q, qd, tau = rng.normal(size=7), rng.normal(size=7), rng.normal(size=7)
+    qdd = np.zeros(7)
+    args = (q, qd, tau, arm.gravity, np.zeros(6), arm.P, arm._ws, arm._M, arm._tmp,
+            arm._base, qdd)
+    K.forward_dynamics(*args)                       # compile (or load) first
+    fd = next(iter(K.forward_dynamics.overloads.values())).entry_point
+    n = 20000
+    t0 = time.perf_counter()
+    for _ in range(n):
+        fd(*args)
+    per = (time.perf_counter() - t0) / n
+    print(f"arm forward dynamics (CRBA by RNEA columns + Cholesky + base wrench), "
+          f"compiled: {1e6 * per:.1f} us per call from Python (target <= 30 us)")
+    print()
+
+
 BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball,
-           "ripple": bench_ripple}
+           "ripple": bench_ripple, "spider": bench_spider}
 
 
 def main(argv):

@@ -276,3 +276,60 @@ def _bind_fk():
 
 
 fk = _bind_fk()
+
+
+class ForwardKinematics(Block):
+    """Flange pose of the arm at the joint angles ``q``: position [m] and rotation matrix
+    (row-major), base frame."""
+
+    category = "multibody"
+    parameters = {"model": Param("spider", kind="str", doc="arm data ('spider' or a path)")}
+    inputs = {"q": Port("rad", size=_N, doc="joint angles")}
+    outputs = {"pos": Port("m", size=3, feedthrough=("q",), doc="flange origin"),
+               "rot": Port("1", size=9, feedthrough=("q",), doc="flange rotation, row-major")}
+    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1))}
+
+    @classmethod
+    def derive(cls, params):
+        return {"P": _chain(params["model"]).P}
+
+    @staticmethod
+    def output(t, q, P, ws, pos, rot):
+        fk(q, P, ws)
+        b = q.size * 48
+        for k in range(9):
+            rot[k] = ws[b + k]
+        for k in range(3):
+            pos[k] = ws[b + 9 + k]
+
+
+class Jacobian(Block):
+    """Geometric Jacobian of the flange (6 x n, row-major: linear velocity rows first, then
+    angular), base frame: ``[v; w] = J(q) qd``."""
+
+    category = "multibody"
+    parameters = {"model": Param("spider", kind="str", doc="arm data ('spider' or a path)")}
+    inputs = {"q": Port("rad", size=_N, doc="joint angles")}
+    outputs = {"J": Port("1", size=Dim("6 n", lambda p: 6 * _n(p)), feedthrough=("q",),
+                         doc="Jacobian, row-major 6 x n")}
+    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1))}
+
+    @classmethod
+    def derive(cls, params):
+        return {"P": _chain(params["model"]).P}
+
+    @staticmethod
+    def output(t, q, P, ws, J):
+        n = q.size
+        fk(q, P, ws)
+        b = n * 48
+        for i in range(n):
+            bi = i * 48
+            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
+            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
+            J[i] = zy * rz - zz * ry
+            J[n + i] = zz * rx - zx * rz
+            J[2 * n + i] = zx * ry - zy * rx
+            J[3 * n + i] = zx
+            J[4 * n + i] = zy
+            J[5 * n + i] = zz

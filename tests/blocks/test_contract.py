@@ -111,6 +111,8 @@ EXAMPLES = {
                  moves=True)],
     "CartesianLineIK": [dict(params={"q0": [0.0, 0.6, 0.0, -1.3, 0.0, 0.8, 0.0]},
                              lo=-0.05, hi=0.05, moves=True)],
+    "ForwardKinematics": [dict(params={}, sizes={"q": 7}, lo=-2.0, hi=2.0, moves=True)],
+    "Jacobian": [dict(params={}, sizes={"q": 7}, lo=-2.0, hi=2.0)],
     "JointCascade": [dict(params={"N": 100.0, "kp_q": 5.0, "kp_w": 0.1, "ki_w": 0.5,
                                   "I_max": 1e4}, lo=-0.1, hi=0.1, moves=True)],
 }
