@@ -16,6 +16,10 @@ samples are resampled on a uniform grid (the run's ``output_interval`` makes thi
 the mean removed, a Hann window applied, and the FFT scaled so that a sinusoid of amplitude
 A shows a peak of height A. ``f_max`` limits the frequency axis; the ``peaks`` highest local
 maxima are labelled with their frequency in Hz.
+
+``kind: animation`` writes a GIF (default file ``<title>.gif``): a 3-D stick figure of an arm
+from the joint angles of an Arm block; keys ``model``, ``frames``, ``fps``, ``trace`` (see
+:mod:`spidersim.animation`).
 """
 from __future__ import annotations
 
@@ -30,8 +34,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from .errors import DiagramError  # noqa: E402
 
-KINDS = ("time", "spectrum")
-KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks")
+KINDS = ("time", "spectrum", "animation")
+KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks",
+        "model", "frames", "fps", "trace")
 
 
 def _slug(text):
@@ -39,7 +44,11 @@ def _slug(text):
 
 
 def check_plot_specs(plots, signals, file=None):
-    """Validate plot entries against the logged ``signals``; raise DiagramError."""
+    """Validate plot entries against the logged ``signals``; raise DiagramError.
+
+    ``signals`` holds the names of the logged signals, or maps them to their number of
+    values (then an animation's signal is also checked against the arm's number of joints).
+    """
     for k, p in enumerate(plots):
         line = getattr(p, "line", None)
         if not isinstance(p, dict):
@@ -65,6 +74,10 @@ def check_plot_specs(plots, signals, file=None):
                 hint = f"; did you mean {', '.join(near)}?" if near else ""
                 raise DiagramError(f"plots[{k}]: signal '{s}' is not logged{hint}", file=file,
                                    line=line)
+        if kind == "animation":
+            from .animation import check_animation_spec
+            size = signals.get(sigs[0]) if hasattr(signals, "get") else None
+            check_animation_spec(p, size, f"plots[{k}]", file, line)
 
 
 def time_plot(result, spec, path):
@@ -171,10 +184,16 @@ def make_plots(result, plots, folder):
     written = []
     used = set()
     for k, spec in enumerate(plots):
-        name = spec.get("file") or _slug(spec.get("title", f"plot_{k + 1}")) + ".png"
+        kind = spec.get("kind", "time")
+        ext = ".gif" if kind == "animation" else ".png"
+        name = spec.get("file") or _slug(spec.get("title", f"plot_{k + 1}")) + ext
         while name in used:
-            name = name.replace(".png", f"_{k + 1}.png")
+            root, ext = os.path.splitext(name)
+            name = f"{root}_{k + 1}{ext}"
         used.add(name)
-        draw = spectrum_plot if spec.get("kind", "time") == "spectrum" else time_plot
+        if kind == "animation":
+            from .animation import arm_animation as draw
+        else:
+            draw = spectrum_plot if kind == "spectrum" else time_plot
         written.append(draw(result, spec, os.path.join(folder, name)))
     return written

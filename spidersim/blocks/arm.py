@@ -107,7 +107,7 @@ class Arm(Block):
                "Mw": Dim("n^2", lambda p: _n(p) ** 2),
                "Mw2": Dim("n^2", lambda p: _n(p) ** 2),
                "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
-               "v1": Dim("n", _n)}
+               "v1": Dim("n", _n), "Jw": Dim("6 n", lambda p: 6 * _n(p))}
 
     @classmethod
     def check(cls, params):
@@ -124,7 +124,7 @@ class Arm(Block):
                                                params["payload_inertia"])}
 
     @staticmethod
-    def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, qdd,
+    def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, Jw, qdd,
                flange_pos, flange_rot, flange_twist, base_force, base_moment):
         n = q.size
         M = Mw.reshape((n, n))
@@ -139,15 +139,12 @@ class Arm(Block):
         for k in range(3):
             flange_pos[k] = ws[b + 9 + k]
             flange_twist[3 + k] = ws[b + 12 + k]
-        vx = vy = vz = 0.0
-        for i in range(n):
-            bi = i * 48
-            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
-            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
-            vx += qd[i] * (zy * rz - zz * ry)
-            vy += qd[i] * (zz * rx - zx * rz)
-            vz += qd[i] * (zx * ry - zy * rx)
-        flange_twist[0], flange_twist[1], flange_twist[2] = vx, vy, vz
+        flange_jacobian(n, ws, Jw)
+        for r in range(3):
+            acc = 0.0
+            for i in range(n):
+                acc += Jw[r * n + i] * qd[i]
+            flange_twist[r] = acc
 
     @staticmethod
     def derivative(t, qd, qdd, der_q, der_qd):
@@ -211,7 +208,7 @@ class CartesianLineIK(Block):
     states = {"q_ref": State("rad", size=_N, initial="q0", doc="joint references")}
     scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
                "A6": Dim("36", lambda p: 36), "v6": Dim("6", lambda p: 6),
-               "y6": Dim("6", lambda p: 6)}
+               "y6": Dim("6", lambda p: 6), "Jw": Dim("6 n", lambda p: 6 * _n(p))}
 
     @classmethod
     def check(cls, params):
@@ -226,7 +223,7 @@ class CartesianLineIK(Block):
         return {"P": ch.P, "p0": T[:3, 3].copy(), "R0": T[:3, :3].ravel().copy(), "u": u}
 
     @staticmethod
-    def output(t, q_ref, s, sd, P, p0, R0, u, K, damping, ws, A6, v6, y6, qd_ref, p_ref):
+    def output(t, q_ref, s, sd, P, p0, R0, u, K, damping, ws, A6, v6, y6, Jw, qd_ref, p_ref):
         n = q_ref.size
         fk(q_ref, P, ws)
         b = n * 48
@@ -243,26 +240,19 @@ class CartesianLineIK(Block):
             ez += 0.5 * (ax * dy - ay * dx)
         v6[3], v6[4], v6[5] = K * ex, K * ey, K * ez
         A = A6.reshape((6, 6))
-        # J columns: [z_i x (p - o_i); z_i]; A = J J^T + lambda^2 I
+        flange_jacobian(n, ws, Jw)                     # A = J J^T + lambda^2 I
         for r in range(6):
             for c in range(6):
-                A[r, c] = damping * damping if r == c else 0.0
-        for i in range(n):
-            bi = i * 48
-            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
-            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
-            col0, col1, col2 = zy * rz - zz * ry, zz * rx - zx * rz, zx * ry - zy * rx
-            for r in range(6):
-                jr = (col0, col1, col2, zx, zy, zz)[r]
-                for c in range(6):
-                    A[r, c] += jr * (col0, col1, col2, zx, zy, zz)[c]
+                acc = damping * damping if r == c else 0.0
+                for i in range(n):
+                    acc += Jw[r * n + i] * Jw[c * n + i]
+                A[r, c] = acc
         cholesky_solve(A, v6, y6)
         for i in range(n):
-            bi = i * 48
-            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
-            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
-            qd_ref[i] = ((zy * rz - zz * ry) * y6[0] + (zz * rx - zx * rz) * y6[1]
-                         + (zx * ry - zy * rx) * y6[2] + zx * y6[3] + zy * y6[4] + zz * y6[5])
+            acc = 0.0
+            for r in range(6):
+                acc += Jw[r * n + i] * y6[r]
+            qd_ref[i] = acc
 
     @staticmethod
     def derivative(t, qd_ref, der_q_ref):
@@ -270,12 +260,12 @@ class CartesianLineIK(Block):
             der_q_ref[i] = qd_ref[i]
 
 
-def _bind_fk():
+def _bind_kinematics():
     from ..multibody import kernels as K
-    return K.fk
+    return K.fk, K.flange_jacobian
 
 
-fk = _bind_fk()
+fk, flange_jacobian = _bind_kinematics()
 
 
 class ForwardKinematics(Block):
@@ -320,16 +310,5 @@ class Jacobian(Block):
 
     @staticmethod
     def output(t, q, P, ws, J):
-        n = q.size
         fk(q, P, ws)
-        b = n * 48
-        for i in range(n):
-            bi = i * 48
-            zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
-            rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
-            J[i] = zy * rz - zz * ry
-            J[n + i] = zz * rx - zx * rz
-            J[2 * n + i] = zx * ry - zy * rx
-            J[3 * n + i] = zx
-            J[4 * n + i] = zy
-            J[5 * n + i] = zz
+        flange_jacobian(q.size, ws, J)

@@ -19,7 +19,20 @@ _K = Mode(doc="number of samples taken")
 
 
 
-class ZeroOrderHold(Block):
+class _Sampled(Block, abstract=True):
+    """Shared kernels of the sampled blocks: samples at ``offset + k Ts``, output held."""
+
+    @staticmethod
+    def next_time(t, offset, Ts, k):
+        return offset + k[0] * Ts
+
+    @staticmethod
+    def output(t, held, y):
+        for i in range(y.size):
+            y[i] = held[i]
+
+
+class ZeroOrderHold(_Sampled):
     """``y(t) = u(t_k)`` for ``t_k <= t < t_k+1``."""
 
     category = "discrete"
@@ -29,22 +42,13 @@ class ZeroOrderHold(Block):
     modes = {"held": Mode(size="@u", doc="last sample"), "k": _K}
 
     @staticmethod
-    def output(t, held, y):
-        for i in range(y.size):
-            y[i] = held[i]
-
-    @staticmethod
-    def next_time(t, offset, Ts, k):
-        return offset + k[0] * Ts
-
-    @staticmethod
     def time_event(t, u, held, k):
         for i in range(u.size):
             held[i] = u[i]
         k[0] += 1.0
 
 
-class UnitDelay(Block):
+class UnitDelay(_Sampled):
     """``y[k] = u[k-1]``, ``y[0] = x0``: the sample taken at ``t_k-1`` is output from ``t_k``."""
 
     category = "discrete"
@@ -56,15 +60,6 @@ class UnitDelay(Block):
              "last": Mode(size="@u", initial="x0", doc="sample to output next"), "k": _K}
 
     @staticmethod
-    def output(t, held, y):
-        for i in range(y.size):
-            y[i] = held[i]
-
-    @staticmethod
-    def next_time(t, offset, Ts, k):
-        return offset + k[0] * Ts
-
-    @staticmethod
     def time_event(t, u, held, last, k):
         for i in range(u.size):
             held[i] = last[i]
@@ -72,7 +67,7 @@ class UnitDelay(Block):
         k[0] += 1.0
 
 
-class DiscreteTransferFunction(Block):
+class DiscreteTransferFunction(_Sampled):
     """``Y(z)/U(z) = num(z)/den(z)`` (coefficients in descending powers of z, as
     ``control.tf(num, den, Ts)``), direct form II transposed, output held between samples."""
 
@@ -101,14 +96,6 @@ class DiscreteTransferFunction(Block):
         return {"a_n": den, "b_n": b}
 
     @staticmethod
-    def output(t, held, y):
-        y[0] = held[0]
-
-    @staticmethod
-    def next_time(t, offset, Ts, k):
-        return offset + k[0] * Ts
-
-    @staticmethod
     def time_event(t, u, a_n, b_n, s, held, k):
         n = s.size
         yk = b_n[0] * u[0] + (s[0] if n > 0 else 0.0)
@@ -124,7 +111,7 @@ _LIM = {"y_min": Param(-math.inf, doc="lower output limit"),
         "I0": Param(0.0, doc="initial integral term (output units)")}
 
 
-class DiscretePI(Block):
+class DiscretePI(_Sampled):
     """Sampled PI, forward-Euler integral (``C(z) = kp + ki Ts / (z - 1)``)::
 
         y_k = sat(kp e_k + I_k),   I_k+1 = I_k + ki Ts e_k
@@ -140,14 +127,6 @@ class DiscretePI(Block):
              "k": _K}
 
     @staticmethod
-    def output(t, held, y):
-        y[0] = held[0]
-
-    @staticmethod
-    def next_time(t, offset, Ts, k):
-        return offset + k[0] * Ts
-
-    @staticmethod
     def time_event(t, e, kp, ki, Ts, y_min, y_max, I, held, k):
         v = kp * e[0] + I[0]
         held[0] = min(max(v, y_min), y_max)
@@ -156,7 +135,7 @@ class DiscretePI(Block):
         k[0] += 1.0
 
 
-class DiscretePID(Block):
+class DiscretePID(_Sampled):
     """Sampled PID: ``y_k = sat(kp e_k + I_k + kd (e_k - e_k-1) / Ts)``, integral as in
     DiscretePI (clamping)."""
 
@@ -169,14 +148,6 @@ class DiscretePID(Block):
     outputs = {"y": Port(doc="held command")}
     modes = {"I": Mode(initial="I0", doc="integral term"), "e_prev": Mode(doc="last error"),
              "held": Mode(doc="last output"), "k": _K}
-
-    @staticmethod
-    def output(t, held, y):
-        y[0] = held[0]
-
-    @staticmethod
-    def next_time(t, offset, Ts, k):
-        return offset + k[0] * Ts
 
     @staticmethod
     def time_event(t, e, kp, ki, kd, Ts, y_min, y_max, I, e_prev, held, k):

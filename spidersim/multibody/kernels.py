@@ -46,6 +46,22 @@ def fk(q, P, ws):
             ws[b1 + 9 + r] = ws[b0 + 9 + r] + R0 * A03 + R1 * A13 + R2 * A23
 
 
+def flange_jacobian(n, ws, J):
+    """Geometric Jacobian of the flange after :func:`fk`, row-major 6 x n into ``J``:
+    column i is ``[z_{i-1} x (o_n - o_{i-1}); z_{i-1}]``."""
+    b = n * WS_PER_LINK
+    for i in range(n):
+        bi = i * WS_PER_LINK
+        zx, zy, zz = ws[bi + 2], ws[bi + 5], ws[bi + 8]
+        rx, ry, rz = ws[b + 9] - ws[bi + 9], ws[b + 10] - ws[bi + 10], ws[b + 11] - ws[bi + 11]
+        J[i] = zy * rz - zz * ry
+        J[n + i] = zz * rx - zx * rz
+        J[2 * n + i] = zx * ry - zy * rx
+        J[3 * n + i] = zx
+        J[4 * n + i] = zy
+        J[5 * n + i] = zz
+
+
 def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
@@ -210,6 +226,7 @@ def _jit(fn):
 # the globals when a function is first compiled)
 _cross = _jit(_cross)
 fk = _jit(fk)
+flange_jacobian = _jit(flange_jacobian)
 rnea = _jit(rnea)
 mass_matrix = _jit(mass_matrix)
 cholesky_solve = _jit(cholesky_solve)
