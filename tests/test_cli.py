@@ -80,10 +80,12 @@ def test_run_writes_data_report_and_plots(path, tmp_path, capsys):
     assert "status: ok" in report.splitlines()
 
     plots = _yaml(path).get("plots") or []
-    pngs = sorted(p.name for p in out.glob("*.png"))
-    assert len(pngs) == len(plots), pngs
+    images = sorted(p.name for p in [*out.glob("*.png"), *out.glob("*.gif")])
+    assert len(images) == len(plots), images        # one PNG, or GIF (animation), per entry
     for p in out.glob("*.png"):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for p in out.glob("*.gif"):
+        assert p.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
 
 
 @pytest.mark.parametrize("path", FILES, ids=IDS)
