@@ -14,10 +14,18 @@ where ``k`` is ``K1 delta_e`` (linear) or the three-slope law inverted from PHYS
            = T1/K1 + (T2-T1)/K2 + (T-T2)/K3 above   (odd in T)
 
 Contact starts when ``|delta|`` reaches ``b/2`` and ends when the contact torque would
-pull (``tau_s`` changes sign): both are events. Outputs: ``tau_l = tau_s`` drives the load;
-``tau_m = tau_s / N + tau_f`` is the torque the gearbox applies against the motor
-(connect it to the motor's ``tau_load``); ``tau_f`` is the LuGre friction at the motor-side
-speed (with ``friction: false`` it is zero).
+pull (``tau_s`` changes sign): both are events. Outputs: ``tau_l`` drives the load,
+``tau_m`` is the torque the gearbox applies against the motor (connect it to the motor's
+``tau_load``), ``tau_f`` is the LuGre friction (zero with ``friction: false``)::
+
+    friction_side = motor:  tau_l = tau_s,        tau_m = tau_s / (N e) + tau_f(w_m)
+    friction_side = load:   tau_l = tau_s - tau_f(w_l),  tau_m = tau_s / (N e)
+
+with the mesh efficiency ``e = efficiency`` while the motor drives the load
+(``tau_s w_l >= 0``) and ``e = 1 / efficiency`` while the load back-drives the motor: the
+losses are always taken from the power flow. With ``efficiency < 1`` the switch at
+``tau_s w_l = 0`` is a discontinuity without an event; the default is 1 (lossless mesh,
+friction through LuGre).
 """
 import math
 
@@ -73,16 +81,19 @@ class HarmonicDrive(Block):
         "T2": Param(108.0, "N.m", "second corner torque", gt=0.0),
         "d": Param(20.0, "N.m.s/rad", "torsional damping at the output", ge=0.0),
         "backlash": Param(0.0, "rad", "total backlash at the output (about 2.9e-4)", ge=0.0),
-        "friction": Param(True, kind="bool", doc="LuGre friction on the motor side"),
+        "friction": Param(True, kind="bool", doc="LuGre friction"),
+        "friction_side": Param("motor", kind="str", choices=("motor", "load"),
+                               doc="where the LuGre friction acts (speed it sees)"),
+        "efficiency": Param(1.0, "1", "mesh efficiency", gt=0.0, le=1.0),
     }, **LUGRE_PARAMS)
     inputs = {"phi_m": Port("rad", doc="motor-side angle"),
               "w_m": Port("rad/s", doc="motor-side speed"),
               "phi_l": Port("rad", doc="output (load) angle"),
               "w_l": Port("rad/s", doc="output speed")}
     outputs = {"tau_l": Port("N.m", feedthrough="all", doc="torque driving the load"),
-               "tau_m": Port("N.m", feedthrough="all",
-                             doc="torque against the motor: tau_l / N + tau_f"),
-               "tau_f": Port("N.m", feedthrough=("w_m",), doc="motor-side friction"),
+               "tau_m": Port("N.m", feedthrough="all", doc="torque against the motor"),
+               "tau_f": Port("N.m", doc="LuGre friction", feedthrough=lambda p: (
+                   "w_l",) if p["friction_side"] == "load" else ("w_m",)),
                "deflection": Port("rad", feedthrough=("phi_m", "phi_l"),
                                   doc="phi_m / N - phi_l")}
     states = {"z": State("rad", doc="LuGre bristle deflection")}
@@ -101,27 +112,36 @@ class HarmonicDrive(Block):
     @classmethod
     def derive(cls, params):
         return {"half": params["backlash"] / 2.0,
-                "linear": float(params["stiffness"] == "linear")}
+                "linear": float(params["stiffness"] == "linear"),
+                "load_side": float(params["friction_side"] == "load")}
 
     @staticmethod
     def output(t, z, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear,
-               friction, T_c, T_s, v_s, delta, sigma0, sigma1, D, contact, tau_l, tau_m,
-               tau_f, deflection):
+               friction, load_side, efficiency, T_c, T_s, v_s, delta, sigma0, sigma1, D,
+               contact, tau_l, tau_m, tau_f, deflection):
         de = phi_m[0] / N - phi_l[0]
         ts = spring_jit(de, w_m[0] / N - w_l[0], contact[0], half, linear > 0.5, K1, K2, K3,
                         T1, T2, d)
         f = 0.0
         if friction:
-            dz, f = lugre_rates_jit(w_m[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
-        tau_l[0] = ts
-        tau_m[0] = ts / N + f
+            v = w_l[0] if load_side > 0.5 else w_m[0]
+            dz, f = lugre_rates_jit(v, z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
+        e = efficiency if ts * w_l[0] >= 0.0 else 1.0 / efficiency
+        if load_side > 0.5:
+            tau_l[0] = ts - f
+            tau_m[0] = ts / (N * e)
+        else:
+            tau_l[0] = ts
+            tau_m[0] = ts / (N * e) + f
         tau_f[0] = f
         deflection[0] = de
 
     @staticmethod
-    def derivative(t, z, w_m, friction, T_c, T_s, v_s, delta, sigma0, sigma1, D, der_z):
+    def derivative(t, z, w_m, w_l, friction, load_side, T_c, T_s, v_s, delta, sigma0, sigma1,
+                   D, der_z):
         if friction:
-            dz, f = lugre_rates_jit(w_m[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
+            v = w_l[0] if load_side > 0.5 else w_m[0]
+            dz, f = lugre_rates_jit(v, z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
             der_z[0] = dz
         else:
             der_z[0] = 0.0
