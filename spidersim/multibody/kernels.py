@@ -160,8 +160,10 @@ def mass_matrix(q, P, ws, M, tmp, base):
     for k in range(n):
         zero[k] = 0.0
         e[k] = 0.0
+    # base is zeroed before each column and serves as the zero gravity (3) and zero
+    # external wrench (6): rnea reads both before it writes the base wrench into it
     g0 = base[:3]
-    fz = base[3:6]
+    fz = base
     for j in range(n):
         for k in range(6):
             base[k] = 0.0
