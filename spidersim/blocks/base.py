@@ -163,6 +163,8 @@ class Event:
     direction: int = 0
     doc: str = ""
     size: Any = 1
+    #: name of a bool parameter: when it is false the event does not exist (no guards)
+    when: str | None = None
 
 
 def _fmt(v):

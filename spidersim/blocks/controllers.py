@@ -31,7 +31,7 @@ Clamping is event-driven (conditional integration), with modes ``clamp``:
 """
 import math
 
-from .base import Block, Event, Mode, Param, Port, State
+from .base import Block, Dim, Event, Mode, Param, Port, State
 
 _AW = ("clamping", "backcalc", "none")
 
@@ -57,13 +57,11 @@ def _limited(v, y_min, y_max, clamp):
 
 def _clamp_guard(e, v, y_min, y_max, aw, clamp, armed, zc):
     """Guards: 0 enter at y_max, 1 enter at y_min, 2 the error reverses, 3 v leaves the
-    limit while held (see the module docstring)."""
+    limit while held (see the module docstring). Called with clamping only."""
     zc[0] = -1.0
     zc[1] = 1.0
     zc[2] = 1.0
     zc[3] = 1.0
-    if aw != 0.0:
-        return
     if clamp == 0.0:
         zc[0] = min(v - y_max, e)
         zc[1] = max(v - y_min, e)
@@ -131,10 +129,13 @@ _COMMON = {
 }
 _MODES = {"clamp": Mode(doc="clamping mode: 0 free, +-1 integral held, +-2 sliding"),
           "armed": Mode(doc="+-1 after leaving a limit before the error reversed")}
-_EVENTS = {"clamp_upper": Event(1, "v > y_max with e > 0 begins: hold the integral"),
-           "clamp_lower": Event(-1, "v < y_min with e < 0 begins: hold the integral"),
-           "release": Event(-1, "the error reverses: integrate again"),
-           "leave": Event(-1, "v comes back inside the limit while the integral is held")}
+# the clamping events exist only with antiwindup = clamping (size 0 otherwise: no guards)
+_CLAMP = Dim("1 with clamping, else 0", lambda p: 1 if p["antiwindup"] == "clamping" else 0)
+_EVENTS = {"clamp_upper": Event(1, "v > y_max with e > 0 begins: hold the integral", _CLAMP),
+           "clamp_lower": Event(-1, "v < y_min with e < 0 begins: hold the integral", _CLAMP),
+           "release": Event(-1, "the error reverses: integrate again", _CLAMP),
+           "leave": Event(-1, "v comes back inside the limit while the integral is held",
+                          _CLAMP)}
 
 
 class PI(Block):

@@ -24,8 +24,10 @@ class Saturation(Block):
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="limited input")}
     modes = {"m": Mode(size="@u", doc="-1 at lower, 0 linear, +1 at upper")}
-    events = {"upper": Event(0, "u crosses the upper limit (one guard per element)", "@u"),
-              "lower": Event(0, "u crosses the lower limit (one guard per element)", "@u")}
+    events = {"upper": Event(0, "u crosses the upper limit (one guard per element)", "@u",
+                             when="zero_crossing"),
+              "lower": Event(0, "u crosses the lower limit (one guard per element)", "@u",
+                             when="zero_crossing")}
 
     @classmethod
     def check(cls, params):
@@ -81,8 +83,10 @@ class DeadZone(Block):
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="output")}
     modes = {"m": Mode(size="@u", doc="-1 below, 0 inside, +1 above the zone")}
-    events = {"end": Event(0, "u crosses the upper edge (one guard per element)", "@u"),
-              "start": Event(0, "u crosses the lower edge (one guard per element)", "@u")}
+    events = {"end": Event(0, "u crosses the upper edge (one guard per element)", "@u",
+                           when="zero_crossing"),
+              "start": Event(0, "u crosses the lower edge (one guard per element)", "@u",
+                             when="zero_crossing")}
 
     @classmethod
     def check(cls, params):

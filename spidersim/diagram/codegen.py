@@ -262,6 +262,14 @@ def guards(t, x, sig, p, modes, g):
 
 
 @_jit
+def record_guards(t, x, sig, p, modes, s_idx, x_idx, buf, row, g):
+    """record() and guards() from one evaluation of the outputs."""
+    ok = record(t, x, sig, p, modes, s_idx, x_idx, buf, row)
+{body(g_lines) or "    pass"}
+    return ok
+
+
+@_jit
 def apply_event(t, x, sig, p, modes, k, direction):
     outputs(t, x, sig, p, modes)
 {body(ev_lines) or "    pass"}

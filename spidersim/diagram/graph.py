@@ -366,7 +366,9 @@ def build_layout(flat: Flat) -> Layout:
         sizes = []
         for ev in bl.cls.events.values():
             spec = ev.size
-            if isinstance(spec, str) and spec.startswith("@"):
+            if ev.when is not None and not bl.params[ev.when]:
+                sizes.append(0)
+            elif isinstance(spec, str) and spec.startswith("@"):
                 sizes.append(bl.ports[("in", spec[1:])].size)
             else:
                 sizes.append(bl.cls.size_of(spec, bl.params))

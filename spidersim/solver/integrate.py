@@ -73,6 +73,26 @@ class _Clock:
         return self._s.diagnose(t, x[:0])
 
 
+def _crossings(g_old, g_new, direction, armed, out):
+    """Indices of the guards that crossed into ``out``; returns how many."""
+    k = 0
+    for i in range(g_old.size):
+        a, b, d = g_old[i], g_new[i], direction[i]
+        up = (a < 0.0 and b >= 0.0) or (a == 0.0 and armed[i] and b > 0.0)
+        down = (a > 0.0 and b <= 0.0) or (a == 0.0 and armed[i] and b < 0.0)
+        if (d >= 0.0 and up) or (d <= 0.0 and down):
+            out[k] = i
+            k += 1
+    return k
+
+
+try:   # a per-step test on a few floats: numpy's per-call overhead would dominate
+    import numba
+    _crossings = numba.njit(cache=True)(_crossings)
+except ImportError:  # pragma: no cover - numba is a dependency
+    pass
+
+
 def crossed(g_old, g_new, direction, armed=None):
     """Which guards crossed zero in the allowed direction over a step.
 
@@ -80,12 +100,10 @@ def crossed(g_old, g_new, direction, armed=None):
     direction, unless it is not ``armed``: a guard zeroed by its own block's event has to
     leave zero before it can fire again.
     """
-    rising = (g_old < 0.0) & (g_new >= 0.0)
-    falling = (g_old > 0.0) & (g_new <= 0.0)
-    if armed is not None:
-        rising |= (g_old == 0.0) & armed & (g_new > 0.0)
-        falling |= (g_old == 0.0) & armed & (g_new < 0.0)
-    return np.flatnonzero(((direction >= 0) & rising) | ((direction <= 0) & falling))
+    if armed is None:
+        armed = np.zeros(len(g_old), dtype=np.bool_)
+    out = np.empty(len(g_old), dtype=np.int64)
+    return out[:_crossings(g_old, g_new, direction, armed, out)]
 
 
 def locate(gfun, t_a, t_b, g_a, xtol):
@@ -117,12 +135,16 @@ class _Recorder:
         self.tbuf = np.zeros(capacity)
         self.n = 0
 
-    def add(self, t, x):
-        """Record outputs at (t, x); return False if something is not finite."""
+    def add(self, t, x, g=None):
+        """Record outputs at (t, x); with ``g``, also the guards into it (one evaluation).
+        Return False if something is not finite."""
         if self.n == len(self.tbuf):
             self.buf = np.concatenate((self.buf, np.zeros_like(self.buf)))
             self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
-        ok = self.system.record_row(t, x, self.buf, self.n)
+        if g is None:
+            ok = self.system.record_row(t, x, self.buf, self.n)
+        else:
+            ok = self.system.record_row_guards(t, x, self.buf, self.n, g)
         self.tbuf[self.n] = t
         self.n += 1
         return ok
@@ -234,14 +256,18 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     n_g = system.n_g
     directions = np.array([d for _, _, d in system.event_table], dtype=float)
     armed = np.ones(n_g, dtype=bool)
+    armed_all = True
+    hit_buf = np.empty(max(1, n_g), dtype=np.int64)
+    g_new = np.zeros(n_g)
     recent = {}
     chatter_window = max(1e-9, 1e-6 * (t_end - t0))
 
     def handle_state_events(solver, t_old, g_old, g_new):
         """Locate and apply the earliest crossing of this step; return (t, x) or None."""
-        hits = crossed(g_old, g_new, directions, armed)
-        if not len(hits):
+        n_hit = _crossings(g_old, g_new, directions, armed, hit_buf)
+        if not n_hit:
             return None
+        hits = hit_buf[:n_hit].copy()
         dense = solver.dense_output()
         xtol = 1e-13 * max(1.0, abs(solver.t))
         times = {}
@@ -285,9 +311,11 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
 
     def disarm(blocks):
         """Guards of blocks that have just fired must leave zero before firing again."""
+        nonlocal armed_all
         for i, (blk, _n, _d) in enumerate(system.event_table):
             if blk in blocks:
                 armed[i] = False
+                armed_all = False
 
     def settle(t, x, g_before, fired_blocks):
         """Fire the crossings caused by a jump at an event instant: a guard of another block
@@ -360,9 +388,24 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                          solver.t, solver.y)
             else:
                 tiny = 0
+            recorded = False
             if n_g:
-                g_new = system.guards(solver.t, solver.y)
-                hit = handle_state_events(solver, t_old, g_old, g_new)
+                if output_interval is None:
+                    # record this step and its guards from one evaluation; the row is
+                    # overwritten if an event is located inside the step
+                    n_before = rec.n
+                    ok = rec.add(solver.t, solver.y, g_new)
+                    recorded = True
+                else:
+                    g_new[:] = system.guards(solver.t, solver.y)
+                hit = None
+                if _crossings(g_old, g_new, directions, armed, hit_buf):
+                    if recorded:              # the step's end lies beyond the event
+                        rec.n = n_before
+                        recorded = False
+                    hit = handle_state_events(solver, t_old, g_old, g_new.copy())
+                if hit is None and recorded and not ok:
+                    fail("non-finite value", solver.t, solver.y)
                 if hit is not None:
                     st["rhs_calls"] += int(solver.nfev)
                     st["jacobian_calls"] += int(getattr(solver, "njev", 0))
@@ -372,10 +415,12 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                         fail("non-finite value after an event", t, x)
                     restarted = True
                     break
-                g_old = g_new
-                armed |= g_new != 0.0          # re-armed once it has left zero
+                g_old[:] = g_new
+                if not armed_all:
+                    armed |= g_new != 0.0      # re-armed once it has left zero
+                    armed_all = bool(armed.all())
             if output_interval is None:
-                if not rec.add(solver.t, solver.y):
+                if not recorded and not rec.add(solver.t, solver.y):
                     fail("non-finite value", solver.t, solver.y)
             else:
                 if not np.all(np.isfinite(solver.y)):

@@ -87,6 +87,8 @@ class CompiledSystem:
         self.rhs = lambda t, x: rhs(t, x, sig, p_, modes)
         self._outputs = m.outputs
         self._record = m.record
+        self._guards = m.guards
+        self._record_guards = m.record_guards
 
     def outputs(self, t, x):
         self._outputs(t, x, self.sig, self.p, self.modes)
@@ -105,8 +107,15 @@ class CompiledSystem:
         return [self.timed[k] for k in np.flatnonzero(self._fired[:len(self.timed)])]
 
     def guards(self, t, x):
-        self.module.guards(t, x, self.sig, self.p, self.modes, self._g)
+        self._guards(t, x, self.sig, self.p, self.modes, self._g)
         return self._g[:self.n_g].copy()
+
+    def record_row_guards(self, t, x, buf, row, g):
+        """``record_row`` and the guards into ``g`` from one evaluation of the outputs."""
+        ok = self._record_guards(t, x, self.sig, self.p, self.modes, self._s_idx,
+                                 self._x_idx, buf, row, self._g)
+        g[:] = self._g[:self.n_g]
+        return ok
 
     def initialize(self, t, x):
         """Let blocks make their modes consistent with their inputs (start, after events)."""
@@ -123,6 +132,8 @@ class CompiledSystem:
         self.outputs(0.0, x)
         self.next_time(0.0)
         self.record_row(0.0, x, np.zeros((1, self.record_size)), 0)
+        self.record_row_guards(0.0, x, np.zeros((1, self.record_size)), 0,
+                               np.zeros(self.n_g))
         self._bind_entry_points()
         fired = np.zeros_like(self._fired)
         self.module.time_events(-np.inf, x, self.sig, self.p, self.modes, 0.0, fired)
@@ -143,6 +154,10 @@ class CompiledSystem:
         sig, p_, modes = self.sig, self.p, self.modes
         self.rhs = lambda t, x: rhs(t, x, sig, p_, modes)
         self._record = rec
+        for name in ("guards", "record_guards"):
+            f = getattr(m, name)
+            if len(f.overloads) == 1:
+                setattr(self, "_" + name, next(iter(f.overloads.values())).entry_point)
 
     def newton_iterations(self):
         """Newton iterations over all loops since the start (0 without loops)."""
