@@ -14,7 +14,51 @@ from .base import Block, Event, Mode, Param, Port
 _ZC = Param(True, kind="bool", doc="switch modes at the corners by zero-crossing events")
 
 
-class Saturation(Block):
+def _corner_modes(lo, hi, u, m):
+    """Modes from the input: +1 above ``hi``, -1 below ``lo``, 0 between. Exactly on a
+    corner either adjacent mode is right: the current one is kept if it is adjacent (an
+    event may have just set it)."""
+    for i in range(u.size):
+        if u[i] > hi or (u[i] == hi and m[i] > 0.5 and hi > lo):
+            m[i] = 1.0
+        elif u[i] < lo or (u[i] == lo and m[i] < -0.5 and hi > lo):
+            m[i] = -1.0
+        else:
+            m[i] = 0.0
+
+
+def _corner_guards(lo, hi, u, zc):
+    """One guard per element and corner: ``u - hi`` then ``u - lo``."""
+    n = u.size
+    for i in range(n):
+        zc[i] = u[i] - hi
+        zc[n + i] = u[i] - lo
+
+
+def _jit(fn):
+    import numba
+    return numba.njit(cache=True, inline="always", error_model="numpy")(fn)
+
+
+corner_modes = _jit(_corner_modes)
+corner_guards = _jit(_corner_guards)
+
+
+class _Corners(Block, abstract=True):
+    """Shared event handling of the blocks with two corners per element (guards exist only
+    with ``zero_crossing``): at a crossing ``u`` sits on the corner, so the direction of
+    the crossing decides the new mode."""
+
+    @staticmethod
+    def on_event(t, which, direction, u, m):
+        n = u.size
+        if which < n:
+            m[which] = 1.0 if direction > 0 else 0.0
+        else:
+            m[which - n] = -1.0 if direction < 0 else 0.0
+
+
+class Saturation(_Corners):
     """``y = min(max(u, lower), upper)`` element-wise; mode per element -1 / 0 / +1
     (at lower / linear / at upper)."""
 
@@ -46,34 +90,14 @@ class Saturation(Block):
 
     @staticmethod
     def initialize(t, lower, upper, u, m):
-        # exactly on a corner either adjacent mode is right: keep the current one if it is
-        # adjacent (an event may have just set it)
-        for i in range(u.size):
-            if u[i] > upper or (u[i] == upper and m[i] > 0.5 and upper > lower):
-                m[i] = 1.0
-            elif u[i] < lower or (u[i] == lower and m[i] < -0.5 and upper > lower):
-                m[i] = -1.0
-            else:
-                m[i] = 0.0
+        corner_modes(lower, upper, u, m)
 
     @staticmethod
-    def guard(t, lower, upper, zero_crossing, u, zc):
-        n = u.size
-        for i in range(n):
-            zc[i] = u[i] - upper if zero_crossing else 1.0
-            zc[n + i] = u[i] - lower if zero_crossing else 1.0
-
-    @staticmethod
-    def on_event(t, which, direction, u, m):
-        # at the crossing u sits on the corner: the direction decides
-        n = u.size
-        if which < n:
-            m[which] = 1.0 if direction > 0 else 0.0
-        else:
-            m[which - n] = -1.0 if direction < 0 else 0.0
+    def guard(t, lower, upper, u, zc):
+        corner_guards(lower, upper, u, zc)
 
 
-class DeadZone(Block):
+class DeadZone(_Corners):
     """Dead zone: ``y = 0`` for ``start <= u <= end``, ``u - end`` above, ``u - start`` below.
     Mode per element -1 / 0 / +1 (below / inside / above)."""
 
@@ -104,30 +128,11 @@ class DeadZone(Block):
 
     @staticmethod
     def initialize(t, start, end, u, m):
-        # exactly on an edge either adjacent mode is right: keep the current one if it is
-        # adjacent (an event may have just set it)
-        for i in range(u.size):
-            if u[i] > end or (u[i] == end and m[i] > 0.5):
-                m[i] = 1.0
-            elif u[i] < start or (u[i] == start and m[i] < -0.5):
-                m[i] = -1.0
-            else:
-                m[i] = 0.0
+        corner_modes(start, end, u, m)
 
     @staticmethod
-    def guard(t, start, end, zero_crossing, u, zc):
-        n = u.size
-        for i in range(n):
-            zc[i] = u[i] - end if zero_crossing else 1.0
-            zc[n + i] = u[i] - start if zero_crossing else 1.0
-
-    @staticmethod
-    def on_event(t, which, direction, u, m):
-        n = u.size
-        if which < n:
-            m[which] = 1.0 if direction > 0 else 0.0
-        else:
-            m[which - n] = -1.0 if direction < 0 else 0.0
+    def guard(t, start, end, u, zc):
+        corner_guards(start, end, u, zc)
 
 
 class Relay(Block):
