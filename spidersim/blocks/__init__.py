@@ -2,12 +2,12 @@
 
 See :mod:`spidersim.blocks.base` for the contract a block implements.
 """
-from . import (arm, continuous, controllers, discrete, electromechanical, friction, gearbox,
+from . import (arm, contact, continuous, controllers, discrete, electromechanical, friction, gearbox,
                mathops,
                mechanics, nonlinear, routing, sensors, sources, trajectory)
 from .base import REGISTRY, Block, Dim, Event, FromInputs, Mode, Param, Port, State, lookup
 
 __all__ = ["REGISTRY", "Block", "Dim", "Event", "FromInputs", "Mode", "Param", "Port", "State",
-           "lookup", "arm", "continuous", "controllers", "discrete", "electromechanical", "friction",
+           "lookup", "arm", "contact", "continuous", "controllers", "discrete", "electromechanical", "friction",
            "gearbox", "mathops", "mechanics", "nonlinear", "routing", "sensors", "sources",
            "trajectory"]

@@ -85,7 +85,10 @@ class Arm(Block):
     inputs = {"tau": Port("N.m", size=_N, doc="joint torques (from the gearboxes)"),
               "f_ext": Port("1", size=6, optional=True,
                             doc="external wrench on the flange: force [N], moment [N.m]"),
-              "latch": Port("1", optional=True, doc="rising through 0.5: capture the payload")}
+              "latch": Port("1", optional=True, doc="rising through 0.5: capture the payload"),
+              "constraint": Port("1", size=4, optional=True,
+                                 doc="[engaged, n] from a RigidContact on the flange: "
+                                     "plastic impact when it engages")}
     outputs = {
         "q": Port("rad", size=_N, doc="joint angles (link side)"),
         "qd": Port("rad/s", size=_N, doc="joint speeds"),
@@ -93,6 +96,8 @@ class Arm(Block):
         "flange_pos": Port("m", size=3, doc="flange origin, base frame"),
         "flange_rot": Port("1", size=9, doc="flange rotation matrix, row-major"),
         "flange_twist": Port("1", size=6, doc="flange linear [m/s] and angular [rad/s] velocity"),
+        "flange_acc": Port("m/s2", size=3, feedthrough=("tau", "f_ext"),
+                           doc="flange origin acceleration, J qdd + Jdot qd"),
         "base_force": Port("N", size=3, feedthrough=("tau", "f_ext"),
                            doc="force the arm applies to its mounting"),
         "base_moment": Port("N.m", size=3, feedthrough=("tau", "f_ext"),
@@ -102,7 +107,8 @@ class Arm(Block):
               "qd": State("rad/s", size=_N, initial="qd0", doc="joint speeds")}
     modes = {"attached": Mode(initial=lambda p: 1.0 if p["latched"] else 0.0,
                               doc="1 once the payload is attached")}
-    events = {"latch": Event(1, "the latch input rises: the payload is captured")}
+    events = {"latch": Event(1, "the latch input rises: the payload is captured"),
+              "impact": Event(1, "a rigid constraint on the flange engages: plastic impact")}
     scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
                "Mw": Dim("n^2", lambda p: _n(p) ** 2),
                "Mw2": Dim("n^2", lambda p: _n(p) ** 2),
@@ -125,7 +131,7 @@ class Arm(Block):
 
     @staticmethod
     def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, Jw, qdd,
-               flange_pos, flange_rot, flange_twist, base_force, base_moment):
+               flange_pos, flange_rot, flange_twist, flange_acc, base_force, base_moment):
         n = q.size
         M = Mw.reshape((n, n))
         PP = P_lat if attached[0] > 0.5 else P
@@ -139,6 +145,8 @@ class Arm(Block):
         for k in range(3):
             flange_pos[k] = ws[b + 9 + k]
             flange_twist[3 + k] = ws[b + 12 + k]
+            # the last RNEA pass ran with the base accelerating at -g
+            flange_acc[k] = ws[b + 18 + k] + gravity[k]
         flange_jacobian(n, ws, Jw)
         for r in range(3):
             acc = 0.0
@@ -153,14 +161,38 @@ class Arm(Block):
             der_qd[i] = qdd[i]
 
     @staticmethod
-    def guard(t, latch, attached, zc):
+    def guard(t, latch, constraint, attached, zc):
         zc[0] = latch[0] - 0.5 if attached[0] < 0.5 else -1.0
+        zc[1] = constraint[0] - 0.5
 
     @staticmethod
-    def on_event(t, which, direction, q, qd, P, P_lat, attached, ws, Mw, Mw2, tmp, bw, v1):
+    def on_event(t, which, direction, q, qd, constraint, P, P_lat, attached, ws, Mw, Mw2,
+                 tmp, bw, v1, Jw):
         n = q.size
         M = Mw.reshape((n, n))
         M2 = Mw2.reshape((n, n))
+        if which == 1:
+            # plastic impact on the plane of normal c: J_n = c^T J_v (1 x n),
+            # qd+ = qd- - M^-1 J_n^T (J_n M^-1 J_n^T)^-1 J_n qd-   (approaching only)
+            mass_matrix(q, P_lat if attached[0] > 0.5 else P, ws, M, tmp, bw)
+            flange_jacobian(n, ws, Jw)
+            vn = 0.0
+            for i in range(n):
+                acc = 0.0
+                for r in range(3):
+                    acc += constraint[1 + r] * Jw[r * n + i]
+                v1[i] = acc                           # J_n^T
+                vn += acc * qd[i]
+            if vn >= 0.0:
+                return
+            y = tmp[:n]
+            cholesky_solve(M, v1, y)                  # M^-1 J_n^T
+            s = 0.0
+            for i in range(n):
+                s += v1[i] * y[i]
+            for i in range(n):
+                qd[i] -= y[i] * vn / s
+            return
         mass_matrix(q, P, ws, M, tmp, bw)
         for i in range(n):
             acc = 0.0

@@ -95,3 +95,55 @@ class Inertia(Block):
     def derivative(t, w, tau, J, der_w, der_phi):
         der_w[0] = tau[0] / J
         der_phi[0] = w[0]
+
+
+class PointMass(Block):
+    """Point mass in space, base frame::
+
+        m dv/dt = f + m g,   dp/dt = v
+
+    ``g`` is the acceleration of free fall (``[0, 0, -9.81]`` on the ground). The
+    acceleration ``acc`` depends directly on ``f`` (what a rigid contact closes its loop
+    on). With a :class:`RigidContact` wired to ``constraint``, the engagement of the
+    constraint is a plastic impact: the velocity along the normal ``n`` is removed,
+    ``v+ = v- - (n . v-) n`` when approaching.
+    """
+
+    category = "mechanics"
+    parameters = {"m": Param(1.0, "kg", "mass", gt=0.0),
+                  "g": Param([0.0, 0.0, 0.0], "m/s2", "gravity (base frame)", shape=3),
+                  "p0": Param([0.0, 0.0, 0.0], "m", "initial position", shape=3),
+                  "v0": Param([0.0, 0.0, 0.0], "m/s", "initial velocity", shape=3)}
+    inputs = {"f": Port("N", size=3, optional=True, doc="applied force"),
+              "constraint": Port("1", size=4, optional=True,
+                                 doc="[engaged, n] from a RigidContact: impact on engagement")}
+    outputs = {"pos": Port("m", size=3, doc="position"),
+               "vel": Port("m/s", size=3, doc="velocity"),
+               "acc": Port("m/s2", size=3, feedthrough=("f",), doc="acceleration")}
+    states = {"pos": State("m", size=3, initial="p0", doc="position"),
+              "vel": State("m/s", size=3, initial="v0", doc="velocity")}
+    events = {"impact": Event(1, "a rigid constraint engages (plastic impact)")}
+
+    @staticmethod
+    def output(t, f, m, g, acc):
+        for k in range(3):
+            acc[k] = f[k] / m + g[k]
+
+    @staticmethod
+    def derivative(t, vel, acc, der_pos, der_vel):
+        for k in range(3):
+            der_pos[k] = vel[k]
+            der_vel[k] = acc[k]
+
+    @staticmethod
+    def guard(t, constraint, zc):
+        zc[0] = constraint[0] - 0.5
+
+    @staticmethod
+    def on_event(t, which, direction, constraint, vel):
+        vn = 0.0
+        for k in range(3):
+            vn += constraint[1 + k] * vel[k]
+        if vn < 0.0:
+            for k in range(3):
+                vel[k] -= vn * constraint[1 + k]

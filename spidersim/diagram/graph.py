@@ -275,11 +275,17 @@ def build_layout(flat: Flat) -> Layout:
                 bl.feedthrough[o] = bl.cls.feedthrough_of(o, prm)
         for i in bl.inputs:
             g.add_node(("in", bl.path, i))
+        implicit = getattr(bl.cls, "implicit", {})
         for o, fts in bl.feedthrough.items():
             for i in fts:
-                g.add_edge(("in", bl.path, i), ("out", bl.path, o), kind="feedthrough")
-        for o, (i, _guess) in getattr(bl.cls, "implicit", {}).items():
-            g.add_edge(("in", bl.path, i), ("out", bl.path, o), kind="constraint")
+                # an output may depend directly on an implicit output of its own block
+                # (a contact force on the unknown multiplier)
+                src = ("out", bl.path, i) if i in implicit else ("in", bl.path, i)
+                g.add_edge(src, ("out", bl.path, o), kind="feedthrough")
+        for o, (i, _guess) in implicit.items():
+            # the residual is an input, or an output of the block computed from its inputs
+            src = ("out", bl.path, i) if i in bl.outputs else ("in", bl.path, i)
+            g.add_edge(src, ("out", bl.path, o), kind="constraint")
     for (dp, dport), c in dst_seen.items():
         g.add_edge(("out", c.src[0], c.src[1]), ("in", dp, dport), kind="wire",
                    line=c.line, file=c.file)
@@ -290,7 +296,7 @@ def build_layout(flat: Flat) -> Layout:
             if not any(("out", bl.path, o) in c for c in comps):
                 inst = flat.blocks[bl.path]
                 raise AlgebraicLoopError(
-                    f"input '{i}' does not depend on output '{o}': the constraint "
+                    f"residual '{i}' does not depend on output '{o}': the constraint "
                     f"{i}({o}) = 0 has nothing to solve (wire {o} into the blocks that "
                     f"compute {i})", block=bl.path, file=inst.file, line=inst.line)
     loops = [_make_loop(k, g, sorted(c), info, dst_seen) for k, c in enumerate(
@@ -436,7 +442,10 @@ def build_layout(flat: Flat) -> Layout:
                              for k in range(b - a)]
             else:
                 f = info[path].cls.implicit[port][0]
-                arr, fa, fb = info[path].input_src[f]
+                if f in info[path].input_src:
+                    arr, fa, fb = info[path].input_src[f]
+                else:                          # the residual is an output of the block
+                    arr, fa, fb = info[path].ports[("out", f)].loc
                 lp.residual += [("constraint", fa + k, None) for k in range(fb - fa)]
                 lp.names += [f"{path}.{f}" + (f"[{k}]" if fb - fa > 1 else "")
                              for k in range(fb - fa)]
@@ -465,6 +474,9 @@ def _mark_valid(bl, valid, dst_seen, info, known=()):
         if c is None or src in valid or src in known or \
                 c.src[1] in info[c.src[0]].state_outputs:
             ready.add(i)
+    for o in getattr(bl.cls, "implicit", {}):
+        if ("out", path, o) in known or ("out", path, o) in valid:
+            ready.add(o)                       # a solved (torn) unknown of the block
     for o in bl.outputs:
         if o not in bl.state_outputs and all(i in ready for i in bl.feedthrough[o]):
             valid.add(("out", path, o))

@@ -202,6 +202,38 @@ def cholesky_solve(M, b, x):
         x[i] = s / M[i, i]
 
 
+def cholesky_factor(A):
+    """Cholesky factor of symmetric positive definite ``A`` in place (lower triangle ``L``,
+    ``A = L L^T``); NaN on the diagonal if ``A`` is not positive definite."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= A[j, k] * A[j, k]
+        d = math.sqrt(s) if s > 0.0 else math.nan
+        A[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= A[i, k] * A[j, k]
+            A[i, j] = s / d
+
+
+def cholesky_subst(L, b, x):
+    """Solve ``L L^T x = b`` with the factor of :func:`cholesky_factor` (``L`` unchanged)."""
+    n = b.size
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+
+
 def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd):
     """``qdd`` from ``M(q) qdd = tau - b(q, qd)`` (``b``: RNEA with ``qdd = 0``), then the
     base wrench of the resulting motion into ``base``."""
@@ -232,4 +264,6 @@ flange_jacobian = _jit(flange_jacobian)
 rnea = _jit(rnea)
 mass_matrix = _jit(mass_matrix)
 cholesky_solve = _jit(cholesky_solve)
+cholesky_factor = _jit(cholesky_factor)
+cholesky_subst = _jit(cholesky_subst)
 forward_dynamics = _jit(forward_dynamics)
