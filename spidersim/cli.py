@@ -1,4 +1,4 @@
-"""Command line: ``spidersim run | check | linearize | blocks``.
+"""Command line: ``spidersim run | check | linearize | sweep | blocks``.
 
 Errors of the user's making (:class:`~spidersim.errors.SpidersimError`) are printed as
 ``file:line: block 'path': message`` without a traceback, and the exit status is 2. A run
@@ -7,6 +7,7 @@ that fails part-way still writes the data it computed and a report saying where 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -162,6 +163,38 @@ def cmd_linearize(args):
     return 0
 
 
+def cmd_sweep(args):
+    from .sweep import parse_vary, print_progress, sweep
+
+    vary = parse_vary(args.vary)
+    if args.workers is not None and args.workers < 0:
+        raise SpidersimError(f"--workers must be >= 0, got {args.workers}")
+    workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, 4)
+    sim = {"t_end": args.t_end} if args.t_end is not None else {}
+    n = 1
+    for _p, v in vary:
+        n *= len(v)
+    where = (f"Dask scheduler {args.scheduler}" if args.scheduler else
+             "serial, this process" if workers == 0 else
+             f"local Dask cluster, {workers} worker(s)")
+    print(f"spidersim: sweep of {n} run(s) over {', '.join(p for p, _ in vary)} ({where}); "
+          f"compiling once ...", file=sys.stderr)
+    res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
+                set=_parse_sets(args.set), sim=sim, progress=print_progress)
+    from . import load
+    name = load(args.file, set=_parse_sets(args.set)).spec.name
+    out = args.out or os.path.join("results", f"{name}_sweep")
+    os.makedirs(out, exist_ok=True)
+    res.write_csv(os.path.join(out, "sweep.csv"))
+    pngs = res.plot(out) if not args.no_plots else []
+    print(res.table())
+    rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
+    print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed, "
+          f"{res.wall_s:.1f} s ({rate:.1f} runs/min); wrote {out}/sweep.csv"
+          + (f" and {len(pngs)} plot(s)" if pngs else ""))
+    return 1 if len(res.failed) == len(res.rows) else 0
+
+
 def build_parser():
     ap = argparse.ArgumentParser(prog="spidersim", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -195,6 +228,23 @@ def build_parser():
     lz.add_argument("--out", help="folder for the matrices and the Bode plot")
     lz.add_argument("--no-jit", action="store_true")
     lz.set_defaults(fn=cmd_linearize)
+    sw = sub.add_parser("sweep", help="grid of runs on Dask, scalar metrics per run "
+                                      "(CSV table and plots)")
+    sw.add_argument("file")
+    sw.add_argument("--vary", action="append", metavar="PATH=V1,V2,...", required=True,
+                    help="parameter and its values (repeat for a grid; first slowest)")
+    sw.add_argument("--workers", type=int, default=None,
+                    help="local Dask worker processes (default: CPUs, at most 4; "
+                         "0: serial in this process)")
+    sw.add_argument("--scheduler", metavar="ADDRESS",
+                    help="use a running Dask scheduler (tcp://host:8786) instead")
+    sw.add_argument("--set", action="append", metavar="PATH=VALUE",
+                    help="base parameter value for every run")
+    sw.add_argument("--t-end", type=float, help="simulated time of each run [s]")
+    sw.add_argument("--out", help="results folder (default results/<diagram>_sweep)")
+    sw.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    sw.set_defaults(fn=cmd_sweep)
+
     b = sub.add_parser("blocks", help="list block types or document one")
     b.add_argument("type", nargs="?")
     b.set_defaults(fn=cmd_blocks)

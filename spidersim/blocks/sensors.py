@@ -10,7 +10,7 @@ sees, so prefer sampling in a closed loop.
 """
 import math
 
-from .base import Block, Mode, Param, Port
+from .base import Block, Mode, Param, Port, State
 
 
 def _gauss(seed, k):
@@ -87,3 +87,45 @@ class Resolver(Block):
 
 
 gauss_jit = _jit(_gauss)
+
+
+class WrenchSensor(Block):
+    """Wrist force/torque sensor: the wrench the end effector applies to the environment,
+    low-pass filtered (the sensor and its conditioning electronics)::
+
+        u = -w_ext                      (w_ext: the environment's wrench on the flange)
+        u_s = R^T u  (frame 'flange'),  u_s = u  (frame 'base')
+        dF/dt = 2 pi f_c (u_s - F)
+
+    Force [N] first, then moment [N.m] about the flange origin. The output is a state:
+    no direct feedthrough, so a force loop through the sensor has no algebraic loop.
+    """
+
+    category = "sensors"
+    parameters = {"f_c": Param(100.0, "Hz", "bandwidth (first-order low-pass)", gt=0.0),
+                  "frame": Param("base", kind="str", choices=("base", "flange"),
+                                 doc="axes of the reading: base frame or flange frame"),
+                  "bias": Param(0.0, "1", "offset added to the reading (N, N.m)", shape=6)}
+    inputs = {"wrench": Port("1", size=6, doc="environment's wrench on the flange (Arm.f_ext)"),
+              "rot": Port("1", size=9, optional=True,
+                          doc="flange rotation, row-major (frame 'flange' only)")}
+    outputs = {"F": Port("1", size=6, doc="measured wrench: force [N], moment [N.m]")}
+    states = {"F": State("1", size=6, doc="filtered reading")}
+
+    @classmethod
+    def derive(cls, params):
+        return {"flange": 1.0 if params["frame"] == "flange" else 0.0}
+
+    @staticmethod
+    def derivative(t, F, wrench, rot, f_c, bias, flange, der_F):
+        a = 2.0 * math.pi * f_c
+        for h in range(2):                     # force, then moment
+            for r in range(3):
+                if flange > 0.5:
+                    u = 0.0
+                    for c in range(3):
+                        u -= rot[3 * c + r] * wrench[3 * h + c]
+                else:
+                    u = -wrench[3 * h + r]
+                k = 3 * h + r
+                der_F[k] = a * (u + bias[k] - F[k])

@@ -13,6 +13,9 @@ A diagram file has these top-level sections (all optional but ``blocks``)::
     simulation             t_end, method, rtol, atol, max_step, output_interval
     log                    list of "block.port" to record, or "all" (the default)
     plots                  list of {title, signals, kind, file, ...}
+    analysis               linearizations (see spidersim.linreport)
+    metrics                name: {signal, reduce, unit}: scalars per run for sweeps
+                           (see spidersim.sweep)
 """
 from __future__ import annotations
 
@@ -24,7 +27,7 @@ from ..errors import DiagramError, WiringError
 from .yamlio import LineDict, load_text
 
 SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
-            "inputs", "outputs", "simulation", "log", "plots", "analysis")
+            "inputs", "outputs", "simulation", "log", "plots", "analysis", "metrics")
 SIM_KEYS = {"t_end": "simulated time [s]", "method": "LSODA, RK45, DOP853, Radau or BDF",
             "rtol": "relative tolerance", "atol": "absolute tolerance",
             "max_step": "largest step [s]", "output_interval": "spacing of output samples [s]",
@@ -88,6 +91,7 @@ class DiagramSpec:
     log_line: int | None
     plots: list
     analysis: dict
+    metrics: dict = field(default_factory=dict)
     data: dict = field(repr=False, default=None)
 
 
@@ -225,6 +229,7 @@ def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
                            file=file, line=data.line_of("log"))
     plots = _section(data, "plots", list, file)
     analysis = _section(data, "analysis", LineDict, file)
+    metrics = _section(data, "metrics", LineDict, file)
     return DiagramSpec(
         file=file, name=str(data.get("name", os.path.splitext(os.path.basename(file))[0])),
         description=str(data.get("description", "")), parameters=dict(params),
@@ -233,4 +238,4 @@ def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
         connections=conns, inputs=inputs, outputs=outputs, port_lines=port_lines,
         simulation=dict(sim), simulation_lines={k: sim.line_of(k) for k in sim}, log=log,
         log_line=data.line_of("log") if "log" in data else None, plots=list(plots),
-        analysis=dict(analysis), data=data)
+        analysis=dict(analysis), metrics=metrics, data=data)

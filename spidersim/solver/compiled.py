@@ -45,6 +45,9 @@ def package_hash() -> str:
 
 
 _LOADED: dict = {}
+#: per process: generated modules written to the cache (new structures, numba compiles
+#: them) and imported from it (numba loads their machine code)
+COUNTS = {"written": 0, "imported": 0}
 
 
 def load_module(text: str, jit: bool):
@@ -60,6 +63,8 @@ def load_module(text: str, jit: bool):
         with open(tmp, "w", encoding="utf-8") as fh:
             fh.write(text)
         os.replace(tmp, path)
+        COUNTS["written"] += 1
+    COUNTS["imported"] += 1
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod

@@ -1,0 +1,419 @@
+"""Parameter sweeps: a grid of runs of one diagram on Dask, scalar metrics per run.
+
+The grid is the Cartesian product of the ``--vary`` lists, first parameter slowest::
+
+    spidersim sweep diagrams/impact_fault.yaml --vary V_ci=20,28,36 --vary K=1e4,1e5,1e6
+
+A varied *path* is anything ``--set`` accepts: a diagram parameter (``V_ci``), a block
+parameter (``wall.K``) or a parameter inside a subsystem (``joint1.q0``). The metrics are
+declared in the diagram's ``metrics`` section::
+
+    metrics:
+      peak_force: {signal: wall.fn, reduce: max, unit: N}
+      speed:      {signal: "arm.flange_twist[1]", reduce: final}
+
+with ``reduce`` one of :data:`REDUCERS`. Each run is independent; one that fails (solver
+failure, loop that does not converge, bad value) is a row with status ``failed`` and its
+message, and the sweep goes on.
+
+Compiled code is shared: the generated module of a structure is compiled once (by the
+process that starts the sweep, into the on-disk cache) and every run, in this process or in
+a Dask worker, imports it from there; within a process a structure is imported once and
+reused (:func:`spidersim.solver.compiled.load_module`). Parameter values are data, so a
+grid over values never recompiles; the table's ``compiled`` column says if a run had to
+(a varied value that changes the structure, e.g. a size).
+
+Execution: ``workers=0`` runs the grid here, one run after the other; otherwise on Dask
+(``dask.distributed``): a local cluster of ``workers`` processes by default, or an existing
+scheduler at ``scheduler`` (its workers need spidersim installed and the diagram files at
+the same paths, e.g. a shared filesystem).
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import os
+import re
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import DiagramError, SpidersimError
+
+#: reduce -> (description, function of (t, y))
+REDUCERS = {
+    "max": ("largest value", lambda t, y: float(np.max(y))),
+    "min": ("smallest value", lambda t, y: float(np.min(y))),
+    "absmax": ("largest magnitude", lambda t, y: float(np.max(np.abs(y)))),
+    "final": ("value at the end", lambda t, y: float(y[-1])),
+    "initial": ("value at the start", lambda t, y: float(y[0])),
+    "mean": ("time average", lambda t, y: float(np.trapz(y, t) / (t[-1] - t[0]))
+             if t[-1] > t[0] else float(y[0])),
+    "rms": ("root mean square over time", lambda t, y: float(math.sqrt(
+        np.trapz(y * y, t) / (t[-1] - t[0]))) if t[-1] > t[0] else float(abs(y[0]))),
+    "integral": ("time integral", lambda t, y: float(np.trapz(y, t))),
+}
+_SIG = re.compile(r"^\s*([A-Za-z_][\w.]*)\s*(?:\[\s*(\d+)\s*\])?\s*$")
+
+
+@dataclass
+class Metric:
+    """One scalar per run: ``reduce`` over the samples of ``signal`` (element ``index``)."""
+
+    name: str
+    signal: str
+    index: int | None
+    reduce: str
+    unit: str = ""
+
+    def evaluate(self, result):
+        y = np.asarray(result[self.signal])
+        if y.ndim == 2:
+            if self.index is None:
+                raise SpidersimError(f"metric '{self.name}': signal '{self.signal}' has "
+                                     f"{y.shape[1]} elements; pick one, e.g. "
+                                     f"'{self.signal}[0]'")
+            y = y[:, self.index]
+        elif self.index not in (None, 0):
+            raise SpidersimError(f"metric '{self.name}': '{self.signal}' is a scalar signal, "
+                                 f"index {self.index} is out of range")
+        if len(y) == 0:
+            return math.nan
+        return REDUCERS[self.reduce][1](result.t, y)
+
+
+def parse_metrics(diagram) -> list[Metric]:
+    """The ``metrics`` section of a loaded diagram, checked against its logged signals."""
+    spec = diagram.spec
+    raw = spec.metrics
+    out = []
+    sizes = {r[0]: r[3] - r[2] for r in diagram._log}
+    for name, entry in raw.items():
+        line = raw.line_of(name) if hasattr(raw, "line_of") else None
+
+        def fail(msg):
+            raise DiagramError(f"metric '{name}': {msg}", file=diagram.file, line=line)
+        if not isinstance(entry, dict):
+            fail("expected a mapping {signal: block.port, reduce: max|min|...}, got "
+                 f"{entry!r}")
+        unknown = set(entry) - {"signal", "reduce", "unit"}
+        if unknown:
+            fail(f"unknown key(s) {', '.join(sorted(unknown))}; keys are signal, reduce, "
+                 f"unit")
+        m = _SIG.match(str(entry.get("signal", "")))
+        if not m:
+            fail(f"'signal' must be 'block.port' or 'block.port[i]', got "
+                 f"{entry.get('signal')!r}")
+        sig, idx = m.group(1), (int(m.group(2)) if m.group(2) is not None else None)
+        if sig not in sizes:
+            import difflib
+            near = difflib.get_close_matches(sig, list(sizes), n=3)
+            fail(f"no logged signal '{sig}'" + (f"; did you mean {', '.join(near)}?"
+                                                if near else ""))
+        n = sizes[sig]
+        if idx is None and n > 1:
+            fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]'")
+        if idx is not None and idx >= n:
+            fail(f"index {idx} out of range for '{sig}' ({n} element(s))")
+        red = entry.get("reduce", "max")
+        if red not in REDUCERS:
+            fail(f"unknown reduce '{red}'; one of {', '.join(REDUCERS)}")
+        out.append(Metric(str(name), sig, idx if n > 1 else None, red,
+                          str(entry.get("unit", ""))))
+    return out
+
+
+def parse_vary(items) -> list[tuple[str, list]]:
+    """``["V_ci=20,28,36", "K=1e4,1e5"]`` -> ``[("V_ci", [20.0, 28.0, 36.0]), ...]``."""
+    out = []
+    for item in items or []:
+        if "=" not in item:
+            raise SpidersimError(f"--vary expects path=v1,v2,..., got '{item}'")
+        path, text = item.split("=", 1)
+        path = path.strip()
+        if not re.match(r"^[A-Za-z_][\w.]*$", path):
+            raise SpidersimError(f"--vary: '{path}' is not a parameter path (name or "
+                                 f"block.param)")
+        if any(p == path for p, _ in out):
+            raise SpidersimError(f"--vary: '{path}' given twice")
+        values = []
+        for tok in text.split(","):
+            tok = tok.strip()
+            if not tok:
+                raise SpidersimError(f"--vary {path}: empty value in '{text}'")
+            try:
+                v = float(tok)
+            except ValueError:
+                raise SpidersimError(f"--vary {path}: '{tok}' is not a number") from None
+            if not math.isfinite(v):
+                raise SpidersimError(f"--vary {path}: '{tok}' is not a finite number")
+            values.append(v)
+        out.append((path, values))
+    if not out:
+        raise SpidersimError("nothing to sweep: give at least one --vary path=v1,v2,...")
+    return out
+
+
+def grid(vary) -> list[dict]:
+    """Cartesian product of the varied values, first parameter slowest."""
+    paths = [p for p, _ in vary]
+    return [dict(zip(paths, combo)) for combo in itertools.product(*[v for _, v in vary])]
+
+
+# --------------------------------------------------------------------------- one run
+_DIAGRAMS: dict = {}       # per process: (file, base set) -> (diagram, metrics)
+
+
+def run_point(file, base_set, point, sim, index=0):
+    """Run one grid point; never raises for a failed run. Returns a row dict.
+
+    Runs in the calling process or in a Dask worker. The diagram is rebuilt with the point's
+    values (``--set`` semantics); its compiled module comes from this process's modules or
+    the on-disk cache.
+    """
+    from .diagram.model import load
+    from .solver.compiled import COUNTS
+    t0 = time.perf_counter()
+    row = {"run": index, **point, "status": "ok", "message": "", "compiled": False,
+           "worker": f"{os.uname().nodename}:{os.getpid()}"}
+    written = COUNTS["written"]
+    try:
+        d = load(file, set={**base_set, **point})
+        metrics = parse_metrics(d)
+        r = d.simulate(**sim)
+        row["t_reached"] = r.stats.get("t_reached")
+        for m in metrics:
+            row[m.name] = m.evaluate(r)
+    except SpidersimError as exc:
+        row["status"] = "failed"
+        row["message"] = str(exc)
+        partial = getattr(exc, "partial", None)
+        if partial is not None:
+            row["t_reached"] = partial.stats.get("t_reached")
+    except Exception as exc:  # noqa: BLE001 - a crash of one run must not end the sweep
+        row["status"] = "failed"
+        row["message"] = f"{type(exc).__name__}: {exc}"
+    row["compiled"] = COUNTS["written"] > written      # a structure new to the cache
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+@dataclass
+class SweepResult:
+    """Rows of a sweep (one dict per run, grid order) and what describes them."""
+
+    file: str
+    vary: list
+    metrics: list
+    rows: list
+    wall_s: float
+    workers: int
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def failed(self):
+        return [r for r in self.rows if r["status"] != "ok"]
+
+    def columns(self):
+        return (["run"] + [p for p, _ in self.vary] + ["status"]
+                + [m.name for m in self.metrics]
+                + ["t_reached", "wall_s", "compiled", "worker", "message"])
+
+    def value(self, metric, **point):
+        for r in self.rows:
+            if all(r[k] == v for k, v in point.items()):
+                return r.get(metric, math.nan)
+        raise KeyError(point)
+
+    def write_csv(self, path):
+        cols = self.columns()
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(cols)
+            for r in self.rows:
+                w.writerow([_fmt(r.get(c, "")) for c in cols])
+        return path
+
+    def table(self):
+        """Plain-text table for the terminal."""
+        cols = ["run"] + [p for p, _ in self.vary] + ["status"] + [m.name for m in
+                                                                  self.metrics]
+        rows = [[_fmt(r.get(c, ""), 6) for c in cols] for r in self.rows]
+        width = [max(len(c), *(len(x[i]) for x in rows)) for i, c in enumerate(cols)]
+        lines = ["  ".join(c.rjust(w) for c, w in zip(cols, width))]
+        lines += ["  ".join(x.rjust(w) for x, w in zip(row, width)) for row in rows]
+        for r in self.failed:
+            lines.append(f"run {r['run']} failed: {r['message']}")
+        return "\n".join(lines)
+
+    def plot(self, folder):
+        """One PNG per metric: metric vs the first parameter, one line per value of the
+        second (the paper's Fig. 9); further parameters give one figure per combination."""
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        p1, v1 = self.vary[0]
+        second = self.vary[1] if len(self.vary) > 1 else None
+        rest = self.vary[2:]
+        files = []
+        for combo in itertools.product(*[v for _, v in rest]) if rest else [()]:
+            fixed = dict(zip([p for p, _ in rest], combo))
+            for m in self.metrics:
+                fig, ax = plt.subplots(figsize=(7, 4.5))
+                for v2 in (second[1] if second else [None]):
+                    pts = [r for r in self.rows
+                           if all(r[k] == v for k, v in fixed.items())
+                           and (second is None or r[second[0]] == v2)]
+                    ok = [r for r in pts if r["status"] == "ok"]
+                    bad = [r for r in pts if r["status"] != "ok"]
+                    label = f"{second[0]} = {v2:g}" if second else None
+                    line, = ax.plot([r[p1] for r in ok], [r[m.name] for r in ok], "o-",
+                                    label=label)
+                    if bad:
+                        ax.plot([r[p1] for r in bad], [0.0] * len(bad), "x",
+                                color=line.get_color(), markersize=10,
+                                label=f"failed ({label})" if label else "failed")
+                ax.set_xlabel(p1)
+                ax.set_ylabel(f"{m.name}" + (f" [{m.unit}]" if m.unit else ""))
+                title = f"{m.name} ({m.reduce} of {m.signal}"
+                title += f"[{m.index}])" if m.index is not None else ")"
+                if fixed:
+                    title += ", " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items())
+                ax.set_title(title)
+                ax.grid(True, alpha=0.3)
+                if second or any(r["status"] != "ok" for r in self.rows):
+                    ax.legend()
+                fig.tight_layout()
+                tag = "".join(f"_{k}{v:g}" for k, v in fixed.items())
+                path = os.path.join(folder, f"sweep_{m.name}{tag}.png")
+                fig.savefig(path, dpi=110)
+                plt.close(fig)
+                files.append(path)
+        return files
+
+
+def _fmt(v, digits=12):
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    if v is None:
+        return ""
+    return str(v)
+
+
+# --------------------------------------------------------------------------- the sweep
+def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=None):
+    """Run the grid of ``vary`` (see :func:`parse_vary`) over the diagram ``file``.
+
+    Parameters
+    ----------
+    workers : int
+        0: serial, in this process. N > 0: a local Dask cluster of N worker processes
+        (one thread each), unless ``scheduler`` is given.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``).
+    set : dict, optional
+        Base ``--set`` values applied to every run.
+    sim : dict, optional
+        Simulation overrides (``t_end``, ``method``, ...) for every run.
+    progress : callable, optional
+        ``progress(row, done, total)`` after each finished run.
+
+    Returns
+    -------
+    SweepResult
+    """
+    from .diagram.model import load
+    base = dict(set or {})
+    sim = dict(sim or {})
+    file = os.path.abspath(file)
+    points = grid(vary)
+    # check everything once, here, and compile into the shared cache
+    d = load(file, set=base)
+    metrics = parse_metrics(d)
+    if not metrics:
+        raise DiagramError("the diagram declares no metrics: add a 'metrics' section, e.g. "
+                           "metrics: {peak: {signal: block.port, reduce: max}}",
+                           file=d.file)
+    for path, values in vary:
+        try:
+            load(file, set={**base, path: values[0]})
+        except SpidersimError as exc:
+            raise SpidersimError(f"--vary {path}: {exc}") from None
+    t0 = time.perf_counter()
+    d.compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    rows = [None] * len(points)
+    if workers == 0 and scheduler is None:
+        for k, pt in enumerate(points):
+            rows[k] = run_point(file, base, pt, sim, k)
+            if progress:
+                progress(rows[k], k + 1, len(points))
+        n_workers = 0
+    else:
+        rows, n_workers = _run_dask(file, base, points, sim, workers, scheduler, progress)
+    res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
+                      {"compile_s": compile_s, "structure_key": d._modules[True][1]})
+    return res
+
+
+def _run_dask(file, base, points, sim, workers, scheduler, progress):
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError as exc:  # pragma: no cover - a dependency
+        raise SpidersimError(f"sweeps on Dask need dask.distributed ({exc}); "
+                             f"pip install 'dask[distributed]' or use --workers 0") from None
+    import logging
+    cluster = None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") \
+                from None
+    else:
+        if workers < 1:
+            raise SpidersimError(f"--workers must be >= 0, got {workers}")
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    try:
+        n_workers = len(client.scheduler_info().get("workers", {}))
+        futures = [client.submit(run_point, file, base, pt, sim, k, pure=False,
+                                 key=f"spidersim-run-{k}-{os.getpid()}-{time.time_ns()}")
+                   for k, pt in enumerate(points)]
+        index = {f.key: k for k, f in enumerate(futures)}
+        rows = [None] * len(points)
+        done = 0
+        for fut in as_completed(futures):
+            k = index[fut.key]
+            try:
+                rows[k] = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a worker died: report, go on
+                rows[k] = {"run": k, **points[k], "status": "failed",
+                           "message": f"worker failure: {type(exc).__name__}: {exc}",
+                           "compiled": False, "worker": "", "wall_s": math.nan}
+            done += 1
+            if progress:
+                progress(rows[k], done, len(points))
+        return rows, n_workers
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def print_progress(row, done, total, stream=sys.stderr):
+    """Default progress line for the CLI."""
+    vals = " ".join(f"{k}={v:g}" for k, v in row.items()
+                    if k not in ("run", "status", "message", "compiled", "worker", "wall_s",
+                                 "t_reached") and isinstance(v, float))
+    what = "ok" if row["status"] == "ok" else f"FAILED: {row['message'][:200]}"
+    stream.write(f"  [{done}/{total}] run {row['run']}: {vals}  {what}  "
+                 f"({row.get('wall_s', math.nan):.2f} s)\n")
+    stream.flush()
