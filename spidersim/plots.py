@@ -9,7 +9,8 @@ A plot entry::
       t_min: 0.0              # optional time window
       t_max: 1.0
 
-Signals with different units go to separate panels sharing the time axis.
+Signals with different units go to separate panels sharing the time axis, unless
+``one_panel: true`` (e.g. a set point from a unit-less source against the force it sets).
 
 ``kind: spectrum`` draws the amplitude spectrum of each signal over ``[t_min, t_max]``: the
 samples are resampled on a uniform grid (the run's ``output_interval`` makes this exact),
@@ -36,11 +37,29 @@ from .errors import DiagramError  # noqa: E402
 
 KINDS = ("time", "spectrum", "animation")
 KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks",
-        "model", "frames", "fps", "trace")
+        "model", "frames", "fps", "trace", "one_panel")
 
 
 def _slug(text):
     return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_").lower() or "plot"
+
+
+_ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]$")
+
+
+def split_signal(s):
+    """``"arm.q[2]"`` -> ``("arm.q", 2)``; ``"arm.q"`` -> ``("arm.q", None)``."""
+    m = _ELEM.match(str(s).strip())
+    return (m.group(1).strip(), int(m.group(2))) if m else (str(s).strip(), None)
+
+
+def signal_values(result, s):
+    """Samples of the plot entry ``s`` (a signal or one element ``name[i]``)."""
+    name, idx = split_signal(s)
+    y = result[name]
+    if idx is None:
+        return y
+    return y if y.ndim == 1 else y[:, idx]
 
 
 def check_plot_specs(plots, signals, file=None):
@@ -68,12 +87,17 @@ def check_plot_specs(plots, signals, file=None):
             raise DiagramError(f"plots[{k}] needs a non-empty list 'signals'", file=file,
                                line=line)
         for s in sigs:
-            if s not in signals:
+            name, idx = split_signal(s)
+            if name not in signals:
                 import difflib
-                near = difflib.get_close_matches(str(s), list(signals), n=3)
+                near = difflib.get_close_matches(name, list(signals), n=3)
                 hint = f"; did you mean {', '.join(near)}?" if near else ""
                 raise DiagramError(f"plots[{k}]: signal '{s}' is not logged{hint}", file=file,
                                    line=line)
+            size = signals.get(name) if hasattr(signals, "get") else None
+            if idx is not None and size is not None and idx >= size:
+                raise DiagramError(f"plots[{k}]: '{s}': index {idx} out of range, "
+                                   f"'{name}' has {size} element(s)", file=file, line=line)
         if kind == "animation":
             from .animation import check_animation_spec
             size = signals.get(sigs[0]) if hasattr(signals, "get") else None
@@ -85,18 +109,20 @@ def time_plot(result, spec, path):
     sigs = spec["signals"]
     units = []
     for s in sigs:
-        u = result.units.get(s, "1")
+        u = result.units.get(split_signal(s)[0], "1")
         if u not in units:
             units.append(u)
+    if spec.get("one_panel"):
+        units = [", ".join(units)]
     fig, axes = plt.subplots(len(units), 1, sharex=True, squeeze=False,
                              figsize=(8, 2.2 + 2.0 * len(units)))
     t = result.t
     mask = (t >= spec.get("t_min", -float("inf"))) & (t <= spec.get("t_max", float("inf")))
     for ax, unit in zip(axes[:, 0], units):
         for s in sigs:
-            if result.units.get(s, "1") != unit:
+            if result.units.get(split_signal(s)[0], "1") != unit and len(units) > 1:
                 continue
-            y = result[s]
+            y = signal_values(result, s)
             if y.ndim == 1:
                 ax.plot(t[mask], y[mask], label=s)
             else:
@@ -145,7 +171,7 @@ def spectrum_plot(result, spec, path):
     n_peaks = int(spec.get("peaks", 3))
     traces = []
     for s in spec["signals"]:
-        y = result[s]
+        y = signal_values(result, s)
         if y.ndim == 1:
             traces.append((s, y))
         else:
