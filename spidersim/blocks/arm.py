@@ -262,15 +262,8 @@ class CartesianLineIK(Block):
         for k in range(3):
             p_ref[k] = p0[k] + s[0] * u[k]
             v6[k] = sd[0] * u[k] + K * (p_ref[k] - ws[b + 9 + k])
-        # orientation error 0.5 sum_i (r_i x r_d,i), columns of R and R0
-        ex = ey = ez = 0.0
-        for c in range(3):
-            ax, ay, az = ws[b + c], ws[b + 3 + c], ws[b + 6 + c]
-            dx, dy, dz = R0[c], R0[3 + c], R0[6 + c]
-            ex += 0.5 * (ay * dz - az * dy)
-            ey += 0.5 * (az * dx - ax * dz)
-            ez += 0.5 * (ax * dy - ay * dx)
-        v6[3], v6[4], v6[5] = K * ex, K * ey, K * ez
+        orientation_error(ws, n, R0, y6)               # 0.5 sum_i r_i x r_d,i
+        v6[3], v6[4], v6[5] = K * y6[0], K * y6[1], K * y6[2]
         A = A6.reshape((6, 6))
         flange_jacobian(n, ws, Jw)                     # A = J J^T + lambda^2 I
         for r in range(6):
@@ -294,10 +287,10 @@ class CartesianLineIK(Block):
 
 def _bind_kinematics():
     from ..multibody import kernels as K
-    return K.fk, K.flange_jacobian
+    return K.fk, K.flange_jacobian, K.orientation_error
 
 
-fk, flange_jacobian = _bind_kinematics()
+fk, flange_jacobian, orientation_error = _bind_kinematics()
 
 
 class ForwardKinematics(Block):

@@ -34,7 +34,26 @@ def _unit(v, what="normal"):
     return v / norm
 
 
-class ElasticContact(Block):
+class _Plane(Block, abstract=True):
+    """The surface both contact models share: a plane through ``point`` with outward
+    ``normal`` (normalised into the derived parameter ``n``)."""
+
+    plane = {
+        "point": Param([0.0, 0.0, 0.0], "m", "a point of the surface (base frame)", shape=3),
+        "normal": Param([0.0, 0.0, 1.0], "1", "outward normal of the surface (normalised)",
+                        shape=3),
+    }
+
+    @classmethod
+    def check(cls, params):
+        _unit(params["normal"])
+
+    @classmethod
+    def derive(cls, params):
+        return {"n": _unit(params["normal"])}
+
+
+class ElasticContact(_Plane):
     """Elasto-viscous flat surface (see the module docstring)::
 
         delta = -(n . (p - point) - w)            penetration [m] (w: surface displacement)
@@ -55,9 +74,7 @@ class ElasticContact(Block):
 
     category = "contact"
     parameters = {
-        "point": Param([0.0, 0.0, 0.0], "m", "a point of the surface (base frame)", shape=3),
-        "normal": Param([0.0, 0.0, 1.0], "1", "outward normal of the surface (normalised)",
-                        shape=3),
+        **_Plane.plane,
         "K": Param(1e5, "N/m", "contact stiffness", gt=0.0),
         "D": Param(0.0, "N.s/m", "contact damping", ge=0.0),
         "mu": Param(0.0, "1", "tangential (Coulomb) friction coefficient; 0: none", ge=0.0),
@@ -86,13 +103,6 @@ class ElasticContact(Block):
     events = {"onset": Event(1, "penetrating and pushing: min(K delta, F_n) rises through 0"),
               "release": Event(-1, "the normal force would pull")}
 
-    @classmethod
-    def check(cls, params):
-        _unit(params["normal"])
-
-    @classmethod
-    def derive(cls, params):
-        return {"n": _unit(params["normal"])}
 
     @staticmethod
     def output(t, pos, vel, w, wd, n, point, K, D, mu, v_eps, K_s, surface, engaged,
@@ -154,7 +164,7 @@ class ElasticContact(Block):
         engaged[0] = 1.0 if which == 0 else 0.0
 
 
-class RigidContact(Block):
+class RigidContact(_Plane):
     """Perfectly stiff flat surface: a kinematic constraint on the contact point, closed as
     an algebraic loop at acceleration level (Baumgarte stabilisation)::
 
@@ -178,9 +188,7 @@ class RigidContact(Block):
 
     category = "contact"
     parameters = {
-        "point": Param([0.0, 0.0, 0.0], "m", "a point of the surface (base frame)", shape=3),
-        "normal": Param([0.0, 0.0, 1.0], "1", "outward normal of the surface (normalised)",
-                        shape=3),
+        **_Plane.plane,
         "zeta": Param(1.0, "1", "Baumgarte damping ratio", gt=0.0),
         "omega": Param(100.0, "rad/s", "Baumgarte natural frequency", gt=0.0),
         "engaged": Param(False, kind="bool", doc="in contact from the start"),
@@ -209,13 +217,6 @@ class RigidContact(Block):
     #: output -> (residual, initial guess)
     implicit = {"lam": ("residual", "lam0")}
 
-    @classmethod
-    def check(cls, params):
-        _unit(params["normal"])
-
-    @classmethod
-    def derive(cls, params):
-        return {"n": _unit(params["normal"])}
 
     @staticmethod
     def output(t, pos, vel, acc, lam, n, point, zeta, omega, active, residual, force,

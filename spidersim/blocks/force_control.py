@@ -94,14 +94,8 @@ class HybridForceController(Block):
         # task errors and velocity
         for k in range(3):
             v6[k] = p_ref[k] - ws[b + 9 + k]
-        ex = ey = ez = 0.0
-        for c in range(3):
-            ax, ay, az = ws[b + c], ws[b + 3 + c], ws[b + 6 + c]
-            dx, dy, dz = R0[c], R0[3 + c], R0[6 + c]
-            ex += 0.5 * (ay * dz - az * dy)
-            ey += 0.5 * (az * dx - ax * dz)
-            ez += 0.5 * (ax * dy - ay * dx)
-        v6[3], v6[4], v6[5] = ex, ey, ez
+        orientation_error(ws, n, R0, y6)
+        v6[3], v6[4], v6[5] = y6[0], y6[1], y6[2]
         for r in range(6):
             vel = 0.0
             for i in range(n):
@@ -160,7 +154,9 @@ class HybridForceController(Block):
 
 def _bind():
     from ..multibody import kernels as K
-    return (K.rnea, K.flange_jacobian, K.mass_matrix, K.cholesky_factor, K.cholesky_subst)
+    return (K.rnea, K.flange_jacobian, K.mass_matrix, K.cholesky_factor, K.cholesky_subst,
+            K.orientation_error)
 
 
-rnea, flange_jacobian, mass_matrix, cholesky_factor, cholesky_subst = _bind()
+(rnea, flange_jacobian, mass_matrix, cholesky_factor, cholesky_subst,
+ orientation_error) = _bind()

@@ -176,32 +176,6 @@ def mass_matrix(q, P, ws, M, tmp, base):
             base[k] = 0.0
 
 
-def cholesky_solve(M, b, x):
-    """Solve ``M x = b`` for symmetric positive definite ``M`` (factored in place)."""
-    n = b.size
-    for j in range(n):
-        s = M[j, j]
-        for k in range(j):
-            s -= M[j, k] * M[j, k]
-        d = math.sqrt(s) if s > 0.0 else math.nan
-        M[j, j] = d
-        for i in range(j + 1, n):
-            s = M[i, j]
-            for k in range(j):
-                s -= M[i, k] * M[j, k]
-            M[i, j] = s / d
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= M[i, k] * x[k]
-        x[i] = s / M[i, i]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, n):
-            s -= M[k, i] * x[k]
-        x[i] = s / M[i, i]
-
-
 def cholesky_factor(A):
     """Cholesky factor of symmetric positive definite ``A`` in place (lower triangle ``L``,
     ``A = L L^T``); NaN on the diagonal if ``A`` is not positive definite."""
@@ -234,6 +208,27 @@ def cholesky_subst(L, b, x):
         x[i] = s / L[i, i]
 
 
+def cholesky_solve(M, b, x):
+    """Solve ``M x = b`` for symmetric positive definite ``M`` (factored in place)."""
+    cholesky_factor(M)
+    cholesky_subst(M, b, x)
+
+
+def orientation_error(ws, n, R_ref, e):
+    """``e = 1/2 sum_i r_i x r_ref,i`` (3): the rotation error of the flange frame (columns
+    ``r_i`` of its rotation, from :func:`fk` in ``ws``) to ``R_ref`` (row-major), base
+    frame; for small errors the rotation vector from the flange to the reference."""
+    b = n * WS_PER_LINK
+    ex = ey = ez = 0.0
+    for c in range(3):
+        ax, ay, az = ws[b + c], ws[b + 3 + c], ws[b + 6 + c]
+        dx, dy, dz = R_ref[c], R_ref[3 + c], R_ref[6 + c]
+        ex += 0.5 * (ay * dz - az * dy)
+        ey += 0.5 * (az * dx - ax * dz)
+        ez += 0.5 * (ax * dy - ay * dx)
+    e[0], e[1], e[2] = ex, ey, ez
+
+
 def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd):
     """``qdd`` from ``M(q) qdd = tau - b(q, qd)`` (``b``: RNEA with ``qdd = 0``), then the
     base wrench of the resulting motion into ``base``."""
@@ -263,7 +258,8 @@ fk = _jit(fk)
 flange_jacobian = _jit(flange_jacobian)
 rnea = _jit(rnea)
 mass_matrix = _jit(mass_matrix)
-cholesky_solve = _jit(cholesky_solve)
 cholesky_factor = _jit(cholesky_factor)
 cholesky_subst = _jit(cholesky_subst)
+cholesky_solve = _jit(cholesky_solve)
+orientation_error = _jit(orientation_error)
 forward_dynamics = _jit(forward_dynamics)
