@@ -107,8 +107,8 @@ class ElasticContact(_Plane):
     @staticmethod
     def output(t, pos, vel, w, wd, n, point, K, D, mu, v_eps, K_s, surface, engaged,
                force, wrench, fn, delta, energy):
-        d = -w[0]
-        dd = -wd[0]
+        d = w[0]                               # face at point + w n
+        dd = wd[0]
         for k in range(3):
             d -= n[k] * (pos[k] - point[k])
             dd -= n[k] * vel[k]
@@ -148,7 +148,7 @@ class ElasticContact(_Plane):
     @staticmethod
     def guard(t, pos, vel, w, wd, n, point, K, D, engaged, delta, zc):
         d = delta[0]
-        dd = -wd[0]
+        dd = wd[0]
         for k in range(3):
             dd -= n[k] * vel[k]
         push = K * d + D * dd

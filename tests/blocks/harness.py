@@ -74,12 +74,21 @@ class Probe:
         """Set input ``name`` (through its Constant) to ``value`` (scalar or array)."""
         value = np.broadcast_to(np.asarray(value, dtype=float), (self.sizes[name],))
         self.d.set(f"in_{name}.value", np.array(value))
-        self.system.p[:] = self.d.p  # the system holds a copy of the parameter array
+        self._sync_p()
 
     def set_param(self, name, value, block="blk"):
         """Change a numeric parameter of the block (no recompilation)."""
         self.d.set(f"{block}.{name}", value)
+        self._sync_p()
+
+    def _sync_p(self):
+        """Copy the diagram's parameters into the system's copy, keeping the loop solver's
+        tolerances that ``compile`` wrote there (not in the diagram's array)."""
+        tol = self.d.layout.p_loop_tol
+        kept = self.system.p[list(tol)].copy()
         self.system.p[:] = self.d.p
+        if tol != (0, 0):
+            self.system.p[list(tol)] = kept
 
     def x0(self):
         """Initial flat state vector of the diagram (a copy)."""
