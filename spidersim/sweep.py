@@ -43,6 +43,8 @@ import numpy as np
 
 from .errors import DiagramError, SpidersimError
 
+_trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
+
 #: reduce -> (description, function of (t, y))
 REDUCERS = {
     "max": ("largest value", lambda t, y: float(np.max(y))),
@@ -50,11 +52,11 @@ REDUCERS = {
     "absmax": ("largest magnitude", lambda t, y: float(np.max(np.abs(y)))),
     "final": ("value at the end", lambda t, y: float(y[-1])),
     "initial": ("value at the start", lambda t, y: float(y[0])),
-    "mean": ("time average", lambda t, y: float(np.trapz(y, t) / (t[-1] - t[0]))
+    "mean": ("time average", lambda t, y: float(_trapz(y, t) / (t[-1] - t[0]))
              if t[-1] > t[0] else float(y[0])),
     "rms": ("root mean square over time", lambda t, y: float(math.sqrt(
-        np.trapz(y * y, t) / (t[-1] - t[0]))) if t[-1] > t[0] else float(abs(y[0]))),
-    "integral": ("time integral", lambda t, y: float(np.trapz(y, t))),
+        _trapz(y * y, t) / (t[-1] - t[0]))) if t[-1] > t[0] else float(abs(y[0]))),
+    "integral": ("time integral", lambda t, y: float(_trapz(y, t))),
 }
 _SIG = re.compile(r"^\s*([A-Za-z_][\w.]*)\s*(?:\[\s*(\d+)\s*\])?\s*$")
 
@@ -185,8 +187,8 @@ def run_point(file, base_set, point, sim, index=0):
         metrics = parse_metrics(d)
         r = d.simulate(**sim)
         row["t_reached"] = r.stats.get("t_reached")
-        for m in metrics:
-            row[m.name] = m.evaluate(r)
+        values = {m.name: m.evaluate(r) for m in metrics}     # all or none in the row
+        row.update(values)
     except SpidersimError as exc:
         row["status"] = "failed"
         row["message"] = str(exc)
@@ -295,18 +297,20 @@ class SweepResult:
         return files
 
 
-def _fmt(v, digits=12):
+def _fmt(v, digits=None):
+    """Text of a cell: full precision (round trip) unless ``digits`` is given."""
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
-        return f"{v:.{digits}g}"
+        return repr(float(v)) if digits is None else f"{v:.{digits}g}"
     if v is None:
         return ""
     return str(v)
 
 
 # --------------------------------------------------------------------------- the sweep
-def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=None):
+def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=None,
+          connect_timeout=10.0):
     """Run the grid of ``vary`` (see :func:`parse_vary`) over the diagram ``file``.
 
     Parameters
@@ -322,6 +326,8 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         Simulation overrides (``t_end``, ``method``, ...) for every run.
     progress : callable, optional
         ``progress(row, done, total)`` after each finished run.
+    connect_timeout : float
+        Seconds to wait for the scheduler at ``scheduler``.
 
     Returns
     -------
@@ -356,13 +362,14 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
                 progress(rows[k], k + 1, len(points))
         n_workers = 0
     else:
-        rows, n_workers = _run_dask(file, base, points, sim, workers, scheduler, progress)
+        rows, n_workers = _run_dask(file, base, points, sim, workers, scheduler, progress,
+                                    connect_timeout)
     res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
                       {"compile_s": compile_s, "structure_key": d._modules[True][1]})
     return res
 
 
-def _run_dask(file, base, points, sim, workers, scheduler, progress):
+def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_timeout):
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError as exc:  # pragma: no cover - a dependency
@@ -372,7 +379,7 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress):
     cluster = None
     if scheduler:
         try:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout=f"{connect_timeout}s")
         except (OSError, TimeoutError) as exc:
             raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") \
                 from None

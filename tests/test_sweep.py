@@ -1,0 +1,247 @@
+"""Parameter sweeps (``spidersim sweep``): grid, Dask execution, metrics, failures, output.
+
+The swept diagram is a point mass hitting an undamped elastic plane at ``v0``; per run the
+closed forms are: peak contact force ``v0 sqrt(K m)``, rebound speed ``v0`` and impulse
+``2 m v0``. The same 2x3 grid runs serially and on a local Dask cluster of 2 worker
+processes and must give the same numbers (same compiled code, same inputs: bit for bit).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+
+import numpy as np
+import pytest
+
+from spidersim import sweep as sw
+from spidersim.cli import main
+from spidersim.errors import DiagramError, SpidersimError
+
+DROP = """
+name: drop
+parameters: {K: 1.0e4, m: 1.0, v0: 1.0}
+blocks:
+  body: {type: PointMass, m: m, v0: [0, 0, -v0]}
+  wall: {type: ElasticContact, point: [0, 0, 0], normal: [0, 0, 1], K: K}
+connections:
+  - body.pos -> wall.pos
+  - body.vel -> wall.vel
+  - wall.force -> body.f
+simulation: {t_end: 0.08, rtol: 1e-10, atol: 1e-12}
+metrics:
+  peak_force: {signal: wall.fn, reduce: max, unit: N}
+  rebound:    {signal: "body.vel[2]", reduce: final, unit: m/s}
+  impulse:    {signal: wall.fn, reduce: integral, unit: N.s}
+"""
+# x' = a x from x(0) = 1: fine for a = 1, overflows (the integration stalls) for a = 1000
+GROW = """
+name: grow
+parameters: {a: 1.0}
+blocks:
+  x: {type: Integrator, x0: 1}
+  g: {type: Gain, k: a}
+connections:
+  - x.y -> g.u
+  - g.y -> x.u
+simulation: {t_end: 1.0, rtol: 1e-9, atol: 1e-12}
+metrics:
+  x_end: {signal: x.y, reduce: final}
+"""
+VARY = [("m", [1.0, 4.0]), ("K", [1e4, 1e5, 1e6])]
+METRICS = ["peak_force", "rebound", "impulse"]
+
+
+@pytest.fixture(scope="module")
+def drop_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sweep") / "drop.yaml"
+    path.write_text(DROP)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def grow_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sweep") / "grow.yaml"
+    path.write_text(GROW)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def serial(drop_file):
+    return sw.sweep(drop_file, VARY, workers=0)
+
+
+@pytest.fixture(scope="module")
+def on_dask(drop_file):
+    return sw.sweep(drop_file, VARY, workers=2)
+
+
+def test_grid_is_the_product_first_parameter_slowest():
+    g = sw.grid(VARY)
+    assert len(g) == 6
+    assert g[0] == {"m": 1.0, "K": 1e4} and g[1] == {"m": 1.0, "K": 1e5}
+    assert g[3] == {"m": 4.0, "K": 1e4} and g[5] == {"m": 4.0, "K": 1e6}
+
+
+def test_serial_runs_match_the_closed_forms(serial):
+    assert [r["status"] for r in serial.rows] == ["ok"] * 6
+    for r, pt in zip(serial.rows, sw.grid(VARY)):
+        assert {k: r[k] for k in pt} == pt
+        m, K = pt["m"], pt["K"]
+        # the sampled maximum is within a step of the true peak (error ~ (w dt)^2 / 2)
+        assert r["peak_force"] == pytest.approx(math.sqrt(K * m), rel=1e-3)
+        assert r["peak_force"] <= math.sqrt(K * m) * (1 + 1e-9)
+        assert r["rebound"] == pytest.approx(1.0, rel=1e-7)
+        assert r["impulse"] == pytest.approx(2.0 * m, rel=1e-3)
+
+
+def test_dask_with_two_workers_gives_the_serial_numbers(serial, on_dask):
+    assert on_dask.workers == 2
+    assert [r["status"] for r in on_dask.rows] == ["ok"] * 6
+    for a, b in zip(serial.rows, on_dask.rows):
+        assert a["run"] == b["run"] and a["m"] == b["m"] and a["K"] == b["K"]
+        for name in METRICS:
+            assert a[name] == b[name], (name, a, b)
+    # the runs happened in worker processes, not in this one
+    here = f"{os.uname().nodename}:{os.getpid()}"
+    workers = {r["worker"] for r in on_dask.rows}
+    assert here not in workers and 1 <= len(workers) <= 2
+    assert {r["worker"] for r in serial.rows} == {here}
+
+
+def test_runs_never_recompile(serial, on_dask):
+    """Compiled once by the caller; every run (here or in a worker) imports it."""
+    assert not any(r["compiled"] for r in serial.rows + on_dask.rows)
+
+
+def test_a_failed_run_is_a_row_with_its_message(drop_file, tmp_path):
+    res = sw.sweep(drop_file, [("K", [1e4, -5.0, 1e6])], workers=2)
+    status = [r["status"] for r in res.rows]
+    assert status == ["ok", "failed", "ok"]
+    bad = res.rows[1]
+    assert "K" in bad["message"] and "-5" in bad["message"], bad["message"]
+    assert math.isnan(res.value("peak_force", K=-5.0))
+    assert res.value("peak_force", K=1e6) == pytest.approx(1e3, rel=1e-3)
+    # the table, the CSV and the plots say so too
+    assert "run 1 failed:" in res.table()
+    path = res.write_csv(tmp_path / "sweep.csv")
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["status"] for r in rows] == status
+    assert rows[1]["message"] == bad["message"] and rows[1]["peak_force"] == ""
+    assert float(rows[2]["peak_force"]) == res.rows[2]["peak_force"]
+    pngs = res.plot(str(tmp_path))
+    assert sorted(os.path.basename(p) for p in pngs) == [f"sweep_{m}.png" for m in
+                                                        sorted(METRICS)]
+    assert all(os.path.getsize(p) > 5000 for p in pngs)
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_a_run_that_fails_while_integrating_keeps_its_message(grow_file, workers):
+    res = sw.sweep(grow_file, [("a", [1.0, 1e3, -1.0])], workers=workers)
+    assert [r["status"] for r in res.rows] == ["ok", "failed", "ok"]
+    assert res.rows[0]["x_end"] == pytest.approx(math.e, rel=1e-6)
+    assert res.rows[2]["x_end"] == pytest.approx(1 / math.e, rel=1e-6)
+    bad = res.rows[1]
+    assert "integration failed at t = " in bad["message"]
+    assert math.isnan(res.value("x_end", a=1e3))
+    # how far it got: ln(1.8e308) / 1000 = 0.71 s
+    assert 0.5 < bad["t_reached"] < 0.72
+
+
+def test_existing_scheduler(drop_file):
+    """--scheduler: the runs go to a cluster started elsewhere (here: a LocalCluster)."""
+    import logging
+
+    from dask.distributed import LocalCluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        res = sw.sweep(drop_file, [("K", [1e4, 1e6])], scheduler=cluster.scheduler_address)
+    assert res.workers == 1
+    assert [r["status"] for r in res.rows] == ["ok", "ok"]
+    assert res.rows[1]["peak_force"] == pytest.approx(1e3, rel=1e-3)
+
+
+def test_unreachable_scheduler_is_a_clear_error(drop_file):
+    with pytest.raises(SpidersimError, match="cannot reach the Dask scheduler"):
+        sw.sweep(drop_file, [("K", [1e4])], scheduler="tcp://127.0.0.1:9",
+                 connect_timeout=1.0)
+
+
+@pytest.mark.parametrize("items, message", [
+    ([], "nothing to sweep"),
+    (["K"], "expects path=v1,v2"),
+    (["K=1,x"], "'x' is not a number"),
+    (["K=1,,2"], "empty value"),
+    (["K=1", "K=2"], "given twice"),
+    (["K=inf"], "not a finite number"),
+    (["1K=2"], "not a parameter path"),
+])
+def test_vary_errors(items, message):
+    with pytest.raises(SpidersimError, match=message):
+        sw.parse_vary(items)
+
+
+def test_vary_values():
+    assert sw.parse_vary(["wall.K=1e4, 2.5e5", "V_ci=20"]) == [("wall.K", [1e4, 2.5e5]),
+                                                              ("V_ci", [20.0])]
+
+
+@pytest.mark.parametrize("entry, message", [
+    ("{signal: wall.f, reduce: max}", "no logged signal 'wall.f'; did you mean wall.fn"),
+    ("{signal: body.vel, reduce: max}", "has 3 elements; pick one"),
+    ("{signal: 'body.vel[3]', reduce: max}", "index 3 out of range"),
+    ("{signal: wall.fn, reduce: biggest}", "unknown reduce 'biggest'"),
+    ("{signal: wall.fn, reduce: max, scale: 2}", "unknown key"),
+])
+def test_metric_errors_name_the_metric_and_line(tmp_path, entry, message):
+    text = DROP.split("metrics:")[0] + f"metrics:\n  bad: {entry}\n"
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(DiagramError, match=message) as info:
+        sw.sweep(str(path), [("K", [1e4])], workers=0)
+    assert "metric 'bad'" in str(info.value)
+    assert str(path) in str(info.value) or "bad.yaml" in str(info.value)
+
+
+def test_a_diagram_without_metrics_is_refused(tmp_path):
+    path = tmp_path / "nometrics.yaml"
+    path.write_text(DROP.split("metrics:")[0])
+    with pytest.raises(DiagramError, match="declares no metrics"):
+        sw.sweep(str(path), [("K", [1e4])], workers=0)
+
+
+def test_an_unknown_varied_path_is_refused_before_running(drop_file):
+    with pytest.raises(SpidersimError, match="--vary wall.Kx"):
+        sw.sweep(drop_file, [("wall.Kx", [1.0])], workers=0)
+
+
+def test_cli_sweep_writes_table_and_plots(drop_file, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["sweep", drop_file, "--vary", "m=1,4", "--vary", "K=1e4,1e6",
+               "--workers", "0", "--out", str(out)])
+    assert rc == 0
+    with open(out / "sweep.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(float(r["m"]), float(r["K"])) for r in rows] == [(1, 1e4), (1, 1e6), (4, 1e4),
+                                                              (4, 1e6)]
+    np.testing.assert_allclose([float(r["peak_force"]) for r in rows],
+                               [100, 1000, 200, 2000], rtol=1e-3)
+    assert all(r["compiled"] == "no" for r in rows)
+    assert sorted(os.listdir(out)) == ["sweep.csv"] + [f"sweep_{m}.png" for m in
+                                                       sorted(METRICS)]
+    printed = capsys.readouterr()
+    assert "4 run(s), 0 failed" in printed.out
+
+
+def test_cli_sweep_all_failed_exits_nonzero(grow_file, tmp_path, capsys):
+    rc = main(["sweep", grow_file, "--vary", "a=1e3,2e3", "--workers", "0", "--out",
+               str(tmp_path), "--no-plots"])
+    assert rc == 1
+    assert "2 failed" in capsys.readouterr().out
+
+
+def test_cli_sweep_bad_vary_exits_with_a_message(drop_file, capsys):
+    rc = main(["sweep", drop_file, "--vary", "K=1,abc", "--workers", "0"])
+    assert rc != 0
+    assert "'abc' is not a number" in capsys.readouterr().err
