@@ -19,14 +19,10 @@
 
 All runs interpreted (``jit=False``).
 
-Known failure (a kernel bug, left exposed; see tests/multibody/test_chain.py):
-test_latch_conserves_generalized_momentum and test_latch_mass_matrix_rises fail with
-"non-finite state: arm.qd" at t = 0.5 s. ``kernels.mass_matrix`` passes ``base[3:6]`` as the
-6-element ``f_ext`` of ``rnea``; in the Arm block the three floats after ``bw`` are the
-scratch ``v1``, which ``on_event`` has just filled with ``M qd-``, so M' comes out with a
-spurious external moment (indefinite here) and the Cholesky solve returns NaN. (Even with a
-finite result, every later ``forward_dynamics`` would read ``v1`` as a flange moment.)
-Fix: ``fz = base`` in ``kernels.mass_matrix``; with it these tests pass.
+The latch tests also guard a fixed kernel bug (see tests/multibody/test_chain.py):
+``kernels.mass_matrix`` read the external moment from the three floats after the base
+wrench, in the Arm block the scratch the latch event fills with ``M qd-``, so M' came out
+indefinite and the run failed with "non-finite state: arm.qd" at the latch.
 """
 from __future__ import annotations
 
@@ -54,10 +50,8 @@ def _chains():
     chp = Chain.from_yaml()
     chp.P = _with_payload(ch.P, PAYLOAD["mass"], PAYLOAD["com"], PAYLOAD["inertia"])
     for c in (ch, chp):
-        # the reference values must not depend on heap memory: kernels.mass_matrix reads 3
-        # floats past Chain._base (the bug in the module docstring), so give it zeros to
-        # read. Harmless once fixed; the bug itself is exposed by the latch tests here and
-        # by tests/multibody/test_chain.py.
+        # zeros after Chain._base: should the kernel bug of the module docstring return,
+        # the references here stay right and the latch tests alone fail
         c._base = np.zeros(9)[:6]
     return ch, chp
 

@@ -20,15 +20,11 @@ writing, for the record):
 * joint 2 resonance: antiresonance (motor locked) sqrt(K1/J_l)/2pi = 9.00 Hz, resonance
   (motor free) sqrt(K1 (1/J_l + 1/(N^2 J_m)))/2pi = 24.80 Hz; measured 8.997 / 24.68 Hz.
 
-Known failure (a block bug, left exposed): test_backlash_events_over_a_cycle and
-test_backlash_slow_reversal_two_events. HarmonicDrive.initialize, which the engine runs
-after every event, puts the gear back in contact whenever |delta| > b/2. At a separation
-the contact torque K1 (delta - b/2) + d ddelta/dt has just reached 0 with the teeth moving
-apart, so delta is still beyond b/2 (by d |ddelta/dt| / K1): contact is re-entered at once,
-the 'separate' guard is then already negative and never fires again, and the gear stays in
-contact and pulls (tau_l < 0 on the + flank) through the whole gap. Fix: engage in
-initialize only where the contact torque would push (spring(delta, w_rel, +-1) > 0 / < 0),
-which needs w_m, w_l, K1..T2, d and linear in its signature.
+The backlash tests (test_backlash_events_over_a_cycle, test_backlash_slow_reversal_two_events)
+also guard a fixed block bug: HarmonicDrive.initialize, which the engine runs after every
+event, put the gear back in contact whenever |delta| > b/2. At a separation delta is still
+beyond b/2 (by d |ddelta/dt| / K1), so contact was re-entered at once and the gear pulled
+through the whole gap. It now engages only where the contact torque would push.
 """
 from __future__ import annotations
 

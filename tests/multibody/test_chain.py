@@ -14,18 +14,13 @@ by the environment *to the arm*, so ``M qdd + b = tau + J^T f_ext`` and
 ``rnea(.., f_ext) = rnea(..) - J^T f_ext``; ``base_wrench`` is the wrench the mounting
 applies to the arm (the Arm block outputs its opposite).
 
-Known failures (a kernel bug, left exposed): test_mass_matrix_ignores_workspace_contents and
-test_chain_mass_matrix_does_not_read_past_base.
-``kernels.mass_matrix`` passes ``base[3:6]`` (3 elements) as ``f_ext`` to ``rnea``, which
-reads ``f_ext[0..5]``: the external moment of every column is read from the 3 floats that
-follow ``base`` in memory (no bounds check in numba). In ``Chain`` that is heap memory after
-``Chain._base``, so Chain.mass_matrix, forward_dynamics and kinetic_energy are wrong or
-right depending on the heap (without the padding in ``_chain`` below, different tests here
-failed from one run to the next). In the Arm block it is the scratch ``v1`` (the
-generalized momentum written by the latch event), so the mass matrix after a latch is wrong
-(see tests/evals/test_arm.py).
-Fix: in ``mass_matrix`` use ``fz = base`` (all six elements, zeroed before each column;
-rnea reads ``f_ext`` before it writes ``base``), or a 6-element zero slice of ``tmp``.
+Regression guard: test_mass_matrix_ignores_workspace_contents and
+test_chain_mass_matrix_does_not_read_past_base. ``kernels.mass_matrix`` once passed
+``base[3:6]`` (3 elements) as the 6-element ``f_ext`` of ``rnea``, so the external moment
+of every column came from whatever followed ``base`` in memory (no bounds check in numba):
+heap contents in ``Chain``, the latch event's scratch in the Arm block. Fixed by passing all
+six elements of ``base`` (zeroed before each column; rnea reads ``f_ext`` before it writes
+``base``); the two tests put data after ``base`` and fail if it is read again.
 """
 from __future__ import annotations
 
@@ -131,10 +126,9 @@ DRAWS = _draws()
 
 
 def _chain(g=None, pad=True):
-    """The shipped arm. ``pad``: Chain._base is followed by zeros in memory, so that the
-    kernel bug above (3 floats read past ``base``) does not make the other tests depend on
-    whatever the heap holds there; the bug itself is exposed, deterministically, by the two
-    ``*_past_base`` / ``*_workspace_*`` tests. Harmless once fixed."""
+    """The shipped arm. ``pad``: Chain._base is followed by zeros in memory, so that a
+    return of the kernel bug above (floats read past ``base``) fails only the two
+    ``*_past_base`` / ``*_workspace_*`` tests, deterministically, not others at random."""
     ch = Chain.from_yaml()
     ch.gravity = np.zeros(3) if g is None else np.asarray(g, float)
     if pad:
@@ -225,9 +219,8 @@ def test_mass_matrix_spd_and_matches_reference(k):
 def test_mass_matrix_ignores_workspace_contents():
     """The kernel must depend on q and P only: not on what its work arrays held before nor
     on the memory that follows them. Here base is a 6-element slice of a longer buffer whose
-    tail holds unrelated data (as the Arm block's scratch does: v1 follows bw).
-    KNOWN FAILURE: mass_matrix hands rnea base[3:6] as a 6-element f_ext (see the module
-    docstring)."""
+    tail holds unrelated data (as the Arm block's scratch does: v1 follows bw); see the
+    fixed bug in the module docstring."""
     ch = _chain()
     q = DRAWS[0]["q"]
     ref = Ref.mass_matrix(q)
@@ -243,8 +236,8 @@ def test_mass_matrix_ignores_workspace_contents():
 def test_chain_mass_matrix_does_not_read_past_base():
     """Chain.mass_matrix / forward_dynamics must not depend on the memory after the
     Chain's 6-element base workspace (here: data 3.0; in practice: whatever the heap holds,
-    which makes unpadded results vary from run to run).
-    KNOWN FAILURE: the kernel bug in the module docstring."""
+    which made unpadded results vary from run to run): the fixed bug of the module
+    docstring."""
     ch = _chain(pad=False)
     buf = np.full(9, 3.0)
     ch._base = buf[:6]
