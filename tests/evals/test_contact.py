@@ -227,10 +227,13 @@ def _chain(gravity):
     return ch
 
 
-def _mux7(name, src):
-    blocks = f"  {name}: {{type: Mux, n: 7}}\n"
-    conns = "".join(f"  - {src} -> {name}.u{i + 1}\n" for i in range(N))
-    return blocks, conns
+# the flange on a RigidContact 'wall' (velocity, acceleration in; wrench, impact back)
+ARM_ON_WALL = """  - arm.flange_pos -> wall.pos
+  - arm.flange_twist[0:3] -> wall.vel
+  - arm.flange_acc -> wall.acc
+  - wall.wrench -> arm.f_ext
+  - wall.constraint -> arm.constraint
+"""
 
 
 def arm_on_plane(lam0, t_pull=None, t_end=0.3):
@@ -240,32 +243,25 @@ def arm_on_plane(lam0, t_pull=None, t_end=0.3):
     n = np.array([0.0, 0.0, 1.0])
     p0 = ch.fk(Q0)[:3, 3]
     Jn = n @ ch.jacobian(Q0)[:3]
-    tau_g = ch.rnea(Q0, np.zeros(N), np.zeros(N))
-    tau = tau_g - Jn * lam0
-    pull_b, pull_c = _mux7("pullv", "pull.y")
-    pull = ""
-    if t_pull is not None:
-        pull = (f"  pull: {{type: Step, t_step: {t_pull}, before: 0, after: 1}}\n" + pull_b
-                + f"  k:    {{type: Gain, k: {_yl(2 * Jn * lam0)}}}\n")
+    tau = ch.rnea(Q0, np.zeros(N), np.zeros(N)) - Jn * lam0
+    t_pull = t_end + 1.0 if t_pull is None else t_pull       # never, in this run
+    pull = "".join(f"  - pull.y -> pullv.u{i + 1}\n" for i in range(N))
     text = f"""
 name: arm_on_plane
 blocks:
-  tau:  {{type: Constant, value: {_yl(tau)}}}
-  sum:  {{type: Sum, signs: "++"}}
-  zero: {{type: Constant, value: {_yl(np.zeros(N))}}}
-  arm:  {{type: Arm, q0: {_yl(Q0)}, gravity: [0, 0, {-G}]}}
-  wall: {{type: RigidContact, point: {_yl(p0)}, normal: [0, 0, 1], engaged: true}}
-{pull}connections:
+  tau:   {{type: Constant, value: {_yl(tau)}}}
+  pull:  {{type: Step, t_step: {t_pull}, before: 0, after: 1}}
+  pullv: {{type: Mux, n: {N}}}
+  k:     {{type: Gain, k: {_yl(2 * Jn * lam0)}}}
+  sum:   {{type: Sum, signs: "++"}}
+  arm:   {{type: Arm, q0: {_yl(Q0)}, gravity: [0, 0, {-G}]}}
+  wall:  {{type: RigidContact, point: {_yl(p0)}, normal: [0, 0, 1], engaged: true}}
+connections:
   - tau.y -> sum.u1
-  - {"k.y" if t_pull is not None else "zero.y"} -> sum.u2
+{pull}  - pullv.y -> k.u
+  - k.y -> sum.u2
   - sum.y -> arm.tau
-  - arm.flange_pos -> wall.pos
-  - arm.flange_twist[0:3] -> wall.vel
-  - arm.flange_acc -> wall.acc
-  - wall.wrench -> arm.f_ext
-  - wall.constraint -> arm.constraint
-{pull_c if t_pull is not None else ""}{"  - pullv.y -> k.u" if t_pull is not None else ""}
-log: [arm.q, arm.qd, wall.lam, wall.gap]
+{ARM_ON_WALL}log: [arm.q, arm.qd, wall.lam, wall.gap]
 """
     return spidersim.loads(text).simulate(t_end=t_end, rtol=1e-10, atol=1e-12,
                                           output_interval=1e-3, jit=False)
@@ -308,12 +304,7 @@ blocks:
   wall: {{type: RigidContact, point: {_yl(point)}, normal: [0, 0, 1]}}
 connections:
   - tau.y -> arm.tau
-  - arm.flange_pos -> wall.pos
-  - arm.flange_twist[0:3] -> wall.vel
-  - arm.flange_acc -> wall.acc
-  - wall.wrench -> arm.f_ext
-  - wall.constraint -> arm.constraint
-log: [arm.q, arm.qd, arm.flange_twist, wall.lam, wall.gap]
+{ARM_ON_WALL}log: [arm.q, arm.qd, arm.flange_twist, wall.lam, wall.gap]
 """
     r = spidersim.loads(text).simulate(t_end=0.15, rtol=1e-10, atol=1e-12, jit=False)
     on = _events(r, "wall", "onset")
