@@ -66,7 +66,8 @@ class ElasticContact(_Plane):
     (event ``onset``: from outside, when ``delta`` becomes positive; a released body still
     inside the surface when the force turns positive again) and ends when the normal force
     would become a pull (event ``release``: with ``D = 0`` at ``delta = 0``, with damping
-    slightly before).
+    slightly before). A body that starts inside the surface, pushed out by it, is in
+    contact from the start.
 
     ``energy`` is the elastic energy stored in the contact (and surface) springs, ``K
     delta^2 / 2 + K_s w^2 / 2`` [J]: its peak is the energy absorbed at an impact.
@@ -99,7 +100,8 @@ class ElasticContact(_Plane):
     }
     states = {"w": State("m", doc="surface displacement along the normal"),
               "wd": State("m/s", doc="surface velocity")}
-    modes = {"engaged": Mode(doc="1 while in contact")}
+    modes = {"engaged": Mode(doc="1 while in contact"),
+             "t_off": Mode(initial=-math.inf, doc="time of the last release")}
     events = {"onset": Event(1, "penetrating and pushing: min(K delta, F_n) rises through 0"),
               "release": Event(-1, "the normal force would pull")}
 
@@ -160,8 +162,25 @@ class ElasticContact(_Plane):
             zc[1] = 1.0
 
     @staticmethod
-    def on_event(t, which, direction, engaged):
-        engaged[0] = 1.0 if which == 0 else 0.0
+    def on_event(t, which, direction, engaged, t_off):
+        if which == 0:
+            engaged[0] = 1.0
+        else:
+            engaged[0] = 0.0
+            t_off[0] = t
+
+    @staticmethod
+    def initialize(t, vel, wd, n, K, D, delta, engaged, t_off):
+        # a body already inside the surface and pushed out by it (at the start, or after
+        # another block's event) is in contact: the onset guard cannot see a crossing
+        # that happened before. Not at a release instant, where the force has just
+        # reached zero.
+        if engaged[0] < 0.5 and t != t_off[0] and delta[0] > 0.0:
+            dd = wd[0]
+            for k in range(3):
+                dd -= n[k] * vel[k]
+            if K * delta[0] + D * dd > 0.0:
+                engaged[0] = 1.0
 
 
 class RigidContact(_Plane):
@@ -183,7 +202,8 @@ class RigidContact(_Plane):
     (for an arm ``qd+ = qd- - M^-1 J_n^T (J_n M^-1 J_n^T)^-1 J_n qd-``). Release (event):
     ``lam`` falls through zero, the body is pulled away; if the applied forces already pull
     at the onset instant (after the impact) the constraint lets go at once. ``engaged`` starts the run in
-    contact (the contact point on the plane, at rest along the normal).
+    contact (the contact point on the plane, at rest along the normal); if the applied
+    forces pull at the start, it lets go there.
     """
 
     category = "contact"
@@ -211,7 +231,8 @@ class RigidContact(_Plane):
     }
     modes = {"active": Mode(initial=lambda p: 1.0 if p["engaged"] else 0.0,
                             doc="1 while the constraint is engaged"),
-             "t_on": Mode(initial=-math.inf, doc="time of the last onset")}
+             "t_on": Mode(initial=lambda p: 0.0 if p["engaged"] else -math.inf,
+                          doc="time of the last onset (the start when engaged)")}
     events = {"onset": Event(-1, "the gap falls through zero: impact, constraint engaged"),
               "release": Event(-1, "the constraint force falls through zero")}
     #: output -> (residual, initial guess)
@@ -257,8 +278,9 @@ class RigidContact(_Plane):
 
     @staticmethod
     def initialize(t, lam, active, t_on):
-        # right after the impact the applied forces may already pull the body away: the
-        # release guard cannot see that crossing (the block has just fired), so it is
-        # decided here, at the onset instant only
+        # a constraint that would pull at its onset lets go at once: right after the
+        # impact, or at the start of a run that begins ``engaged`` (the release guard sees
+        # no crossing at the instant its block fired or the run began). Later the release
+        # is the event ``release``.
         if active[0] > 0.5 and lam[0] < 0.0 and t == t_on[0]:
             active[0] = 0.0

@@ -290,15 +290,10 @@ def build_layout(flat: Flat) -> Layout:
         g.add_edge(("out", c.src[0], c.src[1]), ("in", dp, dport), kind="wire",
                    line=c.line, file=c.file)
 
-    comps = [c for c in nx.strongly_connected_components(g) if len(c) > 1]
     for bl in info.values():
         for o, (i, _g) in getattr(bl.cls, "implicit", {}).items():
-            if not any(("out", bl.path, o) in c for c in comps):
-                inst = flat.blocks[bl.path]
-                raise AlgebraicLoopError(
-                    f"residual '{i}' does not depend on output '{o}': the constraint "
-                    f"{i}({o}) = 0 has nothing to solve (wire {o} into the blocks that "
-                    f"compute {i})", block=bl.path, file=inst.file, line=inst.line)
+            _check_constraint_closed(g, bl, o, i, flat.blocks[bl.path])
+    comps = [c for c in nx.strongly_connected_components(g) if len(c) > 1]
     loops = [_make_loop(k, g, sorted(c), info, dst_seen) for k, c in enumerate(
         sorted(comps, key=lambda c: sorted(c)[0]))]
     node_loop = {n: lp for lp in loops for n in lp.nodes}
@@ -495,6 +490,37 @@ def _choose_tears(sub):
         best = max(cands, key=lambda n: (sub.in_degree(n) * sub.out_degree(n), n))
         tears.append(best)
         sub.remove_edges_from(list(sub.out_edges(best)))
+
+
+def _check_constraint_closed(g, bl, o, i, inst):
+    """The residual ``i`` of the implicit output ``o`` must depend on ``o`` through the
+    diagram (a path that leaves the block by a wire), not only through the block's own
+    ``o -> i`` feedthrough (a residual that is an output, equal to ``o`` when the
+    constraint is inactive)."""
+    res = ("out", bl.path, i) if i in bl.outputs else ("in", bl.path, i)
+    src = ("out", bl.path, o)
+    direct = g.has_edge(src, res)
+    if direct:
+        data = g.edges[src, res]
+        g.remove_edge(src, res)
+    try:
+        closed = nx.has_path(g, src, res)
+    finally:
+        if direct:
+            g.add_edge(src, res, **data)
+    if closed:
+        return
+    if i in bl.outputs:
+        outs = [x for x, fts in bl.feedthrough.items() if o in fts and x != i]
+        ins = [x for x in bl.feedthrough.get(i, ()) if x in bl.inputs]
+        hint = (f"wire its outputs computed from {o} ({', '.join(outs) or 'none'}) into the "
+                f"blocks that produce its inputs {', '.join(ins)}")
+    else:
+        hint = f"wire {o} into the blocks that compute {i}"
+    raise AlgebraicLoopError(
+        f"residual '{i}' does not depend on output '{o}' through the diagram: the "
+        f"constraint {i}({o}) = 0 has nothing to solve ({hint})",
+        block=bl.path, file=inst.file, line=inst.line)
 
 
 def _make_loop(k, g, nodes, info, dst_seen):

@@ -160,6 +160,19 @@ def test_coulomb_friction_decelerates_at_mu_g():
     assert slope == pytest.approx(-mu * G, rel=1e-6)
 
 
+def test_elastic_contact_starting_inside_the_surface():
+    """At rest 1 mm inside (no gravity): pushed out in a quarter period, at speed
+    delta0 sqrt(K/m); the contact is engaged from the start, not missed."""
+    K, m, d0 = 1e4, 2.0, 1e-3
+    wn = math.sqrt(K / m)
+    r = drop(K, m, 0.0, h=-d0, t_end=math.pi / wn)
+    assert _events(r, "wall", "onset") == []
+    off = _events(r, "wall", "release")
+    assert len(off) == 1 and off[0] == pytest.approx(0.5 * math.pi / wn, rel=1e-6)
+    assert r["wall.fn"][0] == pytest.approx(K * d0, rel=1e-12)
+    assert r["body.vel"][-1, 2] == pytest.approx(d0 * wn, rel=1e-6)
+
+
 # =========================================================================== rigid: point mass
 def rigid_mass(m=2.0, h=0.1, t_pull=0.5, pull=2.0, t_end=0.8):
     """Point mass falls from h onto a rigid plane z = 0; from t_pull a force pull * m g up."""
@@ -218,6 +231,30 @@ def test_rigid_point_mass_released_when_pulled(mass_run):
     # net force up = m g: z = g/2 (t - 0.5)^2 from the plane (up to the hold's 1e-6 m)
     z_exact = 0.5 * G * (r.t[after] - 0.5) ** 2
     assert np.abs(r["body.pos"][after, 2] - z_exact).max() < 2e-6
+
+
+def test_rigid_contact_engaged_at_the_start_never_pulls():
+    """``engaged: true`` with the applied force already pulling: let go at t = 0."""
+    text = f"""
+name: start_pulling
+blocks:
+  body: {{type: PointMass, m: 2, g: [0, 0, {-G}]}}
+  wall: {{type: RigidContact, point: [0, 0, 0], normal: [0, 0, 1], engaged: true}}
+  up:   {{type: Constant, value: [0, 0, {4 * G}]}}
+  sum:  {{type: Sum, signs: "++"}}
+connections:
+  - body.pos -> wall.pos
+  - body.vel -> wall.vel
+  - body.acc -> wall.acc
+  - wall.constraint -> body.constraint
+  - wall.force -> sum.u1
+  - up.y -> sum.u2
+  - sum.y -> body.f
+"""
+    r = spidersim.loads(text).simulate(t_end=0.2, rtol=1e-10, atol=1e-12)
+    assert np.abs(r["wall.lam"]).max() < 1e-9
+    np.testing.assert_allclose(r["body.pos"][:, 2], 0.5 * G * r.t ** 2, rtol=1e-8,
+                               atol=1e-12)
 
 
 # =========================================================================== rigid: the arm

@@ -230,3 +230,31 @@ connections:
     with pytest.raises(AlgebraicLoopError) as ei:
         spidersim.loads(text)
     assert ei.value.block == "z" and "does not depend on output 'z'" in str(ei.value)
+
+
+def test_rigid_contact_whose_force_is_not_wired_back_is_refused():
+    """RigidContact's residual is its own output and equals lam while inactive: that
+    internal lam -> residual path must not count as closing the constraint. Without the
+    force wired back into the body nothing outside depends on lam: refused at load, with
+    the wiring to add, instead of a singular Jacobian at the first onset."""
+    text = """
+blocks:
+  body: {type: PointMass, m: 1, g: [0, 0, -9.81], p0: [0, 0, 0.1]}
+  wall: {type: RigidContact, point: [0, 0, 0], normal: [0, 0, 1]}
+connections:
+  - body.pos -> wall.pos
+  - body.vel -> wall.vel
+  - body.acc -> wall.acc
+  - wall.constraint -> body.constraint
+"""
+    with pytest.raises(AlgebraicLoopError) as ei:
+        spidersim.loads(text)
+    msg = str(ei.value)
+    assert ei.value.block == "wall"
+    assert "residual 'residual' does not depend on output 'lam' through the diagram" in msg
+    assert "(force, wrench)" in msg and "pos, vel, acc" in msg
+    # wired back, the same diagram loads and the constraint holds the mass
+    d = spidersim.loads(text + "  - wall.force -> body.f\n")
+    r = d.simulate(t_end=0.3, jit=False)
+    assert [e[1:] for e in r.events] == [("wall", "onset"), ("body", "impact")]
+    assert r["wall.lam"][-1] == pytest.approx(9.81, rel=1e-6)
