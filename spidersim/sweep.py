@@ -166,9 +166,6 @@ def grid(vary) -> list[dict]:
 
 
 # --------------------------------------------------------------------------- one run
-_DIAGRAMS: dict = {}       # per process: (file, base set) -> (diagram, metrics)
-
-
 def run_point(file, base_set, point, sim, index=0):
     """Run one grid point; never raises for a failed run. Returns a row dict.
 
@@ -274,8 +271,9 @@ class SweepResult:
                     label = f"{second[0]} = {v2:g}" if second else None
                     line, = ax.plot([r[p1] for r in ok], [r[m.name] for r in ok], "o-",
                                     label=label)
-                    if bad:
-                        ax.plot([r[p1] for r in bad], [0.0] * len(bad), "x",
+                    if bad:                    # at the bottom edge: no value to plot
+                        ax.plot([r[p1] for r in bad], [0.03] * len(bad), "x",
+                                transform=ax.get_xaxis_transform(), clip_on=False,
                                 color=line.get_color(), markersize=10,
                                 label=f"failed ({label})" if label else "failed")
                 ax.set_xlabel(p1)
@@ -345,11 +343,11 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         raise DiagramError("the diagram declares no metrics: add a 'metrics' section, e.g. "
                            "metrics: {peak: {signal: block.port, reduce: max}}",
                            file=d.file)
+    t_end = sim.get("t_end")
+    if t_end is not None and not (isinstance(t_end, (int, float)) and t_end > 0):
+        raise SpidersimError(f"the simulated time of each run must be > 0 s, got {t_end}")
     for path, values in vary:
-        try:
-            load(file, set={**base, path: values[0]})
-        except SpidersimError as exc:
-            raise SpidersimError(f"--vary {path}: {exc}") from None
+        _check_varied(file, base, d, path, values)
     t0 = time.perf_counter()
     d.compile()
     compile_s = time.perf_counter() - t0
@@ -365,8 +363,33 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         rows, n_workers = _run_dask(file, base, points, sim, workers, scheduler, progress,
                                     connect_timeout)
     res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
-                      {"compile_s": compile_s, "structure_key": d._modules[True][1]})
+                      {"compile_s": compile_s, "structure_key": d._modules[True][1],
+                       "name": d.spec.name})
     return res
+
+
+def _check_varied(file, base, d, path, values):
+    """Every value of a varied path loads (a bad value is refused before any run, not
+    found in the table afterwards), and the path is a scalar (a scalar given to a vector
+    parameter would be spread over its elements: every run the same direction)."""
+    from .diagram.flatten import eval_parameters
+    from .diagram.model import load
+    size = None
+    block, _, name = path.rpartition(".")
+    if not block:
+        if path in d.spec.parameters:
+            size = np.size(eval_parameters(d.spec, {}, "")[0][path])
+    elif block in d.blocks and name in d.blocks[block].params:
+        size = np.size(d.blocks[block].params[name])
+    if size is not None and size != 1:
+        raise SpidersimError(f"--vary {path}: a vector parameter ({size} elements); a sweep "
+                             f"varies scalars: make the varied quantity a scalar "
+                             f"parameter of the diagram and build the vector from it")
+    for v in values:
+        try:
+            load(file, set={**base, path: v})
+        except SpidersimError as exc:
+            raise SpidersimError(f"--vary {path}={v:g}: {exc}") from None
 
 
 def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_timeout):
@@ -380,17 +403,29 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
     if scheduler:
         try:
             client = Client(scheduler, timeout=f"{connect_timeout}s")
-        except (OSError, TimeoutError) as exc:
-            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") \
-                from None
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, bad address
+            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: "
+                                 f"{type(exc).__name__}: {exc}") from None
     else:
         if workers < 1:
             raise SpidersimError(f"--workers must be >= 0, got {workers}")
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        try:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+        except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
+            raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
+                                 f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
+                from None
         client = Client(cluster)
     try:
         n_workers = len(client.scheduler_info().get("workers", {}))
+        if n_workers == 0:
+            try:
+                client.wait_for_workers(1, timeout=connect_timeout)
+            except Exception:  # noqa: BLE001 - dask raises TimeoutError here
+                raise SpidersimError(f"the Dask scheduler at {scheduler} has no workers "
+                                     f"(waited {connect_timeout:g} s)") from None
+            n_workers = len(client.scheduler_info().get("workers", {}))
         futures = [client.submit(run_point, file, base, pt, sim, k, pure=False,
                                  key=f"spidersim-run-{k}-{os.getpid()}-{time.time_ns()}")
                    for k, pt in enumerate(points)]
