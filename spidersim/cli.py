@@ -74,7 +74,7 @@ def cmd_run(args):
     t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
     out = args.out or os.path.join("results", d.spec.name)
     # logged signals with their sizes: plot checks (animation sizes too) before the run
-    check_plot_specs(d.spec.plots, {r[0]: r[3] - r[2] for r in d._log}, d.file)
+    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file)
     print(f"spidersim: {d.spec.name}: {len(d.blocks)} blocks, {d.layout.n_x} states; "
           f"compiling ({'numba' if not args.no_jit else 'interpreted'}) ...", file=sys.stderr)
     prog = Progress(t_end)

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import DiagramError, SpidersimError
+from .plots import signal_values, split_signal
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
 
@@ -58,7 +59,6 @@ REDUCERS = {
         _trapz(y * y, t) / (t[-1] - t[0]))) if t[-1] > t[0] else float(abs(y[0]))),
     "integral": ("time integral", lambda t, y: float(_trapz(y, t))),
 }
-_SIG = re.compile(r"^\s*([A-Za-z_][\w.]*)\s*(?:\[\s*(\d+)\s*\])?\s*$")
 
 
 @dataclass
@@ -71,17 +71,14 @@ class Metric:
     reduce: str
     unit: str = ""
 
+    @property
+    def label(self):
+        """``signal`` or ``signal[index]``."""
+        return self.signal if self.index is None else f"{self.signal}[{self.index}]"
+
     def evaluate(self, result):
-        y = np.asarray(result[self.signal])
-        if y.ndim == 2:
-            if self.index is None:
-                raise SpidersimError(f"metric '{self.name}': signal '{self.signal}' has "
-                                     f"{y.shape[1]} elements; pick one, e.g. "
-                                     f"'{self.signal}[0]'")
-            y = y[:, self.index]
-        elif self.index not in (None, 0):
-            raise SpidersimError(f"metric '{self.name}': '{self.signal}' is a scalar signal, "
-                                 f"index {self.index} is out of range")
+        """The metric of a run (signal and index were checked by :func:`parse_metrics`)."""
+        y = np.asarray(signal_values(result, self.label))
         if len(y) == 0:
             return math.nan
         return REDUCERS[self.reduce][1](result.t, y)
@@ -92,7 +89,7 @@ def parse_metrics(diagram) -> list[Metric]:
     spec = diagram.spec
     raw = spec.metrics
     out = []
-    sizes = {r[0]: r[3] - r[2] for r in diagram._log}
+    sizes = diagram.logged_sizes()
     for name, entry in raw.items():
         line = raw.line_of(name) if hasattr(raw, "line_of") else None
 
@@ -105,11 +102,10 @@ def parse_metrics(diagram) -> list[Metric]:
         if unknown:
             fail(f"unknown key(s) {', '.join(sorted(unknown))}; keys are signal, reduce, "
                  f"unit")
-        m = _SIG.match(str(entry.get("signal", "")))
-        if not m:
+        if not isinstance(entry.get("signal"), str):
             fail(f"'signal' must be 'block.port' or 'block.port[i]', got "
                  f"{entry.get('signal')!r}")
-        sig, idx = m.group(1), (int(m.group(2)) if m.group(2) is not None else None)
+        sig, idx = split_signal(entry["signal"])
         if sig not in sizes:
             import difflib
             near = difflib.get_close_matches(sig, list(sizes), n=3)
@@ -278,8 +274,7 @@ class SweepResult:
                                 label=f"failed ({label})" if label else "failed")
                 ax.set_xlabel(p1)
                 ax.set_ylabel(f"{m.name}" + (f" [{m.unit}]" if m.unit else ""))
-                title = f"{m.name} ({m.reduce} of {m.signal}"
-                title += f"[{m.index}])" if m.index is not None else ")"
+                title = f"{m.name} ({m.reduce} of {m.label})"
                 if fixed:
                     title += ", " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items())
                 ax.set_title(title)

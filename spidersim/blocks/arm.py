@@ -22,6 +22,7 @@ import os
 
 import numpy as np
 
+from ..multibody.kernels import WS_PER_LINK as _WS
 from .base import Block, Dim, Event, Mode, Param, Port, State
 
 _CHAINS = {}
@@ -33,6 +34,11 @@ def _chain(model):
     if path not in _CHAINS:
         _CHAINS[path] = Chain.from_yaml(path)
     return _CHAINS[path]
+
+
+def _ws_dim():
+    """Scratch of the multibody kernels: WS_PER_LINK floats per link and the base."""
+    return Dim(f"{_WS} (n + 1)", lambda p: _WS * (_n(p) + 1))
 
 
 def _n(p):
@@ -109,7 +115,7 @@ class Arm(Block):
                               doc="1 once the payload is attached")}
     events = {"latch": Event(1, "the latch input rises: the payload is captured"),
               "impact": Event(1, "a rigid constraint on the flange engages: plastic impact")}
-    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
+    scratch = {"ws": _ws_dim(),
                "Mw": Dim("n^2", lambda p: _n(p) ** 2),
                "Mw2": Dim("n^2", lambda p: _n(p) ** 2),
                "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
@@ -139,7 +145,7 @@ class Arm(Block):
         for k in range(3):
             base_force[k] = -bw[k]
             base_moment[k] = -bw[3 + k]
-        b = n * 48
+        b = n * _WS
         for k in range(9):
             flange_rot[k] = ws[b + k]
         for k in range(3):
@@ -238,7 +244,7 @@ class CartesianLineIK(Block):
                               doc="joint reference speeds"),
                "p_ref": Port("m", size=3, feedthrough=("s",), doc="desired flange position")}
     states = {"q_ref": State("rad", size=_N, initial="q0", doc="joint references")}
-    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
+    scratch = {"ws": _ws_dim(),
                "A6": Dim("36", lambda p: 36), "v6": Dim("6", lambda p: 6),
                "y6": Dim("6", lambda p: 6), "Jw": Dim("6 n", lambda p: 6 * _n(p))}
 
@@ -258,7 +264,7 @@ class CartesianLineIK(Block):
     def output(t, q_ref, s, sd, P, p0, R0, u, K, damping, ws, A6, v6, y6, Jw, qd_ref, p_ref):
         n = q_ref.size
         fk(q_ref, P, ws)
-        b = n * 48
+        b = n * _WS
         for k in range(3):
             p_ref[k] = p0[k] + s[0] * u[k]
             v6[k] = sd[0] * u[k] + K * (p_ref[k] - ws[b + 9 + k])
@@ -302,7 +308,7 @@ class ForwardKinematics(Block):
     inputs = {"q": Port("rad", size=_N, doc="joint angles")}
     outputs = {"pos": Port("m", size=3, feedthrough=("q",), doc="flange origin"),
                "rot": Port("1", size=9, feedthrough=("q",), doc="flange rotation, row-major")}
-    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1))}
+    scratch = {"ws": _ws_dim()}
 
     @classmethod
     def derive(cls, params):
@@ -311,7 +317,7 @@ class ForwardKinematics(Block):
     @staticmethod
     def output(t, q, P, ws, pos, rot):
         fk(q, P, ws)
-        b = q.size * 48
+        b = q.size * _WS
         for k in range(9):
             rot[k] = ws[b + k]
         for k in range(3):
@@ -327,7 +333,7 @@ class Jacobian(Block):
     inputs = {"q": Port("rad", size=_N, doc="joint angles")}
     outputs = {"J": Port("1", size=Dim("6 n", lambda p: 6 * _n(p)), feedthrough=("q",),
                          doc="Jacobian, row-major 6 x n")}
-    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1))}
+    scratch = {"ws": _ws_dim()}
 
     @classmethod
     def derive(cls, params):

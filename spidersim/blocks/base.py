@@ -114,14 +114,15 @@ class Port:
     outputs only) or ``None`` (inputs only: take the size of whatever is connected).
     ``feedthrough`` (outputs only): the inputs this output depends on directly, or a callable
     of the parameters returning them, or ``"all"``.
-    ``optional`` (inputs only): an unconnected optional input reads zeros.
+    ``optional`` (inputs only): an unconnected optional input reads zeros; a function of
+    the block's parameters when that depends on them (``lambda p: p["frame"] == "base"``).
     """
 
     unit: str = "1"
     size: Any = 1
     doc: str = ""
     feedthrough: Any = ()
-    optional: bool = False
+    optional: object = False      # bool, or params -> bool
 
 
 @dataclass(frozen=True)
@@ -465,7 +466,8 @@ class Block:
                         ft = ("; feedthrough depends on parameters" if callable(f) else
                               "; direct feedthrough (all inputs)" if f == "all" else
                               f"; direct feedthrough from {', '.join(f)}" if f else "")
-                    opt = ", optional: zero when unconnected" if p.optional else ""
+                    opt = (", optional: zero when unconnected" if p.optional is True else
+                           ", optional for some parameters" if p.optional else "")
                     lines.append(f"    {n} [{p.unit}] (size {size_text(p.size)}{opt}{ft}): "
                                  f"{p.doc}")
         if cls.states:

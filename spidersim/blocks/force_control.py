@@ -18,10 +18,17 @@ surface whose normal is a force-controlled axis, the contact force equals ``F_f`
 velocity terms, so with ``ff = 0`` and a sensor of bandwidth ``f_c`` the force loop is
 ``tau_s F'' + (1 + kp_f) F' + ki_f F = ki_f F_ref + kp_f F_ref'`` (``tau_s = 1/(2 pi f_c)``).
 ``g(q)`` compensates the gravity ``gravity`` (zero in orbit).
+
+Near a singular pose ``A = J M^-1 J^T`` loses rank and ``Lambda`` grows without bound.
+``damping`` scales the diagonal of ``A`` by ``1 + damping`` (damped least squares in the
+task's own units: e.g. 1e-3 trades accuracy for moderate torques near singularities; the
+default 0 is the exact law). At a pose where ``A`` is singular to working precision the
+factorisation falls back to adding ``1e-6 tr(A) / 6`` to its diagonal, so the torques stay
+finite.
 """
 import numpy as np
 
-from .arm import _N, _chain, _n
+from .arm import _N, _WS, _chain, _n, _ws_dim
 from .base import Block, Dim, Param, Port, State
 
 
@@ -43,6 +50,8 @@ class HybridForceController(Block):
         "ki_f": Param(50.0, "1/s", "force integral gain", ge=0.0),
         "k_null": Param(5.0, "N.m.s/rad", "null-space joint damping", ge=0.0),
         "gravity": Param([0.0, 0.0, 0.0], "m/s2", "gravity to compensate", shape=3),
+        "damping": Param(0.0, "1", "damped inverse near singular poses: "
+                         "Lambda = (A + damping diag(A))^-1, A = J M^-1 J^T", ge=0.0),
     }
     inputs = {"q": Port("rad", size=_N, doc="joint angles"),
               "qd": Port("rad/s", size=_N, doc="joint speeds"),
@@ -55,7 +64,7 @@ class HybridForceController(Block):
                "e_F": Port("N", size=3, feedthrough=("F_ref", "F_meas"),
                            doc="force error (force-controlled directions)")}
     states = {"xi": State("N.s", size=3, doc="integral of the force error")}
-    scratch = {"ws": Dim("48 (n + 1)", lambda p: 48 * (_n(p) + 1)),
+    scratch = {"ws": _ws_dim(),
                "Mw": Dim("n^2", lambda p: _n(p) ** 2),
                "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
                "Jw": Dim("6 n", lambda p: 6 * _n(p)), "Yw": Dim("6 n", lambda p: 6 * _n(p)),
@@ -77,7 +86,7 @@ class HybridForceController(Block):
 
     @staticmethod
     def output(t, q, qd, p_ref, F_ref, F_meas, xi, P, R0, selection, Kp, Kd, ff, kp_f, ki_f,
-               k_null, gravity, ws, Mw, tmp, bw, Jw, Yw, A6, v6, y6, vn, tau, e_F):
+               k_null, gravity, damping, ws, Mw, tmp, bw, Jw, Yw, A6, v6, y6, vn, tau, e_F):
         n = q.size
         M = Mw.reshape((n, n))
         A = A6.reshape((6, 6))
@@ -90,7 +99,7 @@ class HybridForceController(Block):
             bw[k] = 0.0
         rnea(q, zero, zero, gravity, bw, P, ws, tg, bw)
         flange_jacobian(n, ws, Jw)
-        b = n * 48
+        b = n * _WS
         # task errors and velocity
         for k in range(3):
             v6[k] = p_ref[k] - ws[b + 9 + k]
@@ -112,13 +121,7 @@ class HybridForceController(Block):
             cholesky_subst(M, col, sol)
             for i in range(n):
                 Yw[i * 6 + r] = sol[i]
-        for r in range(6):
-            for c in range(6):
-                acc = 0.0
-                for i in range(n):
-                    acc += Jw[r * n + i] * Yw[i * 6 + c]
-                A[r, c] = acc
-        cholesky_factor(A)
+        task_inertia_factor(Jw, Yw, n, A, damping, 1e-6)
         cholesky_subst(A, v6, y6)                                     # Lambda a_m
         for k in range(3):
             sel = 1.0 - selection[k]
@@ -155,8 +158,8 @@ class HybridForceController(Block):
 def _bind():
     from ..multibody import kernels as K
     return (K.rnea, K.flange_jacobian, K.mass_matrix, K.cholesky_factor, K.cholesky_subst,
-            K.orientation_error)
+            K.orientation_error, K.task_inertia_factor)
 
 
 (rnea, flange_jacobian, mass_matrix, cholesky_factor, cholesky_subst,
- orientation_error) = _bind()
+ orientation_error, task_inertia_factor) = _bind()

@@ -180,7 +180,10 @@ def infer_sizes(flat: Flat):
             pi = bl.ports[("in", n)]
             connected = (bl.path, n) in dst_seen
             if not connected:
-                if bl.cls.input_decl(n).optional:
+                optional = bl.cls.input_decl(n).optional
+                if callable(optional):
+                    optional = optional(bl.params)
+                if optional:
                     if pi.size is None:
                         pi.size = 1
                     continue
@@ -248,7 +251,9 @@ def _unconnected_msg(info, flat, bl, name):
     size = "any size" if pi.size is None else f"size {pi.size}"
     hint = (f"; outputs of matching size and unit: {', '.join(cand[:8])}"
             + (" ..." if len(cand) > 8 else "")) if cand else "; no output matches it"
-    return f"input '{name}' [{pi.unit}, {size}] is not connected{hint}"
+    decl = bl.cls.input_decl(name)
+    why = f" ({decl.doc}, with these parameters)" if callable(decl.optional) else ""
+    return f"input '{name}' [{pi.unit}, {size}] is not connected{why}{hint}"
 
 
 def build_layout(flat: Flat) -> Layout:

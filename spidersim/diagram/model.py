@@ -108,6 +108,10 @@ class Diagram:
         """Names of every signal that can be logged."""
         return [r[0] for r in self._signal_table()]
 
+    def logged_sizes(self):
+        """Logged signals (what a run's result holds) -> number of values of each."""
+        return {r[0]: r[3] - r[2] for r in self._log}
+
     def _log_spec(self, log):
         table = {r[0]: r for r in self._signal_table()}
         if log == "all" or log is None:

@@ -208,6 +208,37 @@ def cholesky_subst(L, b, x):
         x[i] = s / L[i, i]
 
 
+def task_inertia_factor(J, Y, n, A, damping, fallback):
+    """Cholesky factor (in place, in ``A``) of the inverse operational-space inertia
+    ``A = J M^-1 J^T`` with its diagonal scaled by ``1 + damping``; ``J`` is 6 x n
+    row-major, ``Y = M^-1 J^T`` (n x 6 row-major). Where that is not positive definite (a
+    singular pose: J lost rank, rows of J may vanish) it is formed again with
+    ``fallback tr(A) / 6`` added to the diagonal (damped least squares). Returns the
+    diagonal term added (0 when the first factorisation succeeded)."""
+    extra = 0.0
+    for attempt in range(2):
+        tr = 0.0
+        for r in range(6):
+            for c in range(6):
+                acc = 0.0
+                for i in range(n):
+                    acc += J[r * n + i] * Y[i * 6 + c]
+                A[r, c] = acc
+            tr += A[r, r]
+        if attempt == 1:
+            extra = fallback * tr / 6.0
+        for r in range(6):
+            A[r, r] = A[r, r] * (1.0 + damping) + extra
+        cholesky_factor(A)
+        ok = True
+        for r in range(6):
+            if not A[r, r] > 0.0:
+                ok = False
+        if ok:
+            break
+    return extra
+
+
 def cholesky_solve(M, b, x):
     """Solve ``M x = b`` for symmetric positive definite ``M`` (factored in place)."""
     cholesky_factor(M)
@@ -261,5 +292,6 @@ mass_matrix = _jit(mass_matrix)
 cholesky_factor = _jit(cholesky_factor)
 cholesky_subst = _jit(cholesky_subst)
 cholesky_solve = _jit(cholesky_solve)
+task_inertia_factor = _jit(task_inertia_factor)
 orientation_error = _jit(orientation_error)
 forward_dynamics = _jit(forward_dynamics)

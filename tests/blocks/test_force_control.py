@@ -6,6 +6,7 @@ Chain): ``qdd = M^-1 (tau - b)`` and the flange acceleration ``J qdd + Jdot qd``
 import numpy as np
 import pytest
 
+import spidersim
 from spidersim.multibody.chain import SPIDER, Chain
 
 from .harness import Probe
@@ -129,3 +130,37 @@ def test_wrench_sensor_reads_the_wrench_on_the_environment(frame, chain):
     p.set_state(x, "F", F)
     assert np.allclose(p.outputs(0.0, x)["F"], F)
     assert np.allclose(p.derivatives(0.0, x)["F"], 2 * np.pi * 40.0 * (u - F), rtol=1e-12)
+
+
+def test_wrench_sensor_in_flange_axes_needs_the_rotation():
+    """frame 'flange' without 'rot' wired would read zeros as R: refused at load."""
+    from spidersim.errors import WiringError
+    text = """
+blocks:
+  w: {type: Constant, value: [1, 2, 3, 0, 0, 0]}
+  s: {type: WrenchSensor, frame: %s}
+connections:
+  - w.y -> s.wrench
+"""
+    with pytest.raises(WiringError, match=r"input 'rot' .* is not connected \(flange "
+                                          r"rotation.*needed for frame 'flange'"):
+        spidersim.loads(text % "flange")
+    spidersim.loads(text % "base")               # optional there
+
+
+def test_torques_stay_finite_at_a_singular_pose():
+    """q = 0 (arm stretched straight up): J has rank < 6, J M^-1 J^T is singular; the
+    factorisation falls back to a damped inverse (torques finite), and a larger damping
+    keeps them moderate."""
+    sizes = {**SIZES}
+    out = {}
+    for damping in (0.0, 1e-3):
+        p = Probe("HybridForceController", {"q0": [0.0] * 7, "damping": damping,
+                                            "selection": [1, 1, 0, 1, 1, 1]}, sizes=sizes)
+        p.set_input("q", np.zeros(7))
+        p.set_input("qd", np.full(7, 0.1))
+        p.set_input("p_ref", Chain.from_yaml().fk(np.zeros(7))[:3, 3] + [0.01, 0.0, 0.0])
+        p.set_input("F_ref", [0.0, 0.0, -10.0])
+        out[damping] = p.outputs(0.0, p.x0())["tau"]
+    assert np.all(np.isfinite(out[0.0])) and np.all(np.isfinite(out[1e-3]))
+    assert np.abs(out[1e-3]).max() < np.abs(out[0.0]).max()
