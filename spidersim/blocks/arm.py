@@ -23,7 +23,7 @@ import os
 import numpy as np
 
 from ..multibody.kernels import WS_PER_LINK as _WS
-from .base import Block, Dim, Event, Mode, Param, Port, State
+from .base import Block, Dim, Event, Mode, Param, Port, State, unit_vector
 
 _CHAINS = {}
 
@@ -250,14 +250,13 @@ class CartesianLineIK(Block):
 
     @classmethod
     def check(cls, params):
-        if np.linalg.norm(params["direction"]) == 0:
-            raise ValueError("direction must not be the zero vector")
+        unit_vector(params["direction"], "direction")
 
     @classmethod
     def derive(cls, params):
         ch = _chain(params["model"])
         T = ch.fk(params["q0"])
-        u = params["direction"] / np.linalg.norm(params["direction"])
+        u = unit_vector(params["direction"], "direction")
         return {"P": ch.P, "p0": T[:3, 3].copy(), "R0": T[:3, :3].ravel().copy(), "u": u}
 
     @staticmethod

@@ -487,6 +487,16 @@ class Block:
         return "\n".join(lines)
 
 
+def unit_vector(v, what):
+    """``v / |v|`` for a direction parameter; ValueError (a parameter error of the block)
+    for the zero vector."""
+    v = np.asarray(v, dtype=float)
+    norm = float(np.linalg.norm(v))
+    if norm == 0.0:
+        raise ValueError(f"{what} must not be the zero vector")
+    return v / norm
+
+
 def lookup(type_name, file=None, line=None, extra=()):
     """The Block class registered as ``type_name``; suggests near names when unknown."""
     if not isinstance(type_name, str):

@@ -21,17 +21,8 @@ is the contact point.
 """
 import math
 
-import numpy as np
 
-from .base import Block, Event, Mode, Param, Port, State
-
-
-def _unit(v, what="normal"):
-    v = np.asarray(v, dtype=float)
-    norm = float(np.linalg.norm(v))
-    if norm == 0.0:
-        raise ValueError(f"{what} must not be the zero vector")
-    return v / norm
+from .base import Block, Event, Mode, Param, Port, State, unit_vector
 
 
 class _Plane(Block, abstract=True):
@@ -46,11 +37,11 @@ class _Plane(Block, abstract=True):
 
     @classmethod
     def check(cls, params):
-        _unit(params["normal"])
+        unit_vector(params["normal"], "normal")
 
     @classmethod
     def derive(cls, params):
-        return {"n": _unit(params["normal"])}
+        return {"n": unit_vector(params["normal"], "normal")}
 
 
 class ElasticContact(_Plane):
