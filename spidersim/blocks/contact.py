@@ -21,7 +21,6 @@ is the contact point.
 """
 import math
 
-
 from .base import Block, Event, Mode, Param, Port, State, unit_vector
 
 
