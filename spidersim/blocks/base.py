@@ -448,7 +448,7 @@ class Block:
             lines.append("  Parameters:")
             for n, p in cls.parameters.items():
                 dflt = "required" if p.default is REQUIRED else f"default {p.default!r}"
-                shape = "" if p.shape == () else f", shape {p.shape}"
+                shape = "" if p.shape == () else f", shape {size_text(p.shape)}"
                 bnds = [f"{w} {_fmt(getattr(p, a))}" for a, w in
                         (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
                         if getattr(p, a) is not None]
