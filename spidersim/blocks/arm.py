@@ -119,7 +119,8 @@ class Arm(Block):
                "Mw": Dim("n^2", lambda p: _n(p) ** 2),
                "Mw2": Dim("n^2", lambda p: _n(p) ** 2),
                "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
-               "v1": Dim("n", _n), "Jw": Dim("6 n", lambda p: 6 * _n(p))}
+               "v1": Dim("n", _n), "Jw": Dim("6 n", lambda p: 6 * _n(p)),
+               "key": Dim("n + 2", lambda p: _n(p) + 2)}
 
     @classmethod
     def check(cls, params):
@@ -136,12 +137,15 @@ class Arm(Block):
                                                params["payload_inertia"])}
 
     @staticmethod
-    def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, Jw, qdd,
-               flange_pos, flange_rot, flange_twist, flange_acc, base_force, base_moment):
+    def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, Jw, key,
+               qdd, flange_pos, flange_rot, flange_twist, flange_acc, base_force,
+               base_moment):
         n = q.size
         M = Mw.reshape((n, n))
         PP = P_lat if attached[0] > 0.5 else P
-        forward_dynamics(q, qd, tau, gravity, f_ext, PP, ws, M, tmp, bw, qdd)
+        # key: the factor of M(q) in Mw is reused while q is unchanged (Newton iterations
+        # of a contact loop change f_ext only)
+        forward_dynamics(q, qd, tau, gravity, f_ext, PP, ws, M, tmp, bw, qdd, key)
         for k in range(3):
             base_force[k] = -bw[k]
             base_moment[k] = -bw[3 + k]
@@ -173,10 +177,11 @@ class Arm(Block):
 
     @staticmethod
     def on_event(t, which, direction, q, qd, constraint, P, P_lat, attached, ws, Mw, Mw2,
-                 tmp, bw, v1, Jw):
+                 tmp, bw, v1, Jw, key):
         n = q.size
         M = Mw.reshape((n, n))
         M2 = Mw2.reshape((n, n))
+        key[n + 1] = 0.0                              # Mw is overwritten here
         if which == 1:
             # plastic impact on the plane of normal c: J_n = c^T J_v (1 x n),
             # qd+ = qd- - M^-1 J_n^T (J_n M^-1 J_n^T)^-1 J_n qd-   (approaching only)

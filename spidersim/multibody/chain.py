@@ -145,7 +145,8 @@ class Chain:
         K.forward_dynamics(np.asarray(q, float), np.asarray(qd, float),
                            np.asarray(tau, float), self.gravity,
                            np.zeros(6) if f_ext is None else np.asarray(f_ext, float),
-                           self.P, self._ws, self._M, self._tmp, self._base, qdd)
+                           self.P, self._ws, self._M, self._tmp, self._base, qdd,
+                           np.empty(0))
         return qdd
 
     def momentum(self, q, qd):

@@ -260,20 +260,44 @@ def orientation_error(ws, n, R_ref, e):
     e[0], e[1], e[2] = ex, ey, ez
 
 
-def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd):
+def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd, key):
     """``qdd`` from ``M(q) qdd = tau - b(q, qd)`` (``b``: RNEA with ``qdd = 0``), then the
-    base wrench of the resulting motion into ``base``."""
+    base wrench of the resulting motion into ``base``.
+
+    ``key`` (``n + 2`` floats, or empty: no reuse) lets a caller that evaluates the same
+    ``q`` several times (an algebraic loop through ``f_ext``: Newton iterations) reuse the
+    Cholesky factor of ``M`` kept in ``M``: it holds ``q``, a checksum of ``P`` and a valid
+    flag. Whoever writes ``M`` for another purpose sets ``key[n + 1] = 0``.
+    """
     n = q.size
     zero = tmp[3 * n:4 * n]
     bias = tmp[4 * n:5 * n]
     rhs = tmp[5 * n:6 * n]
     for k in range(n):
         zero[k] = 0.0
-    mass_matrix(q, P, ws, M, tmp, base)
+    keep = key.size == n + 2
+    reuse = False
+    check = 0.0
+    if keep:
+        for i in range(P.shape[0]):
+            for j in range(P.shape[1]):
+                check += P[i, j] * (1.0 + i * P.shape[1] + j)
+        reuse = key[n + 1] == 1.0 and key[n] == check
+        for k in range(n):
+            if key[k] != q[k]:
+                reuse = False
+    if not reuse:
+        mass_matrix(q, P, ws, M, tmp, base)
+        cholesky_factor(M)
+        if keep:
+            for k in range(n):
+                key[k] = q[k]
+            key[n] = check
+            key[n + 1] = 1.0
     rnea(q, qd, zero, g, f_ext, P, ws, bias, base)
     for k in range(n):
         rhs[k] = tau[k] - bias[k]
-    cholesky_solve(M, rhs, qdd)
+    cholesky_subst(M, rhs, qdd)
     rnea(q, qd, qdd, g, f_ext, P, ws, bias, base)
 
 

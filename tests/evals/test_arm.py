@@ -33,6 +33,8 @@ import spidersim
 from spidersim.blocks.arm import _with_payload
 from spidersim.multibody import Chain
 
+from blocks.harness import Probe     # tests/ is on sys.path (rootdir-relative imports)
+
 N = 7
 Q0 = [0.0, 0.6, 0.0, -1.3, 0.0, 0.8, 0.0]          # spider.yaml's start pose
 PAYLOAD = dict(mass=30.0, com=[0.0, 0.0, 0.15], inertia=[0.3, 0.3, 0.3])
@@ -319,3 +321,38 @@ log: [ik.q_ref, ik.qd_ref, ik.p_ref, path.q]
     assert max(ang_err) < 1e-5, max(ang_err)
     np.testing.assert_allclose(r["ik.p_ref"], T0[:3, 3] + s[:, None] * u, atol=1e-12)
     assert np.abs(r["ik.qd_ref"][-1]).max() < 1e-4                 # references stop too
+
+
+def test_mass_matrix_factor_reused_only_while_valid():
+    """The Arm block keeps the Cholesky factor of M(q) between evaluations at the same q
+    (Newton iterations of a contact loop change only f_ext). Every answer must still be
+    the Chain's forward dynamics: new f_ext at the same q (reuse), a new payload at the
+    same q (P changed: no reuse), a new q."""
+    p = Probe("Arm", {"q0": Q_FREE, "qd0": QD_FREE, "latched": True,
+                      "payload_mass": PAYLOAD["mass"], "payload_com": PAYLOAD["com"],
+                      "payload_inertia": PAYLOAD["inertia"]},
+              sizes={"tau": N, "f_ext": 6, "latch": 1, "constraint": 4})
+    rng = np.random.default_rng(7)
+    tau = rng.normal(0.0, 5.0, N)
+    p.set_input("tau", tau)
+    _, chp = _chains()
+    for k in range(3):
+        f = rng.normal(0.0, 20.0, 6)
+        p.set_input("f_ext", f)
+        out = p.outputs(0.0, p.x0())
+        np.testing.assert_allclose(out["qdd"], chp.forward_dynamics(Q_FREE, QD_FREE, tau, f),
+                                   rtol=1e-10, atol=1e-10)
+    # the payload changes with q unchanged: the kept factor must not be used
+    p.set_param("payload_mass", 10.0)
+    heavy = Chain.from_yaml()
+    heavy._base = np.zeros(9)[:6]
+    heavy.P = _with_payload(heavy.P, 10.0, PAYLOAD["com"], PAYLOAD["inertia"])
+    out = p.outputs(0.0, p.x0())
+    np.testing.assert_allclose(out["qdd"], heavy.forward_dynamics(Q_FREE, QD_FREE, tau, f),
+                               rtol=1e-10, atol=1e-10)
+    # another q
+    x = p.x0()
+    x[:N] += 0.1
+    out = p.outputs(0.0, x)
+    np.testing.assert_allclose(out["qdd"], heavy.forward_dynamics(x[:N], QD_FREE, tau, f),
+                               rtol=1e-10, atol=1e-10)
