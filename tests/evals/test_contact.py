@@ -174,6 +174,14 @@ def test_elastic_contact_starting_inside_the_surface():
 
 
 # =========================================================================== rigid: point mass
+# a PointMass 'body' on a RigidContact 'wall' (the force goes back through a Sum 'sum')
+MASS_ON_WALL = """  - body.pos -> wall.pos
+  - body.vel -> wall.vel
+  - body.acc -> wall.acc
+  - wall.constraint -> body.constraint
+"""
+
+
 def rigid_mass(m=2.0, h=0.1, t_pull=0.5, pull=2.0, t_end=0.8):
     """Point mass falls from h onto a rigid plane z = 0; from t_pull a force pull * m g up."""
     text = f"""
@@ -186,11 +194,7 @@ blocks:
   f:    {{type: Mux, n: 3}}
   sum:  {{type: Sum, signs: "++"}}
 connections:
-  - body.pos -> wall.pos
-  - body.vel -> wall.vel
-  - body.acc -> wall.acc
-  - wall.constraint -> body.constraint
-  - zero.y -> f.u1
+{MASS_ON_WALL}  - zero.y -> f.u1
   - zero.y -> f.u2
   - lift.y -> f.u3
   - wall.force -> sum.u1
@@ -243,11 +247,7 @@ blocks:
   up:   {{type: Constant, value: [0, 0, {4 * G}]}}
   sum:  {{type: Sum, signs: "++"}}
 connections:
-  - body.pos -> wall.pos
-  - body.vel -> wall.vel
-  - body.acc -> wall.acc
-  - wall.constraint -> body.constraint
-  - wall.force -> sum.u1
+{MASS_ON_WALL}  - wall.force -> sum.u1
   - up.y -> sum.u2
   - sum.y -> body.f
 """
