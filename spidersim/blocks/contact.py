@@ -191,9 +191,9 @@ class RigidContact(_Plane):
     rises and the body block applies the plastic impact that removes the normal velocity
     (for an arm ``qd+ = qd- - M^-1 J_n^T (J_n M^-1 J_n^T)^-1 J_n qd-``). Release (event):
     ``lam`` falls through zero, the body is pulled away; if the applied forces already pull
-    at the onset instant (after the impact) the constraint lets go at once. ``engaged`` starts the run in
-    contact (the contact point on the plane, at rest along the normal); if the applied
-    forces pull at the start, it lets go there.
+    at the onset instant (after the impact) the constraint lets go at once. ``engaged``
+    starts the run in contact (the contact point on the plane, at rest along the normal);
+    if the applied forces pull at the start, it lets go there.
     """
 
     category = "contact"
