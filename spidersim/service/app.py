@@ -300,7 +300,8 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                             filename=f"{job['model']}_{job_id[:8]}_{names[ext]}")
 
     @app.get("/jobs/{job_id}/signals/{name}.json")
-    def job_signal(job_id: str, name: str, u: User, stride: int = 1):
+    def job_signal(job_id: str, name: str, u: User, stride: int = 1,
+                   points: Optional[int] = None):
         job = own_job(job_id, u)
         meta = json.load(open(job_file(job, "meta.json")))
         if name not in meta["units"]:
@@ -309,6 +310,8 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         with np.load(job_file(job, "result.npz"), allow_pickle=False) as z:
             t, y = z["t"], z[name]
         s = max(1, int(stride))
+        if points is not None:          # about this many samples, evenly spaced
+            s = max(1, -(-len(t) // max(2, int(points))))
         return {"name": name, "unit": meta["units"][name], "size": meta["sizes"][name],
                 "stride": s, "t": t[::s].tolist(), "values": y[::s].tolist()}
 
