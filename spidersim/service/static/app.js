@@ -269,10 +269,10 @@ function drawArm(k) {
   const az = 0.7, el_ = 0.35, s = 180;               // view angles, pixels per metre
   const P = (p) => { const x = Math.cos(az) * p[0] - Math.sin(az) * p[1];
     const y = Math.sin(az) * p[0] + Math.cos(az) * p[1];
-    return [c.width / 2 + s * x, c.height - 40 - s * (p[2] * Math.cos(el_) - y * Math.sin(el_))]; };
+    return [c.width / 2 + s * x, c.height - 110 - s * (p[2] * Math.cos(el_) - y * Math.sin(el_))]; };
   g.clearRect(0, 0, c.width, c.height);
   g.strokeStyle = "#bbb"; g.beginPath();
-  [[[-1, 0, 0], [1, 0, 0]], [[0, -1, 0], [0, 1, 0]]].forEach(([a, b]) => {
+  [[[-0.5, 0, 0], [0.5, 0, 0]], [[0, -0.5, 0], [0, 0.5, 0]]].forEach(([a, b]) => {
     const A = P(a), B = P(b); g.moveTo(...A); g.lineTo(...B); });
   g.stroke();
   g.strokeStyle = "#1d3557"; g.lineWidth = 6; g.lineCap = "round"; g.beginPath();
