@@ -199,11 +199,8 @@ def test_killed_worker_fails_its_job_server_keeps_serving(server):
     while http.get(f"/jobs/{job}").json()["progress"] <= 0:
         assert time.time() - t0 < 60
         time.sleep(0.1)
-    import psutil
-    victims = [p for p in server.workers()
-               if any(c.status() != psutil.STATUS_SLEEPING for c in [psutil.Process(p)])]
-    # the worker running the job is the one using CPU; kill every busy worker
-    assert victims, server.workers()
+    victims = server.workers()       # the busy one among them runs the job
+    assert victims
     for pid in victims:
         os.kill(pid, signal.SIGKILL)
     st = wait_state(http, job)
