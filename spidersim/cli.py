@@ -200,7 +200,8 @@ def cmd_run_remote(args):
     from .remote import Client
     c = Client(args.remote, args.token or os.environ.get("SPIDERSIM_TOKEN"))
     name = os.path.splitext(os.path.basename(args.file))[0]
-    job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end)
+    job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
+                   plots=not args.no_plots)
     print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
     st = c.wait(job, timeout=args.timeout)
     out = args.out or os.path.join("results", name)

@@ -28,6 +28,9 @@ def submit(http, body, status=202):
 
 def test_health_needs_no_token_everything_else_does(server):
     assert httpx.get(server.url + "/health").json()["status"] == "ok"
+    api = httpx.get(server.url + "/openapi.json").json()       # the description behind /docs
+    assert {"/jobs", "/models/{name}", "/jobs/{job_id}/events"} <= set(api["paths"])
+    assert httpx.get(server.url + "/docs").status_code == 200
     anon = server.client(None)
     for path in ("/models", "/models/servo", "/jobs", "/jobs/" + "0" * 32):
         r = anon.get(path)
