@@ -99,6 +99,11 @@ def test_oversized_body_is_413(server):
     ({"command": {"kind": "cartesian_line", "direction": [1, 0, 0]}},
      "no straight-line path"),
     ({"command": {"kind": "warp"}}, "command"),
+    # hostile values: the loader's safe evaluator and parameter checks answer, nothing runs
+    ({"parameters": {"motor.R": "__import__('os').system('touch /tmp/spidersim-pwn')"}},
+     "is not allowed in a parameter expression"),
+    ({"parameters": {"motor.R": "motor.R.__class__"}}, "is not allowed"),
+    ({"parameters": {"e_pos.signs": "+-);import os#"}}, "string of '+-' characters"),
     ({"colour": "red"}, "colour"),
 ])
 def test_validation_errors_are_422_with_the_cli_message(server, body, needle):
