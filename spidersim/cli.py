@@ -67,6 +67,8 @@ def _parse_sets(items):
 
 
 def cmd_run(args):
+    if args.remote:
+        return cmd_run_remote(args)
     from . import load
     from .plots import check_plot_specs, make_plots
 
@@ -193,6 +195,37 @@ def cmd_sweep(args):
     return 1 if res.failed else 0        # the table is written either way
 
 
+def cmd_run_remote(args):
+    """``spidersim run MODEL --remote URL``: run on a service, fetch the results."""
+    from .remote import Client
+    c = Client(args.remote, args.token or os.environ.get("SPIDERSIM_TOKEN"))
+    name = os.path.splitext(os.path.basename(args.file))[0]
+    job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
+                   plots=not args.no_plots)
+    print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
+    st = c.wait(job, timeout=args.timeout)
+    out = args.out or os.path.join("results", name)
+    paths = c.download(job, out)
+    print(f"spidersim: {st['state']}: t = {st['progress']:g} / {st['t_end']:g} s"
+          + (f" ({st['message']})" if st["message"] else "")
+          + f"; wrote {len(paths)} file(s) to {out}/")
+    return 0 if st["state"] == "done" else 1
+
+
+def cmd_serve(args):
+    from . import service
+    if args.add_user:
+        tok = service.add_user(args.add_user, args.data)
+        print(f"user '{args.add_user}': token (shown once, keep it secret):\n{tok}")
+        return 0
+    from .service.app import Limits
+    lim = Limits(max_t_end=args.max_t_end, max_active=args.max_jobs,
+                 max_body=args.max_body, max_signals=args.max_signals)
+    service.serve(args.host, args.port, args.models, args.data, args.workers, args.scheduler,
+                  lim, args.job_timeout, not args.no_jit)
+    return 0
+
+
 def build_parser():
     ap = argparse.ArgumentParser(prog="spidersim", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -205,6 +238,10 @@ def build_parser():
     r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF")
     r.add_argument("--no-jit", action="store_true", help="interpreted mode (no numba)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE names "
+                   "a model of its library) and download the results")
+    r.add_argument("--token", help="service token (default: $SPIDERSIM_TOKEN)")
+    r.add_argument("--timeout", type=float, default=3600, help="seconds to wait (--remote)")
     r.set_defaults(fn=cmd_run)
     c = sub.add_parser("check", help="validate a diagram and print its structure")
     c.add_argument("file")
@@ -242,6 +279,24 @@ def build_parser():
     sw.add_argument("--out", help="results folder (default results/<diagram>_sweep)")
     sw.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sw.set_defaults(fn=cmd_sweep)
+
+    sv = sub.add_parser("serve", help="remote simulation service (HTTP, web page, API)")
+    sv.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
+    sv.add_argument("--port", type=int, default=8050)
+    sv.add_argument("--models", action="append", metavar="DIR",
+                    help="folder (or file) of models (repeatable; default: shipped models)")
+    sv.add_argument("--data", help="database and results (default ~/.spidersim/service)")
+    sw_ = sv.add_mutually_exclusive_group()
+    sw_.add_argument("--workers", type=int, default=None, help="worker processes (default 2)")
+    sw_.add_argument("--scheduler", metavar="ADDRESS", help="run jobs on this Dask scheduler")
+    sv.add_argument("--add-user", metavar="NAME", help="create a user / new token and exit")
+    sv.add_argument("--max-t-end", type=float, default=60.0, help="simulated s per run")
+    sv.add_argument("--max-jobs", type=int, default=8, help="queued+running jobs per user")
+    sv.add_argument("--max-body", type=int, default=256 * 1024, help="request bytes")
+    sv.add_argument("--max-signals", type=int, default=64, help="logged signals per run")
+    sv.add_argument("--job-timeout", type=float, default=3600.0, help="wall s per job")
+    sv.add_argument("--no-jit", action="store_true", help="interpreted runs (debugging)")
+    sv.set_defaults(fn=cmd_serve)
 
     b = sub.add_parser("blocks", help="list block types or document one")
     b.add_argument("type", nargs="?")

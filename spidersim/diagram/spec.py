@@ -16,6 +16,9 @@ A diagram file has these top-level sections (all optional but ``blocks``)::
     analysis               linearizations (see spidersim.linreport)
     metrics                name: {signal, reduce, unit}: scalars per run for sweeps
                            (see spidersim.sweep)
+    commands               named high-level commands for the remote service: name ->
+                           {doc, set, arguments, t_end} (see spidersim.service.commands);
+                           ignored by local runs
 """
 from __future__ import annotations
 
@@ -27,7 +30,8 @@ from ..errors import DiagramError, WiringError
 from .yamlio import LineDict, load_text
 
 SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
-            "inputs", "outputs", "simulation", "log", "plots", "analysis", "metrics")
+            "inputs", "outputs", "simulation", "log", "plots", "analysis", "metrics",
+            "commands")
 SIM_KEYS = {"t_end": "simulated time [s]", "method": "LSODA, RK45, DOP853, Radau or BDF",
             "rtol": "relative tolerance", "atol": "absolute tolerance",
             "max_step": "largest step [s]", "output_interval": "spacing of output samples [s]",

@@ -1,0 +1,330 @@
+"""The HTTP application (FastAPI): models, jobs, results, the web page.
+
+Every route but ``GET /health``, ``/`` and the page's static files needs
+``Authorization: Bearer <token>`` (401 otherwise); a job of another user answers 404 as an
+unknown one. Limits answer 413 (body size), 422 (run length, logged signals, bad request)
+and 429 (active jobs per user, with ``Retry-After``), each with a ``detail`` message.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import re
+from typing import Annotated, Any, Literal, Optional, Union
+
+import numpy as np
+from fastapi import Depends, FastAPI, Header, HTTPException, Request
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, ConfigDict, Field
+
+import spidersim
+from spidersim.errors import SpidersimError
+
+from .commands import prepare
+from .library import BadName, Library, UnknownModel
+from .store import Store, TooManyJobs
+
+STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
+_FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}$")
+
+
+class Limits(BaseModel):
+    max_body: int = 256 * 1024          # bytes of a request body
+    max_t_end: float = 60.0              # s of simulated time per run
+    max_signals: int = 64                # logged signals per run
+    max_active: int = 8                  # queued + running jobs per user
+
+
+# ---------------------------------------------------------------------------- request types
+class TableCommand(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["table"]
+    block: Optional[str] = Field(None, description="source block to replace")
+    time: list[float] = Field(description="strictly increasing times [s]")
+    value: list[float] = Field(description="values at those times (unit of the input fed)")
+
+
+class JointPathCommand(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["joint_path"]
+    block: Optional[str] = Field(None, description="trajectory block")
+    points: list[float] = Field(description="via points (joint units)")
+    times: list[float] = Field(description="times of the via points [s]")
+
+
+class CartesianLineCommand(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["cartesian_line"]
+    ik: Optional[str] = None
+    direction: list[float] = Field(description="line direction, base frame")
+    distance: Optional[float] = Field(None, description="path length [m]")
+    speed: Optional[float] = Field(None, description="cruise speed [m/s]")
+    accel: Optional[float] = Field(None, description="path acceleration [m/s2]")
+    t_start: Optional[float] = Field(None, description="start time [s]")
+
+
+class NamedCommand(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["named"]
+    name: str
+    arguments: dict[str, Any] = {}
+
+
+Command = Annotated[Union[TableCommand, JointPathCommand, CartesianLineCommand, NamedCommand],
+                    Field(discriminator="kind")]
+Value = Union[float, int, bool, str, list]
+
+
+class RunRequest(BaseModel):
+    """A run: model, parameter and initial-state overrides, run length, command."""
+    model_config = ConfigDict(extra="forbid")
+    model: str = Field(description="model name from GET /models")
+    parameters: dict[str, Value] = Field({}, description="'name' or 'block.param' -> value")
+    initial: dict[str, Value] = Field({}, description="'block.state' -> initial value")
+    t_end: Optional[float] = Field(None, description="simulated time [s]")
+    log: Optional[list[str]] = Field(None, description="signals to record")
+    command: Optional[Command] = None
+    plots: bool = Field(True, description="draw the model's plots")
+
+
+def current_user(request: Request,
+                 authorization: Annotated[Optional[str], Header()] = None):
+    """The (user id, name) of the request's bearer token; 401 without a valid one."""
+    tok = None
+    if authorization and authorization.lower().startswith("bearer "):
+        tok = authorization[7:].strip()
+    u = request.app.state.store.user_for_token(tok) if tok else None
+    if u is None:
+        raise HTTPException(401, "a valid token is required: send 'Authorization: Bearer "
+                                 "<token>' (an administrator makes one with 'spidersim "
+                                 "serve --add-user NAME')",
+                            headers={"WWW-Authenticate": "Bearer"})
+    return u
+
+
+User = Annotated[tuple, Depends(current_user)]
+
+
+def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None = None):
+    """The ASGI app; ``runner_factory(store, library) -> Runner`` starts the workers."""
+    limits = limits or Limits()
+    store = Store(data_dir)
+    library = Library(models)
+    state = {"runner": None}
+
+    def _files(job):
+        folder = store.job_dir(job["id"])
+        out = {"data": [], "plots": []}
+        for n in ("result.npz", "result.csv", "report.txt", "meta.json"):
+            if os.path.isfile(os.path.join(folder, n)):
+                out["data"].append(n)
+        pl = os.path.join(folder, "plots")
+        if os.path.isdir(pl):
+            out["plots"] = sorted(os.listdir(pl))
+        return out
+
+    def _public(job):
+        j = {k: job[k] for k in ("id", "model", "state", "t_end", "progress", "message",
+                                 "created", "started", "finished", "version", "diagram_hash")}
+        j["request"] = job["request"]
+        j["fraction"] = min(1.0, job["progress"] / job["t_end"]) if job["t_end"] > 0 else 1.0
+        if job["state"] in ("done", "failed"):
+            j["files"] = _files(job)
+        return j
+
+    async def lifespan(app):
+        failed, queued = store.recover()
+        if failed or queued:
+            print(f"spidersim serve: {failed} job(s) were running when the server stopped "
+                  f"(marked failed), {queued} queued job(s) will run", flush=True)
+        if runner_factory is not None:
+            state["runner"] = runner_factory(store, library)
+            state["runner"].start()
+        yield
+        if state["runner"] is not None:
+            state["runner"].stop()
+
+    app = FastAPI(title="spidersim service (SIMECS-RI)", version=spidersim.__version__,
+                  description="Remote simulation of spidersim models: pick a model, set "
+                              "parameters, initial state and a command, run, fetch results. "
+                              "Authorize with 'Authorization: Bearer <token>' (a token comes "
+                              "from 'spidersim serve --add-user NAME').",
+                  lifespan=lifespan)
+    app.state.store, app.state.library, app.state.limits = store, library, limits
+
+    @app.middleware("http")
+    async def body_limit(request: Request, call_next):
+        if request.method in ("POST", "PUT", "PATCH"):
+            n = request.headers.get("content-length")
+            if n is not None and (not n.isdigit() or int(n) > limits.max_body):
+                return JSONResponse({"detail": f"request body of {n} bytes is larger than "
+                                     f"the limit of {limits.max_body} bytes"}, status_code=413)
+            if n is None:
+                return JSONResponse({"detail": "a request body needs a Content-Length "
+                                     "header"}, status_code=411)
+        return await call_next(request)
+
+    def model_or_error(name):
+        try:
+            return library.get(name)
+        except BadName as exc:
+            raise HTTPException(422, str(exc)) from None
+        except UnknownModel as exc:
+            raise HTTPException(404, exc.args[0]) from None
+
+    def own_job(job_id, u):
+        job = store.get_job(job_id, user_id=u[0]) if re.fullmatch(r"[0-9a-f]{32}", job_id) \
+            else None
+        if job is None:
+            raise HTTPException(404, f"no job '{job_id}'")
+        return job
+
+    # ------------------------------------------------------------------ routes
+    @app.get("/health")
+    def health():
+        r = state["runner"]
+        return {"status": "ok", "version": spidersim.__version__,
+                "models": len(library.models), "workers": r.n_slots if r else 0}
+
+    @app.get("/models")
+    def models_list(u: User):
+        out = []
+        for n in library.names():
+            m = library.models[n]
+            try:
+                spec = m.spec()
+                out.append({"name": n, "title": spec.name,
+                            "description": spec.description.strip()})
+            except SpidersimError as exc:
+                out.append({"name": n, "error": m.public_message(exc)})
+        return out
+
+    @app.get("/models/{name}")
+    def model_info(name: str, u: User):
+        m = model_or_error(name)
+        try:
+            return m.info()
+        except SpidersimError as exc:
+            raise HTTPException(422, m.public_message(exc)) from None
+
+    @app.post("/jobs", status_code=202)
+    def submit(req: RunRequest, u: User, response: Response,
+               idempotency_key: Annotated[Optional[str], Header(max_length=100)] = None):
+        m = model_or_error(req.model)
+        body = req.model_dump(exclude_none=True)
+        try:
+            d, t_end = prepare(m, body)
+        except SpidersimError as exc:
+            raise HTTPException(422, m.public_message(exc)) from None
+        if t_end > limits.max_t_end:
+            raise HTTPException(422, f"t_end = {t_end:g} s is longer than this service's "
+                                     f"limit of {limits.max_t_end:g} s of simulated time")
+        n_sig = len(d.logged_sizes())
+        if n_sig > limits.max_signals:
+            raise HTTPException(422, f"the run would log {n_sig} signals, more than the limit "
+                                     f"of {limits.max_signals}: give 'log' with the signals "
+                                     f"you need")
+        body["t_end"] = t_end
+        try:
+            job, created = store.create_job(u[0], m.name, body, t_end, spidersim.__version__,
+                                            m.file_hash(), idem_key=idempotency_key,
+                                            max_active=limits.max_active)
+        except TooManyJobs as exc:
+            raise HTTPException(429, f"you have {exc.n} queued or running jobs, the limit is "
+                                     f"{limits.max_active}: wait for one to finish",
+                                headers={"Retry-After": "2"}) from None
+        if state["runner"] is not None:
+            state["runner"].wake()
+        response.headers["Location"] = f"/jobs/{job['id']}"
+        if not created:
+            response.status_code = 200
+        return _public(job)
+
+    @app.get("/jobs")
+    def jobs_list(u: User, limit: int = 100):
+        return [_public(j) for j in store.list_jobs(u[0], max(1, min(limit, 1000)))]
+
+    @app.get("/jobs/{job_id}")
+    def job_get(job_id: str, u: User):
+        return _public(own_job(job_id, u))
+
+    @app.post("/jobs/{job_id}/cancel")
+    def job_cancel(job_id: str, u: User):
+        job = own_job(job_id, u)
+        if job["state"] in ("queued", "running"):
+            store.request_cancel(job_id)
+            if state["runner"] is not None:
+                state["runner"].wake()
+        return _public(store.get_job(job_id))
+
+    @app.get("/jobs/{job_id}/events")
+    async def job_events(job_id: str, u: User):
+        own_job(job_id, u)
+
+        async def stream():
+            last = None
+            while True:
+                job = store.get_job(job_id)
+                pub = _public(job)
+                key = (pub["state"], pub["progress"], pub["message"])
+                if key != last:
+                    last = key
+                    yield f"event: {pub['state']}\ndata: {json.dumps(pub)}\n\n"
+                if job["state"] not in ("queued", "running"):
+                    return
+                await asyncio.sleep(0.25)
+
+        return StreamingResponse(stream(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-cache",
+                                          "X-Accel-Buffering": "no"})
+
+    def job_file(job, rel):
+        if job["state"] in ("queued", "running", "cancelled"):
+            raise HTTPException(409, f"job {job['id']} is {job['state']}: no results")
+        p = os.path.join(store.job_dir(job["id"]), rel)
+        if not os.path.isfile(p):
+            raise HTTPException(404, f"job {job['id']} has no file {rel}")
+        return p
+
+    @app.get("/jobs/{job_id}/result.{ext}")
+    def job_result(job_id: str, ext: str, u: User):
+        job = own_job(job_id, u)
+        names = {"npz": "result.npz", "csv": "result.csv", "txt": "report.txt",
+                 "json": "meta.json"}
+        if ext not in names:
+            raise HTTPException(404, f"results come as result.npz, result.csv, result.txt "
+                                     f"(report) or result.json (metadata), not result.{ext}")
+        return FileResponse(job_file(job, names[ext]),
+                            filename=f"{job['model']}_{job_id[:8]}_{names[ext]}")
+
+    @app.get("/jobs/{job_id}/signals/{name}.json")
+    def job_signal(job_id: str, name: str, u: User, stride: int = 1,
+                   points: Optional[int] = None):
+        job = own_job(job_id, u)
+        meta = json.load(open(job_file(job, "meta.json")))
+        if name not in meta["units"]:
+            raise HTTPException(404, f"no logged signal '{name}'; signals: "
+                                     f"{', '.join(meta['units'])}")
+        with np.load(job_file(job, "result.npz"), allow_pickle=False) as z:
+            t, y = z["t"], z[name]
+        s = max(1, int(stride))
+        if points is not None:          # about this many samples, evenly spaced
+            s = max(1, -(-len(t) // max(2, int(points))))
+        return {"name": name, "unit": meta["units"][name], "size": meta["sizes"][name],
+                "stride": s, "t": t[::s].tolist(), "values": y[::s].tolist()}
+
+    @app.get("/jobs/{job_id}/plots/{file}")
+    def job_plot(job_id: str, file: str, u: User):
+        job = own_job(job_id, u)
+        if not _FILE.match(file) or not file.endswith((".png", ".gif")):
+            raise HTTPException(404, f"no plot '{file}'")
+        return FileResponse(job_file(job, os.path.join("plots", file)))
+
+    @app.get("/", include_in_schema=False)
+    def page():
+        return FileResponse(os.path.join(STATIC, "index.html"))
+
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    return app

@@ -1,0 +1,305 @@
+"""A run request -> a :class:`spidersim.Diagram` ready to simulate.
+
+A request (JSON) names the model and may give::
+
+    parameters   {"motor.R": 1.2, "V_max": 20}     diagram or block parameters (--set paths)
+    initial      {"arm.q": [0, 0.5, ...]}            initial states (block.state), set through
+                                                     the parameter the state starts from
+    t_end        simulated time [s]
+    log          signals to record (default: the model's log list)
+    command      one of the commands below
+
+Commands, at the levels of the paper's section VI:
+
+``{"kind": "table", "block": "ref", "time": [...], "value": [...]}``
+    low-level set points: the source block ``ref`` (a scalar Step, Ramp, Sine, Pulse,
+    Constant or TimeTable of the top-level diagram) is replaced by a ``TimeTable`` with these
+    points (piecewise linear, end values held). In servo.yaml ``ref`` is the position set
+    point; a table on a current or voltage source sets motor current set points.
+``{"kind": "joint_path", "block": "ref", "points": [q_a, q_b], "times": [t_a, t_b]}``
+    a joint-space move given by via points and their times, turned into the parameters of the
+    trajectory block ``ref`` (QuinticProfile: ``q0, q1, T = t_b - t_a, t_start = t_a``;
+    TrapezoidalProfile: the same ends with ``v_max = 1.5 d/T`` and ``a_max = 4.5 d/T^2``, so
+    that the move, a third accelerating, a third cruising, a third braking, takes exactly T).
+    These blocks move between two points: more via points are refused.
+``{"kind": "cartesian_line", "direction": [x, y, z], "distance": m, "speed": m/s,
+   "accel": m/s2, "t_start": s}``
+    a straight flange move: the parameters of a ``CartesianLineIK`` block and of the
+    ``TrapezoidalProfile`` feeding its path length ``s`` (spider.yaml's ``ik`` and ``path``).
+``{"kind": "named", "name": "capture_payload", "arguments": {"t_latch": 2.5}}``
+    a high-level command the model declares in its ``commands`` section::
+
+        commands:
+          capture_payload:
+            doc: approach the payload, latch it at t_latch, carry it 20 cm
+            set: {carry.q1: 0.2}              # parameter values the command fixes
+            arguments:                        # values the user may give
+              t_latch: {doc: latch time, unit: s}   # a diagram or block parameter path
+            t_end: 12                         # default run length
+
+Every value is checked by the diagram loader, so a request gets the CLI's messages (unknown
+names with suggestions, bounds, shapes); problems with the command itself raise
+:class:`~spidersim.errors.ParameterError` naming the field.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+import spidersim
+from spidersim.diagram.spec import BlockSpec
+from spidersim.errors import ParameterError
+
+TABLE_TYPES = ("Step", "Ramp", "Sine", "Pulse", "Constant", "TimeTable")
+PATH_TYPES = ("TrapezoidalProfile", "QuinticProfile")
+MAX_TABLE = 10000
+
+
+def _fail(msg, spec=None):
+    raise ParameterError(msg, file=getattr(spec, "file", None))
+
+
+def _feeds(d, block):
+    """(destination 'path.port', unit) of the connections leaving top-level ``block``."""
+    out = []
+    for c in d.flat.conns:
+        if c.src[0] == block:
+            path, port = c.dst[0], c.dst[1]
+            unit = d.layout.blocks[path].cls.inputs.get(port)
+            out.append({"from": c.src[1], "to": f"{path}.{port}",
+                        "unit": unit.unit if unit is not None else "1"})
+    return out
+
+
+def _table_blocks(d, spec):
+    out = []
+    for name, b in spec.blocks.items():
+        if b.type not in TABLE_TYPES or name not in d.blocks:
+            continue
+        if b.type == "Constant" and np.size(d.blocks[name].params["value"]) != 1:
+            continue
+        out.append(name)
+    return out
+
+
+def _line_blocks(spec):
+    """(ik block, profile block) pairs: a TrapezoidalProfile's q feeding a CartesianLineIK's s."""
+    pairs = []
+    for name, b in spec.blocks.items():
+        if b.type != "CartesianLineIK":
+            continue
+        for c in spec.connections:
+            if (c.dst.block == name and c.dst.port == "s" and c.src.port == "q"
+                    and spec.blocks.get(c.src.block) is not None
+                    and spec.blocks[c.src.block].type == "TrapezoidalProfile"):
+                pairs.append((name, c.src.block))
+    return pairs
+
+
+def named_commands(spec):
+    """The ``commands`` section, checked: name -> {doc, set, arguments, t_end}."""
+    raw = (spec.data or {}).get("commands") or {}
+    line = spec.data.line_of("commands") if hasattr(spec.data, "line_of") else None
+    if not isinstance(raw, dict):
+        raise ParameterError("section 'commands' must map names to {doc, set, arguments, "
+                             "t_end}", file=spec.file, line=line)
+    out = {}
+    for name, c in raw.items():
+        where = raw.line_of(name) if hasattr(raw, "line_of") else line
+        if not isinstance(c, dict):
+            raise ParameterError(f"command '{name}' must be a mapping", file=spec.file,
+                                 line=where)
+        bad = set(c) - {"doc", "set", "arguments", "t_end"}
+        if bad:
+            raise ParameterError(f"command '{name}': unknown key(s) {', '.join(sorted(bad))}; "
+                                 f"keys are doc, set, arguments, t_end", file=spec.file,
+                                 line=where)
+        args = c.get("arguments") or {}
+        if isinstance(args, list):
+            args = {a: {} for a in args}
+        sets = c.get("set") or {}
+        if not isinstance(args, dict) or not isinstance(sets, dict):
+            raise ParameterError(f"command '{name}': 'arguments' and 'set' must be mappings",
+                                 file=spec.file, line=where)
+        out[str(name)] = {
+            "doc": str(c.get("doc", "")), "set": dict(sets),
+            "arguments": {str(k): {"doc": str((v or {}).get("doc", "")),
+                                   "unit": str((v or {}).get("unit", "")),
+                                   "default": (v or {}).get("default")}
+                          for k, v in args.items()},
+            "t_end": c.get("t_end")}
+    return out
+
+
+def commandables(d, spec):
+    """What a request can command on this model (part of the model's description)."""
+    tables = [{"block": n, "type": spec.blocks[n].type, "feeds": _feeds(d, n)}
+              for n in _table_blocks(d, spec)]
+    paths = []
+    for name, b in spec.blocks.items():
+        if b.type in PATH_TYPES and name in d.blocks:
+            p = d.blocks[name].params
+            paths.append({"block": name, "type": b.type, "q0": float(p["q0"]),
+                          "q1": float(p["q1"]), "feeds": _feeds(d, name)})
+    lines = []
+    for ik, prof in _line_blocks(spec):
+        pi, pp = d.blocks[ik].params, d.blocks[prof].params
+        lines.append({"ik": ik, "profile": prof,
+                      "direction": np.ravel(pi["direction"]).tolist(),
+                      "distance": float(pp["q1"] - pp["q0"]), "speed": float(pp["v_max"]),
+                      "accel": float(pp["a_max"]), "t_start": float(pp["t_start"])})
+    return {"table": tables, "joint_path": paths, "cartesian_line": lines,
+            "named": named_commands(spec)}
+
+
+def _numbers(v, what, spec, n_max=MAX_TABLE):
+    if not isinstance(v, (list, tuple)) or not v:
+        _fail(f"command.{what} must be a non-empty list of numbers", spec)
+    if len(v) > n_max:
+        _fail(f"command.{what} has {len(v)} values, at most {n_max} allowed", spec)
+    try:
+        a = np.array(v, dtype=float)
+    except (TypeError, ValueError):
+        _fail(f"command.{what} must hold numbers only, got {v!r:.80}", spec)
+    if a.ndim != 1 or not np.all(np.isfinite(a)):
+        _fail(f"command.{what} must be a flat list of finite numbers", spec)
+    return a
+
+
+def _pick(options, given, what, spec, key="block"):
+    names = [o if isinstance(o, str) else o[key] for o in options]
+    if not names:
+        _fail(f"command: this model has no {what}", spec)
+    if given is None:
+        if len(names) > 1:
+            _fail(f"command: give '{key}', one of {', '.join(names)}", spec)
+        return options[0]
+    if given not in names:
+        _fail(f"command.{key}: '{given}' is not a {what} of this model; choose from "
+              f"{', '.join(names)}", spec)
+    return options[names.index(given)]
+
+
+def _set(overrides, key, value, spec):
+    if key in overrides:
+        _fail(f"parameter '{key}' is set by the command; leave it out of 'parameters'", spec)
+    overrides[key] = value
+
+
+def apply_command(d0, spec, cmd, overrides):
+    """Change ``spec`` (block replacements) and ``overrides`` for ``cmd``; return the
+    command's default run length or None."""
+    kind = cmd.get("kind")
+    if kind == "table":
+        name = _pick(_table_blocks(d0, spec), cmd.get("block"), "table-commandable source "
+                     "block", spec)
+        t = _numbers(cmd.get("time"), "time", spec)
+        v = _numbers(cmd.get("value"), "value", spec)
+        if len(t) != len(v):
+            _fail(f"command: 'time' has {len(t)} values and 'value' {len(v)}; give one value "
+                  f"per time", spec)
+        for k in list(overrides):
+            if k.startswith(name + "."):
+                _fail(f"parameter '{k}' belongs to block '{name}', which the table command "
+                      f"replaces", spec)
+        old = spec.blocks[name]
+        spec.blocks[name] = BlockSpec(name, "TimeTable", {"time": t.tolist(),
+                                                          "value": v.tolist()}, old.line, {})
+        return None
+    if kind == "joint_path":
+        opts = [n for n, b in spec.blocks.items() if b.type in PATH_TYPES]
+        name = _pick(opts, cmd.get("block"), "trajectory block (TrapezoidalProfile, "
+                     "QuinticProfile)", spec)
+        q = _numbers(cmd.get("points"), "points", spec)
+        t = _numbers(cmd.get("times"), "times", spec)
+        typ = spec.blocks[name].type
+        if len(q) != 2 or len(t) != 2:
+            _fail(f"command: block '{name}' ({typ}) moves between two points: give 2 points "
+                  f"and 2 times, got {len(q)} and {len(t)}", spec)
+        T = t[1] - t[0]
+        if not (t[0] >= 0 and T > 0):
+            _fail(f"command.times must be increasing from t >= 0, got {t.tolist()}", spec)
+        _set(overrides, f"{name}.q0", float(q[0]), spec)
+        _set(overrides, f"{name}.q1", float(q[1]), spec)
+        _set(overrides, f"{name}.t_start", float(t[0]), spec)
+        if typ == "QuinticProfile":
+            _set(overrides, f"{name}.T", float(T), spec)
+        else:
+            dist = abs(q[1] - q[0])
+            _set(overrides, f"{name}.v_max", float(1.5 * dist / T) if dist > 0 else 1.0, spec)
+            _set(overrides, f"{name}.a_max", float(4.5 * dist / T ** 2) if dist > 0 else 1.0,
+                 spec)
+        return None
+    if kind == "cartesian_line":
+        pairs = _line_blocks(spec)
+        ik, prof = _pick([{"ik": a, "p": b} for a, b in pairs], cmd.get("ik"),
+                         "straight-line path (CartesianLineIK fed by a TrapezoidalProfile)",
+                         spec, key="ik").values()
+        u = _numbers(cmd.get("direction"), "direction", spec)
+        if len(u) != 3:
+            _fail(f"command.direction must have 3 components, got {len(u)}", spec)
+        _set(overrides, f"{ik}.direction", u.tolist(), spec)
+        _set(overrides, f"{prof}.q0", 0.0, spec)
+        for key, param in (("distance", "q1"), ("speed", "v_max"), ("accel", "a_max"),
+                           ("t_start", "t_start")):
+            if cmd.get(key) is not None:
+                val = _numbers([cmd[key]], key, spec)[0]
+                _set(overrides, f"{prof}.{param}", float(val), spec)
+        return None
+    if kind == "named":
+        cmds = named_commands(spec)
+        name = cmd.get("name")
+        if name not in cmds:
+            _fail(f"command.name: the model declares no command {name!r}; commands: "
+                  f"{', '.join(cmds) or 'none'}", spec)
+        c = cmds[name]
+        for k, v in c["set"].items():
+            _set(overrides, str(k), v, spec)
+        args = cmd.get("arguments") or {}
+        if not isinstance(args, dict):
+            _fail("command.arguments must be a mapping", spec)
+        for k, v in args.items():
+            if k not in c["arguments"]:
+                _fail(f"command '{name}' has no argument '{k}'; arguments: "
+                      f"{', '.join(c['arguments']) or 'none'}", spec)
+            _set(overrides, k, v, spec)
+        for k, a in c["arguments"].items():
+            if k not in args and a["default"] is not None:
+                _set(overrides, k, a["default"], spec)
+        return c["t_end"]
+    _fail(f"command.kind must be table, joint_path, cartesian_line or named, got {kind!r}",
+          spec)
+
+
+def prepare(model, req):
+    """``(Diagram, t_end)`` for the request ``req`` (a dict) on ``model``."""
+    spec = model.spec()
+    overrides = dict(req.get("parameters") or {})
+    t_cmd = None
+    if req.get("command") or req.get("initial"):
+        d0 = spidersim.Diagram(spec, dict(overrides))
+        if req.get("command"):
+            t_cmd = apply_command(d0, spec, dict(req["command"]), overrides)
+        for name, value in (req.get("initial") or {}).items():
+            path, _, state = str(name).rpartition(".")
+            bl = d0.layout.blocks.get(path)
+            decl = bl.cls.states.get(state) if bl is not None else None
+            if decl is None:
+                _fail(f"initial: no state '{name}' (write block.state, e.g. motor.w)", spec)
+            if not (isinstance(decl.initial, str) and decl.initial in bl.cls.parameters):
+                _fail(f"initial: state '{name}' of {bl.cls.type_name} starts from a fixed "
+                      f"value, not from a parameter; it cannot be set", spec)
+            _set(overrides, f"{path}.{decl.initial}", value, spec)
+    if req.get("log"):
+        spec.log = list(req["log"])
+        logged = set(spec.log)
+        from spidersim.plots import split_signal
+        spec.plots = [p for p in spec.plots if isinstance(p, dict) and all(
+            split_signal(s)[0] in logged for s in p.get("signals", []))]
+    d = spidersim.Diagram(spec, overrides)
+    t_end = req.get("t_end")
+    if t_end is None:
+        t_end = t_cmd if t_cmd is not None else d.simulation["t_end"]
+    t_end = float(t_end)
+    if not (np.isfinite(t_end) and t_end > 0):
+        _fail(f"t_end must be a positive number of seconds, got {t_end}", spec)
+    return d, t_end

@@ -1,0 +1,306 @@
+"""Job runners: a pool of local worker processes (default) or an existing Dask cluster.
+
+Local pool: ``workers`` slots, each a server thread owning one worker process (started with
+``spawn``: no fork of a threaded server). A slot claims the oldest queued job from the store,
+sends it to its process and relays progress to the store. Every job runs in a process the
+server can kill: *cancel* terminates the process (a process pool cannot stop a running
+future), and so does the wall-time limit; a process that dies for any other reason fails its
+job with the exit status, and the slot starts a fresh process for the next job. Worker
+processes keep the compiled diagrams they have loaded (and share the numba disk cache
+``SPIDERSIM_CACHE``), so only the first run of a structure compiles. A worker exits when the
+server's end of its pipe closes or its parent changes (server killed).
+
+Dask (``--scheduler ADDR``): the same :func:`~spidersim.service.execute.run_job` runs as a Dask
+task that returns the files' bytes; progress goes through a ``distributed.Variable`` per job.
+Dask cannot stop a running task: cancel marks the job cancelled and drops its result.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+
+from spidersim.errors import SpidersimError
+
+from .execute import run_job
+
+POLL = 0.2           # s between checks of cancel flags and process health
+
+
+def _worker_main(conn, parent_pid):
+    """Entry point of a local worker process."""
+    import spidersim  # noqa: F401  (import once, before the first job)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)      # the server handles Ctrl-C
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+
+        def report(t):
+            if os.getppid() != parent_pid:             # server gone: stop at once
+                os._exit(3)
+            conn.send(("progress", t))
+
+        try:
+            res = run_job(task, report, out=task["out"])
+            conn.send(("done", res))
+        except SpidersimError as exc:
+            from .library import Model
+            conn.send(("error", Model(task["model"], task["path"]).public_message(exc)))
+        except Exception as exc:    # a bug: say so, keep the worker
+            traceback.print_exc(file=sys.stderr)
+            conn.send(("error", f"internal error: {type(exc).__name__}: {exc}"))
+
+
+def _died_message(code):
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"worker process killed by {name} while running the job"
+    return f"worker process exited (status {code}) while running the job"
+
+
+class Runner:
+    """Common part: slots that claim queued jobs and finish them in the store."""
+
+    def __init__(self, store, library, n_slots, job_timeout=3600.0, jit=True):
+        self.store = store
+        self.library = library
+        self.n_slots = max(1, int(n_slots))
+        self.job_timeout = float(job_timeout)
+        self.jit = jit
+        self._wake = threading.Condition()
+        self._stopping = False
+        self._threads = []
+        self.running = {}            # job id -> slot index
+
+    def start(self):
+        for k in range(self.n_slots):
+            th = threading.Thread(target=self._loop, args=(k,), daemon=True,
+                                  name=f"spidersim-slot-{k}")
+            th.start()
+            self._threads.append(th)
+
+    def wake(self):
+        with self._wake:
+            self._wake.notify_all()
+
+    def stop(self):
+        self._stopping = True
+        self.wake()
+
+    def _task(self, job):
+        model = self.library.models.get(job["model"])
+        return {"id": job["id"], "model": job["model"],
+                "path": model.path if model else None, "request": job["request"],
+                "jit": self.jit, "out": self.store.job_dir(job["id"])}
+
+    def _loop(self, k):
+        while not self._stopping:
+            try:
+                job = self.store.claim_next()
+            except Exception:                 # database busy beyond the timeout: retry
+                traceback.print_exc(file=sys.stderr)
+                job = None
+            if job is None:
+                with self._wake:
+                    self._wake.wait(1.0)
+                continue
+            self.running[job["id"]] = k
+            try:
+                if job["model"] not in self.library.models:
+                    self.store.finish(job["id"], "failed", f"model '{job['model']}' is no "
+                                      f"longer in the library")
+                else:
+                    self._run(k, job)
+            except Exception as exc:
+                traceback.print_exc(file=sys.stderr)
+                self.store.finish(job["id"], "failed", f"internal error: {exc}")
+            finally:
+                self.running.pop(job["id"], None)
+
+    def _finish_result(self, job, res):
+        msg = res.get("message") or ""
+        if res.get("plot_error"):
+            msg = (msg + "; " if msg else "") + res["plot_error"]
+        state = "done" if res["status"] == "ok" else "failed"
+        self.store.finish(job["id"], state, msg, progress=res.get("t_reached"))
+
+
+class LocalRunner(Runner):
+    """Worker processes on this machine, one per slot."""
+
+    def __init__(self, store, library, workers=2, **kw):
+        super().__init__(store, library, workers, **kw)
+        self._ctx = mp.get_context("spawn")
+        self._procs = [None] * self.n_slots
+
+    def _process(self, k):
+        p = self._procs[k]
+        if p is None or not p[0].is_alive():
+            parent, child = self._ctx.Pipe()
+            proc = self._ctx.Process(target=_worker_main, args=(child, os.getpid()),
+                                     daemon=True, name=f"spidersim-worker-{k}")
+            proc.start()
+            child.close()
+            self._procs[k] = (proc, parent)
+        return self._procs[k]
+
+    def worker_pids(self):
+        return [p[0].pid for p in self._procs if p is not None and p[0].is_alive()]
+
+    def _kill(self, k):
+        p = self._procs[k]
+        if p is not None:
+            p[0].kill()
+            p[0].join(5)
+            p[1].close()
+            self._procs[k] = None
+
+    def stop(self):
+        super().stop()
+        for k in range(self.n_slots):
+            self._kill(k)
+
+    def _run(self, k, job):
+        jid = job["id"]
+        os.makedirs(self.store.job_dir(jid), exist_ok=True)
+        proc, conn = self._process(k)
+        conn.send(self._task(job))
+        t0 = time.monotonic()
+        while True:
+            try:
+                ready = conn.poll(POLL)
+                msg = conn.recv() if ready else None
+            except (EOFError, OSError):
+                msg, ready = None, False
+                proc.join(2)
+            if msg is not None:
+                kind, val = msg
+                if kind == "progress":
+                    self.store.set_progress(jid, val)
+                    continue
+                if kind == "done":
+                    self._finish_result(job, val)
+                else:
+                    self.store.finish(jid, "failed", val)
+                return
+            if self._stopping:
+                self._kill(k)
+                self.store.finish(jid, "failed", "server stopped while running")
+                return
+            if not proc.is_alive():
+                code = proc.exitcode
+                self._procs[k] = None
+                if self.store.cancel_requested(jid):
+                    self.store.finish(jid, "cancelled", "cancelled while running")
+                else:
+                    self.store.finish(jid, "failed", _died_message(code))
+                return
+            if self.store.cancel_requested(jid):
+                self._kill(k)
+                self.store.finish(jid, "cancelled", "cancelled while running")
+                return
+            if time.monotonic() - t0 > self.job_timeout:
+                self._kill(k)
+                self.store.finish(jid, "failed", f"stopped: the wall-time limit of "
+                                  f"{self.job_timeout:g} s per job was reached")
+                return
+
+
+def _dask_task(task):
+    """``run_job`` on a Dask worker; progress through a Variable named after the job."""
+    from distributed import Variable
+    var = Variable(f"spidersim-progress-{task['id']}")
+
+    def report(t):
+        var.set(t)
+    res = run_job(task, report, out=None)
+    return res
+
+
+class DaskRunner(Runner):
+    """Jobs as tasks on an existing Dask cluster (the one sweeps use)."""
+
+    def __init__(self, store, library, scheduler, slots=None, **kw):
+        from distributed import Client
+        try:
+            self.client = Client(scheduler, timeout="10s")
+        except Exception as exc:
+            raise SpidersimError(f"cannot connect to the Dask scheduler at {scheduler}: "
+                                 f"{type(exc).__name__}: {exc}") from None
+        if slots is None:
+            info = self.client.scheduler_info()
+            slots = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()) or 1
+        super().__init__(store, library, slots, **kw)
+
+    def stop(self):
+        super().stop()
+        try:
+            self.client.close()
+        except Exception:
+            pass
+
+    def _run(self, k, job):
+        from distributed import Variable
+        from distributed import TimeoutError as DTimeout
+        jid = job["id"]
+        task = self._task(job)
+        task["out"] = None
+        fut = self.client.submit(_dask_task, task, key=f"spidersim-{jid}", pure=False)
+        var = Variable(f"spidersim-progress-{jid}", client=self.client)
+        t0 = time.monotonic()
+        try:
+            while True:
+                try:
+                    res = fut.result(timeout=POLL * 5)
+                    break
+                except DTimeout:
+                    pass
+                except SpidersimError as exc:
+                    self.store.finish(jid, "failed",
+                                      self.library.models[job["model"]].public_message(exc))
+                    return
+                except Exception as exc:
+                    self.store.finish(jid, "failed", f"Dask task failed: "
+                                      f"{type(exc).__name__}: {exc}")
+                    return
+                try:
+                    self.store.set_progress(jid, var.get(timeout=0.01))
+                except Exception:
+                    pass
+                if self._stopping or self.store.cancel_requested(jid):
+                    fut.cancel()
+                    self.store.finish(jid, "cancelled" if not self._stopping else "failed",
+                                      "cancelled while running (the Dask task runs to its "
+                                      "end; its result is dropped)" if not self._stopping
+                                      else "server stopped while running")
+                    return
+                if time.monotonic() - t0 > self.job_timeout:
+                    fut.cancel()
+                    self.store.finish(jid, "failed", f"stopped: the wall-time limit of "
+                                      f"{self.job_timeout:g} s per job was reached")
+                    return
+        finally:
+            try:
+                var.delete()
+            except Exception:
+                pass
+        out = self.store.job_dir(jid)
+        for rel, data in res.pop("files", {}).items():
+            p = os.path.normpath(os.path.join(out, rel))
+            if not p.startswith(out + os.sep):
+                continue
+            os.makedirs(os.path.dirname(p), exist_ok=True)
+            with open(p, "wb") as fh:
+                fh.write(data)
+        self._finish_result(job, res)

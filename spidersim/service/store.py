@@ -1,0 +1,255 @@
+"""The service's database: users, API tokens and jobs in SQLite (stdlib ``sqlite3``).
+
+One file ``<data>/service.sqlite`` in WAL mode (readers never wait for the writer) with a
+busy timeout; each thread has its own connection. A job is written *before* the submit is
+answered, and claimed by a worker with ``BEGIN IMMEDIATE`` so that two workers never take the
+same job.
+
+Tokens have the form ``sst_<id>_<secret>``; only a per-token random salt and the scrypt hash
+of the secret are stored (``hashlib.scrypt``, n = 2^14, r = 8, p = 1). The token is shown once,
+when it is made. Verified tokens are remembered in memory (keyed by their SHA-256) so that a
+client polling a job does not pay the scrypt cost on every request.
+
+Job states: ``queued`` -> ``running`` -> ``done`` | ``failed`` | ``cancelled`` (a queued job
+may be cancelled directly). ``progress`` is the simulated time reached [s]; ``t_end`` the
+simulated time asked for [s]. ``done`` is set only after the result files are written.
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import os
+import re
+import secrets
+import sqlite3
+import threading
+import time
+import uuid
+
+STATES = ("queued", "running", "done", "failed", "cancelled")
+ACTIVE = ("queued", "running")
+_USER = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS users(
+    id INTEGER PRIMARY KEY, name TEXT UNIQUE NOT NULL, created REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS tokens(
+    id TEXT PRIMARY KEY, user_id INTEGER NOT NULL REFERENCES users(id),
+    salt BLOB NOT NULL, hash BLOB NOT NULL, created REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS jobs(
+    seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT UNIQUE NOT NULL,
+    user_id INTEGER NOT NULL REFERENCES users(id), model TEXT NOT NULL,
+    request TEXT NOT NULL, state TEXT NOT NULL, t_end REAL NOT NULL,
+    progress REAL NOT NULL DEFAULT 0, message TEXT NOT NULL DEFAULT '',
+    created REAL NOT NULL, started REAL, finished REAL,
+    version TEXT, diagram_hash TEXT, idem_key TEXT, cancel INTEGER NOT NULL DEFAULT 0);
+CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(user_id, idem_key)
+    WHERE idem_key IS NOT NULL;
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, seq);
+CREATE INDEX IF NOT EXISTS jobs_user ON jobs(user_id, seq);
+"""
+
+_JOB_COLS = ("id", "user_id", "model", "request", "state", "t_end", "progress", "message",
+             "created", "started", "finished", "version", "diagram_hash", "idem_key")
+
+
+def _scrypt(secret: str, salt: bytes) -> bytes:
+    return hashlib.scrypt(secret.encode(), salt=salt, n=2 ** 14, r=8, p=1, dklen=32)
+
+
+class Store:
+    """Users, tokens and jobs of one data folder."""
+
+    def __init__(self, data_dir):
+        self.data_dir = os.path.abspath(data_dir)
+        os.makedirs(self.data_dir, exist_ok=True)
+        self.path = os.path.join(self.data_dir, "service.sqlite")
+        self._local = threading.local()
+        self._verified = {}          # sha256(token) -> (user_id, name)
+        with self._conn() as c:
+            c.executescript(SCHEMA)
+
+    # ------------------------------------------------------------------ plumbing
+    def _conn(self) -> sqlite3.Connection:
+        c = getattr(self._local, "conn", None)
+        if c is None:
+            c = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
+            c.row_factory = sqlite3.Row
+            c.execute("PRAGMA journal_mode=WAL")
+            c.execute("PRAGMA busy_timeout=30000")
+            c.execute("PRAGMA synchronous=NORMAL")
+            c.execute("PRAGMA foreign_keys=ON")
+            self._local.conn = c
+        return c
+
+    def job_dir(self, job_id):
+        return os.path.join(self.data_dir, "jobs", job_id)
+
+    # ------------------------------------------------------------------ users, tokens
+    def add_user(self, name) -> str:
+        """Create ``name`` if new and give it a new token; return the token (shown once)."""
+        if not _USER.match(name or ""):
+            raise ValueError(f"user name must be 1-64 letters, digits, '_', '.', '-', got "
+                             f"{name!r}")
+        c = self._conn()
+        c.execute("BEGIN IMMEDIATE")
+        try:
+            row = c.execute("SELECT id FROM users WHERE name = ?", (name,)).fetchone()
+            uid = row["id"] if row else c.execute(
+                "INSERT INTO users(name, created) VALUES (?, ?)", (name, time.time())).lastrowid
+            tid = secrets.token_hex(8)
+            secret = secrets.token_urlsafe(32)
+            salt = os.urandom(16)
+            c.execute("INSERT INTO tokens(id, user_id, salt, hash, created) VALUES (?,?,?,?,?)",
+                      (tid, uid, salt, _scrypt(secret, salt), time.time()))
+            c.execute("COMMIT")
+        except BaseException:
+            c.execute("ROLLBACK")
+            raise
+        return f"sst_{tid}_{secret}"
+
+    def user_for_token(self, token):
+        """``(user_id, name)`` of a valid token, else None."""
+        if not token or len(token) > 200:
+            return None
+        key = hashlib.sha256(token.encode()).digest()
+        hit = self._verified.get(key)
+        if hit is not None:
+            return hit
+        parts = token.split("_", 2)
+        if len(parts) != 3 or parts[0] != "sst":
+            return None
+        row = self._conn().execute(
+            "SELECT t.salt, t.hash, u.id, u.name FROM tokens t JOIN users u ON u.id = t.user_id"
+            " WHERE t.id = ?", (parts[1],)).fetchone()
+        if row is None or not hmac.compare_digest(_scrypt(parts[2], row["salt"]), row["hash"]):
+            return None
+        self._verified[key] = (row["id"], row["name"])
+        return self._verified[key]
+
+    # ------------------------------------------------------------------ jobs
+    def create_job(self, user_id, model, request: dict, t_end, version, diagram_hash,
+                   idem_key=None, max_active=None):
+        """Insert a queued job; return ``(job, created)``.
+
+        With ``idem_key`` an earlier job of the same user with the same key is returned
+        instead (``created`` False). With ``max_active`` raise :class:`TooManyJobs` when the
+        user already has that many queued or running jobs.
+        """
+        c = self._conn()
+        c.execute("BEGIN IMMEDIATE")
+        try:
+            if idem_key is not None:
+                row = c.execute("SELECT * FROM jobs WHERE user_id = ? AND idem_key = ?",
+                                (user_id, idem_key)).fetchone()
+                if row is not None:
+                    c.execute("COMMIT")
+                    return self._job(row), False
+            if max_active is not None:
+                n = c.execute("SELECT COUNT(*) FROM jobs WHERE user_id = ? AND state IN "
+                              "('queued', 'running')", (user_id,)).fetchone()[0]
+                if n >= max_active:
+                    raise TooManyJobs(n)
+            jid = uuid.uuid4().hex
+            c.execute("INSERT INTO jobs(id, user_id, model, request, state, t_end, created, "
+                      "version, diagram_hash, idem_key) VALUES (?,?,?,?,?,?,?,?,?,?)",
+                      (jid, user_id, model, json.dumps(request), "queued", float(t_end),
+                       time.time(), version, diagram_hash, idem_key))
+            c.execute("COMMIT")
+        except BaseException:
+            c.execute("ROLLBACK")
+            raise
+        return self.get_job(jid), True
+
+    @staticmethod
+    def _job(row):
+        if row is None:
+            return None
+        j = {k: row[k] for k in _JOB_COLS}
+        j["request"] = json.loads(j["request"])
+        j["cancel"] = bool(row["cancel"])
+        return j
+
+    def get_job(self, job_id, user_id=None):
+        q, args = "SELECT * FROM jobs WHERE id = ?", [job_id]
+        if user_id is not None:
+            q += " AND user_id = ?"
+            args.append(user_id)
+        return self._job(self._conn().execute(q, args).fetchone())
+
+    def list_jobs(self, user_id, limit=100):
+        rows = self._conn().execute("SELECT * FROM jobs WHERE user_id = ? ORDER BY seq DESC "
+                                    "LIMIT ?", (user_id, limit)).fetchall()
+        return [self._job(r) for r in rows]
+
+    def claim_next(self):
+        """Take the oldest queued job and mark it running; None when there is none."""
+        c = self._conn()
+        c.execute("BEGIN IMMEDIATE")
+        try:
+            row = c.execute("SELECT * FROM jobs WHERE state = 'queued' ORDER BY seq "
+                            "LIMIT 1").fetchone()
+            if row is not None:
+                c.execute("UPDATE jobs SET state = 'running', started = ?, progress = 0 "
+                          "WHERE id = ?", (time.time(), row["id"]))
+            c.execute("COMMIT")
+        except BaseException:
+            c.execute("ROLLBACK")
+            raise
+        return None if row is None else self.get_job(row["id"])
+
+    def set_progress(self, job_id, t):
+        self._conn().execute("UPDATE jobs SET progress = ? WHERE id = ? AND state = 'running'",
+                             (float(t), job_id))
+
+    def finish(self, job_id, state, message="", progress=None):
+        """Move a job to a final state (only from queued or running); True if it moved."""
+        assert state in ("done", "failed", "cancelled")
+        sets, args = "state = ?, message = ?, finished = ?", [state, message, time.time()]
+        if progress is not None:
+            sets += ", progress = ?"
+            args.append(float(progress))
+        cur = self._conn().execute(
+            f"UPDATE jobs SET {sets} WHERE id = ? AND state IN ('queued', 'running')",
+            args + [job_id])
+        return cur.rowcount == 1
+
+    def request_cancel(self, job_id):
+        """Flag a job for cancellation; a queued job is cancelled at once. Returns its state."""
+        c = self._conn()
+        c.execute("BEGIN IMMEDIATE")
+        try:
+            c.execute("UPDATE jobs SET cancel = 1 WHERE id = ?", (job_id,))
+            c.execute("UPDATE jobs SET state = 'cancelled', finished = ?, message = ? "
+                      "WHERE id = ? AND state = 'queued'",
+                      (time.time(), "cancelled before it started", job_id))
+            c.execute("COMMIT")
+        except BaseException:
+            c.execute("ROLLBACK")
+            raise
+        return self.get_job(job_id)["state"]
+
+    def cancel_requested(self, job_id):
+        row = self._conn().execute("SELECT cancel FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        return bool(row and row[0])
+
+    def recover(self):
+        """At start-up: jobs left running by a stopped server are failed; return the number
+        of those and of the queued jobs (which the workers will run)."""
+        c = self._conn()
+        cur = c.execute("UPDATE jobs SET state = 'failed', finished = ?, message = ? "
+                        "WHERE state = 'running'",
+                        (time.time(), "server stopped while running"))
+        n_queued = c.execute("SELECT COUNT(*) FROM jobs WHERE state = 'queued'").fetchone()[0]
+        return cur.rowcount, n_queued
+
+    def active_count(self, user_id):
+        return self._conn().execute("SELECT COUNT(*) FROM jobs WHERE user_id = ? AND state IN "
+                                    "('queued', 'running')", (user_id,)).fetchone()[0]
+
+
+class TooManyJobs(Exception):
+    def __init__(self, n):
+        super().__init__(n)
+        self.n = n

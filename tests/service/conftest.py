@@ -1,0 +1,144 @@
+"""Fixtures: the real service (``spidersim serve``) in a subprocess on a free loopback port,
+with a fresh data folder, and users made with ``spidersim serve --add-user``.
+
+Models: ``diagrams/servo.yaml`` (short runs) and ``slow.yaml`` written here: a lightly
+damped second-order system under a sine, with a small max_step, so that a run takes long
+enough to be cancelled, killed or interrupted by a server restart.
+"""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import httpx
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SERVO = os.path.join(ROOT, "diagrams", "servo.yaml")
+
+SLOW = """\
+name: slow
+description: A lightly damped oscillator under a sine, many small steps (test model).
+blocks:
+  u:   {type: Sine, amplitude: 1, f: 3}
+  sys: {type: TransferFunction, num: [1], den: [1, 0.2, 100]}
+connections:
+  - u.y -> sys.u
+simulation: {t_end: 1000, max_step: 2e-4}
+log: [u.y, sys.y]
+"""
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cli(*args, check=True):
+    p = subprocess.run([sys.executable, "-m", "spidersim.cli", *args], capture_output=True,
+                       text=True, timeout=120)
+    if check and p.returncode != 0:
+        raise AssertionError(f"spidersim {' '.join(args)} failed: {p.stderr}")
+    return p
+
+
+def add_user(data, name):
+    out = cli("serve", "--add-user", name, "--data", str(data)).stdout
+    m = re.search(r"(sst_\S+)", out)
+    assert m, out
+    return m.group(1)
+
+
+class Server:
+    """One ``spidersim serve`` process; ``restart()`` keeps the data folder."""
+
+    def __init__(self, data, models, extra=()):
+        self.data, self.models, self.extra = str(data), models, list(extra)
+        self.proc = None
+        self.log = os.path.join(self.data, "server.log")
+
+    def start(self):
+        os.makedirs(self.data, exist_ok=True)
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        args = [sys.executable, "-m", "spidersim.cli", "serve", "--port", str(self.port),
+                "--data", self.data]
+        for m in self.models:
+            args += ["--models", m]
+        self._fh = open(self.log, "a")
+        self.proc = subprocess.Popen(args + self.extra, stdout=self._fh,
+                                     stderr=subprocess.STDOUT)
+        t0 = time.time()
+        while time.time() - t0 < 60:
+            if self.proc.poll() is not None:
+                raise AssertionError("server exited: " + open(self.log).read()[-3000:])
+            try:
+                if httpx.get(self.url + "/health", timeout=1).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        raise AssertionError("server did not start: " + open(self.log).read()[-3000:])
+
+    def kill(self):
+        """SIGKILL the server (no clean-up: a crash)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self):
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        self._fh.close()
+
+    def workers(self):
+        """pids of the server's worker processes."""
+        import psutil
+        try:
+            kids = psutil.Process(self.proc.pid).children()
+        except psutil.NoSuchProcess:
+            return []
+        return [k.pid for k in kids if "resource_tracker" not in " ".join(k.cmdline())]
+
+    def client(self, token):
+        return httpx.Client(base_url=self.url, timeout=30,
+                            headers={"Authorization": f"Bearer {token}"} if token else {})
+
+
+@pytest.fixture(scope="session")
+def models_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("models")
+    (d / "slow.yaml").write_text(SLOW)
+    return [SERVO, str(d)]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory, models_dir):
+    data = tmp_path_factory.mktemp("data")
+    s = Server(data, models_dir, ["--workers", "2", "--max-jobs", "3", "--max-t-end", "1000",
+                                  "--max-signals", "5", "--max-body", "20000"])
+    s.alice = add_user(data, "alice")
+    s.bob = add_user(data, "bob")
+    s.start()
+    yield s
+    s.stop()
+
+
+def wait_state(http, job, states=("done", "failed", "cancelled"), timeout=120):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        j = http.get(f"/jobs/{job}").json()
+        if j["state"] in states:
+            return j
+        time.sleep(0.1)
+    raise AssertionError(f"job {job} not in {states} after {timeout} s: {j}")

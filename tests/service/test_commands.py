@@ -1,0 +1,82 @@
+"""The model library and the command translation, in process (no server)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import spidersim
+from spidersim.multibody import Chain
+from spidersim.multibody.chain import dh_transform
+from spidersim.service.commands import prepare
+from spidersim.service.library import BadName, Library, Model, UnknownModel
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return Library()
+
+
+def test_default_library_is_the_shipped_models(lib):
+    names = lib.names()
+    for n in ("spider", "servo", "payload_capture", "joint_step"):
+        assert n in names
+    assert "joint" not in names            # a subsystem (exposed inputs), not a model
+    assert "lag" not in names              # diagrams/lib is not scanned
+    with pytest.raises(BadName):
+        lib.get("../spider")
+    with pytest.raises(UnknownModel, match="did you mean servo"):
+        lib.get("servi")
+
+
+def test_arm_view_data_is_the_arms_kinematics(lib):
+    info = lib.get("spider").info()
+    arm = info["arm"]
+    assert arm["n"] == 7 and arm["signal"] == "arm.q"
+    q0 = np.array(arm["q0"])
+    T = np.eye(4)
+    for row, q in zip(arm["dh"], q0):           # what the page computes
+        T = T @ dh_transform(q, row["d"], row["a"], row["alpha"])
+    assert np.allclose(T, Chain.from_yaml().fk(q0), atol=1e-12)
+    assert "straight_move" in info["commands"]["named"]
+    assert info["commands"]["cartesian_line"][0]["ik"] == "ik"
+
+
+def test_cartesian_line_sets_ik_and_profile(lib):
+    d, t_end = prepare(lib.get("spider"), {"command": {
+        "kind": "cartesian_line", "direction": [0, 3, 4], "distance": 0.1, "speed": 0.02}})
+    assert np.allclose(d.blocks["ik"].params["direction"], [0, 3, 4])
+    p = d.blocks["path"].params
+    assert (p["q0"], p["q1"], p["v_max"]) == (0.0, 0.1, 0.02) and t_end == 10.0
+
+
+def test_joint_path_trapezoid_takes_the_given_time(tmp_path):
+    f = tmp_path / "move.yaml"
+    f.write_text("blocks:\n  ref: {type: TrapezoidalProfile}\n  g: {type: Gain, k: 1}\n"
+                 "connections: [ref.q -> g.u]\nlog: [ref.q, ref.qd]\n")
+    m = Model("move", str(f))
+    qa, qb, ta, tb = 0.2, -0.4, 0.3, 1.5
+    d, _ = prepare(m, {"command": {"kind": "joint_path", "points": [qa, qb],
+                                   "times": [ta, tb]}})
+    r = d.simulate(t_end=2.0, jit=False, output_interval=0.001)
+    q, qd = r["ref.q"], r["ref.qd"]
+    assert np.all(q[r.t <= ta] == qa) and np.all(q[r.t >= tb - 1e-12] == pytest.approx(qb))
+    moving = (r.t > ta + 1e-9) & (r.t < tb - 1e-9)
+    assert np.all(qd[moving] < 0)               # moves all the way, never stops early
+    # a third accelerating, a third cruising at 1.5 d/T, a third braking
+    v = 1.5 * abs(qb - qa) / (tb - ta)
+    cruise = (r.t > ta + (tb - ta) / 3 + 1e-6) & (r.t < tb - (tb - ta) / 3 - 1e-6)
+    assert np.allclose(qd[cruise], -v, rtol=1e-12)
+    with pytest.raises(spidersim.ParameterError, match="moves between two points"):
+        prepare(m, {"command": {"kind": "joint_path", "points": [0, 1, 2],
+                                "times": [0, 1, 2]}})
+
+
+def test_malformed_commands_section_names_file_and_line(tmp_path):
+    f = tmp_path / "bad.yaml"
+    f.write_text("blocks:\n  ref: {type: Step}\n  g: {type: Gain}\nconnections: [ref.y -> g.u]\n"
+                 "commands:\n  go:\n    doc: x\n    colour: red\n")
+    with pytest.raises(spidersim.ParameterError) as e:
+        prepare(Model("bad", str(f)), {"command": {"kind": "named", "name": "go"}})
+    assert "bad.yaml:6" in str(e.value) and "unknown key(s) colour" in str(e.value)
+    # local runs ignore the section
+    assert spidersim.load(str(f)).simulate(t_end=0.1, jit=False).status == "ok"
