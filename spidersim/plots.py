@@ -44,7 +44,7 @@ def _slug(text):
     return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_").lower() or "plot"
 
 
-_ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]$")
+_ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]\Z")
 
 
 def split_signal(s):

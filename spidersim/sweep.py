@@ -132,7 +132,7 @@ def parse_vary(items) -> list[tuple[str, list]]:
             raise SpidersimError(f"--vary expects path=v1,v2,..., got '{item}'")
         path, text = item.split("=", 1)
         path = path.strip()
-        if not re.match(r"^[A-Za-z_][\w.]*$", path):
+        if not re.match(r"^[A-Za-z_][A-Za-z0-9_.]*\Z", path):
             raise SpidersimError(f"--vary: '{path}' is not a parameter path (name or "
                                  f"block.param)")
         if any(p == path for p, _ in out):

@@ -27,6 +27,10 @@ class Gain(Block):
             y[i] = k[i if nk > 1 else 0] * u[i]
 
 
+#: the only operator tokens a specialised kernel may contain
+_OP = {"+": "+", "-": "-", "*": "*", "/": "/"}
+
+
 def _arity_names(params, key):
     return [f"u{i + 1}" for i in range(len(params[key]))]
 
@@ -85,7 +89,9 @@ class Sum(_Nary):
 
     @staticmethod
     def expression(signs, names):
-        return " ".join(f"{s} {n}[i]" for s, n in zip(signs, names))
+        # each character maps to a fixed token (KeyError for anything else): no text
+        # from the diagram reaches the generated source
+        return " ".join(f"{_OP[s]} {n}[i]" for s, n in zip(signs, names))
 
     @staticmethod
     def output(t, u1, u2, y):
@@ -107,7 +113,7 @@ class Product(_Nary):
 
     @staticmethod
     def expression(ops, names):
-        return "1.0" + "".join(f" {o} {n}[i]" for o, n in zip(ops, names))
+        return "1.0" + "".join(f" {_OP[o]} {n}[i]" for o, n in zip(ops, names))
 
     @staticmethod
     def output(t, u1, u2, y):

@@ -71,12 +71,47 @@ def _arg_expr(bl, kernel, name):
                        f"is not a state, port, mode or parameter of the block")
 
 
+def _call_order(L):
+    """Block paths in schedule order (loop members after, then the rest)."""
+    order = []
+    for kind, what in L.calls:
+        if kind == "call" and what not in order:
+            order.append(what)
+    for lp in L.loops:
+        order += [p_ for p_ in lp.calls if p_ not in order]
+    order += [p_ for p_ in L.blocks if p_ not in order]
+    return order
+
+
+def _timed_blocks(L):
+    """Blocks with time events, in the order ``time_events`` visits them."""
+    return [L.blocks[p_] for p_ in _call_order(L) if L.blocks[p_].cls.has_kernel("next_time")]
+
+
+def _event_blocks(L):
+    """Blocks with zero-crossing guards, in guard-array order."""
+    return [bl for bl in L.blocks.values() if bl.guard_slice[1] > bl.guard_slice[0]]
+
+
+def event_tables(layout: Layout):
+    """Names of the timed blocks and of every guard, for the system (never in the text).
+
+    Returns ``(timed, events)``: ``timed[k]`` is the block path flagged by ``fired[k]``;
+    ``events[k]`` is ``(block path, event name, direction)`` of guard ``k``.
+    """
+    timed = [bl.path for bl in _timed_blocks(layout)]
+    events = [(bl.path, name if n == 1 else f"{name}[{k}]", ev.direction)
+              for bl in _event_blocks(layout)
+              for (name, ev), n in zip(bl.cls.events.items(), bl.event_sizes)
+              for k in range(n)]
+    return timed, events
+
+
 class Generator:
     """Collects kernel references and emits the module text."""
 
-    def __init__(self, layout: Layout, title: str):
+    def __init__(self, layout: Layout):
         self.layout = layout
-        self.title = title
         self.header = []
         self.kernels = {}   # (path, kernel) -> global name
         self.sources = {}   # specialised source text -> global name
@@ -106,12 +141,12 @@ class Generator:
         name = self.kernel_name(bl, kernel)
         args = bl.cls.kernel_args(kernel, bl.params)
         exprs = [_arg_expr(bl, kernel, a) for a in args]
-        return f"{indent}{name}({', '.join(exprs)})  # {bl.path}"
+        return f"{indent}{name}({', '.join(exprs)})"
 
     def loop_source(self, lp):
         """Residual function and Newton solve of one algebraic loop."""
         lines = [f"@_jit", f"def _loop{lp.index}_res(t, x, sig, p, modes, r):",
-                 f'    """Residual of loop {lp.index}: {lp.walk}"""']
+                 f'    """Residual of algebraic loop {lp.index}."""']
         lines += [self.call(self.layout.blocks[path], "output") for path in lp.calls
                   if self.layout.blocks[path].cls.has_kernel("output")]
         for k, (kind, a, o) in enumerate(lp.residual):
@@ -136,19 +171,13 @@ class Generator:
                      if bl.states and bl.cls.has_kernel("derivative")]
         # time events in schedule order, outputs refreshed before each, so that a sampled
         # block sees what upstream sampled blocks produced at the same instant
-        order = []
-        for kind, what in L.calls:
-            if kind == "call" and what not in order:
-                order.append(what)
-        for lp in L.loops:
-            order += [p_ for p_ in lp.calls if p_ not in order]
-        order += [p_ for p_ in blocks if p_ not in order]
-        timed = [blocks[p_] for p_ in order if blocks[p_].cls.has_kernel("next_time")]
+        order = _call_order(L)
+        timed = _timed_blocks(L)
         nt_lines, te_lines = [], []
         for k, bl in enumerate(timed):
-            nt_lines += [f"    v = {self.call(bl, 'next_time', '').split('  #')[0]}",
+            nt_lines += [f"    v = {self.call(bl, 'next_time', '')}",
                          "    if v < tn:", "        tn = v"]
-            te_lines += [f"    if {self.call(bl, 'next_time', '').split('  #')[0]} <= t + tol:",
+            te_lines += [f"    if {self.call(bl, 'next_time', '')} <= t + tol:",
                          "        outputs(t, x, sig, p, modes)",
                          self.call(bl, "time_event", "        "),
                          f"        fired[{k}] = 1"]
@@ -157,19 +186,15 @@ class Generator:
             if blocks[p_].cls.has_kernel("initialize"):
                 init_lines += ["    outputs(t, x, sig, p, modes)",
                                self.call(blocks[p_], "initialize")]
-        evb = [bl for bl in blocks.values() if bl.guard_slice[1] > bl.guard_slice[0]]
+        evb = _event_blocks(L)
         g_lines = [self.call(bl, "guard") for bl in evb]
         ev_lines = []
         for bl in evb:
             a, b = bl.guard_slice
             ev_lines += [f"    if {a} <= k < {b}:", self.call(bl, "on_event", "        ")]
-        events = [(bl.path, name if n == 1 else f"{name}[{k}]", ev.direction)
-                  for bl in evb for (name, ev), n in zip(bl.cls.events.items(),
-                                                           bl.event_sizes)
-                  for k in range(n)]
         body = "\n".join
         text = f'''\
-"""Generated by spidersim for diagram {self.title!r}. Do not edit: regenerated on change."""
+"""Generated by spidersim. Do not edit: regenerated on change."""
 import math
 import numpy as np
 from spidersim.blocks.base import load_kernel
@@ -189,8 +214,8 @@ lu_factor = _jit(_newton.lu_factor)
 lu_solve = _jit(_newton.lu_solve)
 
 N_X = {L.n_x}
-TIMED = {[bl.path for bl in timed]!r}
-EVENTS = {events!r}
+N_TIMED = {len(timed)}
+N_EVENTS = {sum(bl.guard_slice[1] - bl.guard_slice[0] for bl in evb)}
 
 {body(self.header)}
 {body(loop_text)}
@@ -277,6 +302,6 @@ def apply_event(t, x, sig, p, modes, k, direction):
         return text
 
 
-def generate(layout: Layout, title: str, jit: bool) -> str:
+def generate(layout: Layout, jit: bool) -> str:
     """Module text for ``layout`` (see the module docstring)."""
-    return Generator(layout, title).module(jit)
+    return Generator(layout).module(jit)

@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import DiagramError, ParameterError, SpidersimError
 from ..solver import CompiledSystem, integrate
 from ..solver.compiled import load_module
-from .codegen import generate
+from .codegen import event_tables, generate
 from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
 from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
@@ -210,7 +210,7 @@ class Diagram:
     # ------------------------------------------------------------------ compile & run
     def source(self, jit=True):
         """The generated module text."""
-        return generate(self.layout, self.spec.name, jit)
+        return generate(self.layout, jit)
 
     def compile(self, jit=True):
         """Generate, import and warm up the compiled functions; return the system."""
@@ -240,7 +240,8 @@ class Diagram:
         system = CompiledSystem(mod, self.initial_state(), self.p.copy(), self.initial_modes(),
                                 L.n_sig, self._log, sig_names, x_names,
                                 jacobian_sparsity(L) if L.n_x else None,
-                                sig0=self.initial_signals(), loops=self.loop_info())
+                                sig0=self.initial_signals(), loops=self.loop_info(),
+                                tables=event_tables(L))
         a, r = L.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
         system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]

@@ -36,9 +36,9 @@ SIM_KEYS = {"t_end": "simulated time [s]", "method": "LSODA, RK45, DOP853, Radau
             "rtol": "relative tolerance", "atol": "absolute tolerance",
             "max_step": "largest step [s]", "output_interval": "spacing of output samples [s]",
             "first_step": "first step [s]"}
-_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\Z")
 _ADDR = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)"
-                   r"(?:\[\s*(-?\d+)\s*(?::\s*(-?\d+)\s*)?\])?\s*$")
+                   r"(?:\[\s*(-?\d+)\s*(?::\s*(-?\d+)\s*)?\])?\s*\Z")
 
 
 @dataclass

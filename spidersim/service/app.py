@@ -27,7 +27,7 @@ from .library import BadName, Library, UnknownModel
 from .store import Store, TooManyJobs
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
-_FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}$")
+_FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
 
 
 class Limits(BaseModel):

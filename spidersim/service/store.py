@@ -29,7 +29,7 @@ import uuid
 
 STATES = ("queued", "running", "done", "failed", "cancelled")
 ACTIVE = ("queued", "running")
-_USER = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_USER = re.compile(r"^[A-Za-z0-9_.-]{1,64}\Z")
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS users(

@@ -39,10 +39,14 @@ class CompiledSystem:
         Logged signals: ``array`` is ``"x"`` or ``"sig"``.
     sig_names, x_names : list of (name, start, stop)
         Every signal and state, in schedule / layout order, for diagnostics.
+    tables : (timed, events)
+        Block paths flagged by ``time_events`` and ``(block, event, direction)`` per guard,
+        from :func:`spidersim.diagram.codegen.event_tables`; the generated module holds only
+        their lengths, never names.
     """
 
     def __init__(self, module, x0, p, modes0, n_sig, log, sig_names, x_names,
-                 jac_sparsity=None, sig0=None, loops=()):
+                 jac_sparsity=None, sig0=None, loops=(), tables=((), ())):
         self.module = module
         self.n_x = len(x0)
         self.x0 = np.ascontiguousarray(x0, dtype=float)
@@ -53,8 +57,11 @@ class CompiledSystem:
         self.sig_names = sig_names
         self.x_names = x_names
         self.jac_sparsity = jac_sparsity
-        self.timed = list(module.TIMED)
-        self.event_table = list(module.EVENTS)
+        # names come from the layout, never from the generated text (security rule)
+        self.timed = list(tables[0])
+        self.event_table = list(tables[1])
+        if len(self.timed) != module.N_TIMED or len(self.event_table) != module.N_EVENTS:
+            raise RuntimeError("generated module does not match its diagram's event tables")
         self.n_g = len(self.event_table)
         self._g = np.zeros(max(1, self.n_g))
         self._fired = np.zeros(max(1, len(self.timed)), dtype=np.int64)
