@@ -316,6 +316,17 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("spidersim: interrupted", file=sys.stderr)
         return 130
+    except (RecursionError, MemoryError) as exc:
+        print(f"spidersim: error: input too large or too deeply nested to process "
+              f"({type(exc).__name__}); see 'Limits' in the README", file=sys.stderr)
+        return 2
+    except Exception as exc:  # a bug of spidersim: say so, keep the traceback for reports
+        if os.environ.get("SPIDERSIM_DEBUG"):
+            raise
+        print(f"spidersim: internal error: {type(exc).__name__}: {exc}\n"
+              f"  this is a bug of spidersim, not of your diagram; rerun with "
+              f"SPIDERSIM_DEBUG=1 for the traceback and report it", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":

@@ -7,6 +7,20 @@ them as ``file:line: block 'path': message``.
 """
 from __future__ import annotations
 
+import unicodedata
+
+
+def printable(text) -> str:
+    """``text`` with control and invisible characters shown as escapes (``\\n``, ``\\u200b``),
+    so that a hostile name cannot rewrite the terminal or hide in an error message."""
+    out = []
+    for ch in str(text):
+        if ch == "\n" or ch == "\t" or unicodedata.category(ch) in ("Cc", "Cf", "Zl", "Zp"):
+            out.append(ch.encode("unicode_escape").decode("ascii"))
+        else:
+            out.append(ch)
+    return "".join(out)
+
 
 class SpidersimError(Exception):
     """Base class of every error reported to users.
@@ -39,7 +53,10 @@ class SpidersimError(Exception):
         if self.file:
             where = f"{self.file}:{self.line}: " if self.line else f"{self.file}: "
         who = f"block '{self.block}': " if self.block else ""
-        return f"{where}{who}{self.message}"
+        # a multi-line message keeps its line breaks; names inside it are escaped where they
+        # are formatted, and the location parts are escaped here
+        return printable(f"{where}{who}") + "\n".join(printable(m)
+                                                   for m in str(self.message).split("\n"))
 
 
 class DiagramError(SpidersimError):

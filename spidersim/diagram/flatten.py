@@ -16,7 +16,7 @@ import numpy as np
 
 from ..blocks.base import REGISTRY, Block, lookup
 from ..errors import DiagramError, ParameterError, SpidersimError, WiringError
-from .expr import ExprError, evaluate
+from ..text.expr import ExprError, evaluate
 from .spec import Address, DiagramSpec, parse_file
 
 
@@ -148,7 +148,13 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
                     raise DiagramError(f"subsystem file for type '{b.type}' not found: "
                                        f"{sub_file}", file=spec.file,
                                        line=spec.subsystem_lines.get(b.type), block=path)
-                sub_specs[sub_file] = parse_file(sub_file)
+                try:
+                    sub_specs[sub_file] = parse_file(sub_file)
+                except DiagramError as exc:
+                    # say which parent line brought the subsystem in
+                    exc.message += (f" (subsystem type '{b.type}' of block '{path}', "
+                                    f"{os.path.basename(spec.file)}:{b.line})")
+                    raise
             sub = sub_specs[sub_file]
             given = {}
             for pname, raw in b.params.items():

@@ -67,7 +67,7 @@ class Diagram:
                 raise DiagramError(f"simulation.method must be a name, got {v!r}",
                                    file=self.file, line=line)
             return v
-        from .expr import ExprError, evaluate
+        from ..text.expr import ExprError, evaluate
         try:
             val = evaluate(v, {}) if isinstance(v, str) else v
             val = float(val)

@@ -27,7 +27,7 @@ import re
 from dataclasses import dataclass, field
 
 from ..errors import DiagramError, WiringError
-from .yamlio import LineDict, load_text
+from ..text.yamlio import LineDict, load_text, read_file
 
 SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
             "inputs", "outputs", "simulation", "log", "plots", "analysis", "metrics",
@@ -131,19 +131,23 @@ def parse_file(path: str) -> DiagramSpec:
     """Read and check one diagram file (no subsystems opened yet)."""
     if not os.path.isfile(path):
         raise DiagramError(f"diagram file not found: {path}")
-    with open(path, encoding="utf-8") as fh:
-        text = fh.read()
-    return parse_text(text, path)
+    return _parse_data(read_file(path), path)
 
 
 def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
-    data = load_text(text, file)
+    """Check one diagram given as text (``file`` names it in errors)."""
+    return _parse_data(load_text(text, file), file)
+
+
+def _parse_data(data, file: str) -> DiagramSpec:
     if data is None:
         raise DiagramError("the diagram is empty: it needs at least a 'blocks' section",
                            file=file)
     if not isinstance(data, dict):
-        raise DiagramError(f"a diagram must be a mapping of sections, got "
-                           f"{type(data).__name__}", file=file, line=getattr(data, "line", 1))
+        kind = {"LineList": "a list", "str": "a text"}.get(type(data).__name__,
+                                                             type(data).__name__)
+        raise DiagramError(f"a diagram must be a mapping of sections (blocks:, connections:, "
+                           f"...), got {kind}", file=file, line=getattr(data, "line", None))
     for key in data:
         if key not in SECTIONS:
             import difflib
@@ -164,6 +168,9 @@ def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
     subs_raw = _section(data, "subsystems", LineDict, file)
     subsystems = {}
     for k, v in subs_raw.items():
+        if not isinstance(k, str) or not _NAME.match(k):
+            raise DiagramError(f"subsystem type name '{k}' is not an identifier (letters, "
+                               f"digits, _)", file=file, line=subs_raw.line_of(k))
         if isinstance(v, dict):
             v = v.get("file")
         if not isinstance(v, str):
@@ -181,6 +188,12 @@ def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
         if not isinstance(entry, dict) or "type" not in entry:
             raise DiagramError(f"block '{name}' must be a mapping with a 'type' key, e.g. "
                                f"'{name}: {{type: Gain, k: 2}}'", file=file, line=line)
+        btype = entry["type"]
+        if not isinstance(btype, str) or not _NAME.match(btype):
+            shown = btype if isinstance(btype, str) else {"LineList": "a list", "LineDict": "a mapping"}.get(type(btype).__name__, type(btype).__name__)
+            raise DiagramError(f"block '{name}': 'type' must be a block or subsystem type "
+                               f"name (letters, digits, _), got {shown}", file=file,
+                               line=entry.line_of("type"))
         p = LineDict((k, v) for k, v in entry.items() if k != "type")
         plines = {k: entry.line_of(k) for k in p}
         blocks[name] = BlockSpec(name, entry["type"], p, line, plines)

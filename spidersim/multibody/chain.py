@@ -26,7 +26,7 @@ SPIDER = os.path.join(DATA, "spider_arm.yaml")
 
 
 def _num(v, what, file):
-    from ..diagram.expr import ExprError, evaluate
+    from ..text.expr import ExprError, evaluate
     try:
         return float(evaluate(v, {})) if isinstance(v, str) else float(v)
     except (ExprError, TypeError, ValueError):
@@ -69,12 +69,11 @@ class Chain:
     @classmethod
     def from_yaml(cls, path=None):
         """Load a chain data file (default: the SPIDER-like arm)."""
-        from ..diagram.yamlio import load_text
+        from ..text.yamlio import read_file
         path = path or SPIDER
         if not os.path.isfile(path):
             raise DiagramError(f"arm data file not found: {path}")
-        with open(path) as fh:
-            data = load_text(fh.read(), path)
+        data = read_file(path)
         links = data.get("links") if isinstance(data, dict) else None
         if not isinstance(links, list) or not links:
             raise DiagramError("an arm data file needs a non-empty 'links' list", file=path)

@@ -14,6 +14,8 @@ import operator
 
 import numpy as np
 
+from . import limits
+
 CONSTANTS = {"pi": math.pi, "e": math.e, "inf": math.inf}
 
 FUNCTIONS = {
@@ -33,20 +35,57 @@ class ExprError(ValueError):
     """A bad expression; the message says what and where in the expression."""
 
 
+def _short(text):
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _depth(tree):
+    """Nesting depth of a syntax tree (iterative: deep trees cannot exhaust the stack)."""
+    deepest, stack = 0, [(tree, 1)]
+    while stack:
+        node, d = stack.pop()
+        deepest = max(deepest, d)
+        if deepest > limits.MAX_EXPR_DEPTH:
+            break
+        stack.extend((c, d + 1) for c in ast.iter_child_nodes(node))
+    return deepest
+
+
 def evaluate(text: str, names: dict):
-    """Evaluate ``text`` with the given parameter ``names``; raise :class:`ExprError`."""
+    """Evaluate ``text`` with the given parameter ``names``; raise :class:`ExprError`.
+
+    Bounded: at most :data:`limits.MAX_EXPR_CHARS` characters and a syntax tree at most
+    :data:`limits.MAX_EXPR_DEPTH` deep (see :mod:`spidersim.text.limits`).
+    """
+    if len(text) > limits.MAX_EXPR_CHARS:
+        raise ExprError(f"expression of {len(text)} characters is longer than the limit of "
+                        f"{limits.MAX_EXPR_CHARS}: '{_short(text)}'")
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
-        raise ExprError(f"cannot parse expression '{text}': {exc.msg}") from None
+        raise ExprError(f"cannot parse expression '{_short(text)}': {exc.msg}") from None
+    except (RecursionError, MemoryError):
+        raise ExprError(f"expression nested too deeply to parse (limit "
+                        f"{limits.MAX_EXPR_DEPTH} levels): '{_short(text)}'") from None
+    if _depth(tree) > limits.MAX_EXPR_DEPTH:
+        raise ExprError(f"expression nested deeper than the limit of {limits.MAX_EXPR_DEPTH} "
+                        f"levels: '{_short(text)}'")
     try:
-        return _eval(tree.body, names, text)
+        value = _eval(tree.body, names, text)
     except ExprError:
         raise
+    except RecursionError:
+        raise ExprError(f"expression nested too deeply: '{_short(text)}'") from None
     except ZeroDivisionError:
         raise ExprError(f"division by zero in '{text}'") from None
     except (TypeError, ValueError, OverflowError, IndexError) as exc:
-        raise ExprError(f"cannot evaluate '{text}': {exc}") from None
+        raise ExprError(f"cannot evaluate '{_short(text)}': {exc}") from None
+    except MemoryError:
+        raise ExprError(f"expression result too large: '{_short(text)}'") from None
+    if np.size(value) > limits.MAX_ARRAY_ELEMENTS:
+        raise ExprError(f"expression gives {np.size(value)} elements, more than the limit of "
+                        f"{limits.MAX_ARRAY_ELEMENTS}: '{_short(text)}'")
+    return value
 
 
 def _eval(node, names, text):

@@ -1,0 +1,25 @@
+"""Bounds on every diagram file and expression spidersim reads.
+
+Generous for real diagrams (the full ``spider.yaml`` with its subsystems uses well under 1 %
+of each) and small enough that a hostile file is refused in milliseconds with a few MB of
+memory. Each limit is named in the error that enforces it.
+"""
+
+#: bytes in one YAML file (diagram, subsystem, arm data)
+MAX_FILE_BYTES = 2_000_000
+#: YAML nodes (scalars, lists, mappings) after aliases are expanded
+MAX_NODES = 200_000
+#: alias references (``*name``) in one file
+MAX_ALIASES = 1_000
+#: nesting depth of lists and mappings
+MAX_DEPTH = 64
+#: elements of one list or entries of one mapping
+MAX_ITEMS = 100_000
+#: characters of one scalar string
+MAX_STRING = 100_000
+#: characters of one expression such as ``2*pi*955/60``
+MAX_EXPR_CHARS = 2_000
+#: nesting depth of an expression's syntax tree
+MAX_EXPR_DEPTH = 50
+#: elements of an evaluated vector or matrix parameter
+MAX_ARRAY_ELEMENTS = 1_000_000

@@ -1,0 +1,194 @@
+"""Reading YAML with line numbers, within bounds.
+
+The loader is PyYAML's ``SafeLoader`` (the loader behind ``yaml.safe_load``: plain data only,
+no Python objects) extended to remember where each mapping key stands, so that errors can say
+``file:line``. Mappings come back as :class:`LineDict`.
+
+Bounds (:mod:`spidersim.text.limits`): file size, UTF-8 validity (the byte offset of the first
+bad byte is reported), nesting depth and item counts while composing, alias references, and
+the number of nodes *after* alias expansion (computed on the composed node graph, memoised
+per node, so an alias bomb of 10^9 elements is refused before anything is built).
+"""
+from __future__ import annotations
+
+import yaml
+
+from ..errors import DiagramError
+from . import limits
+
+
+class LineDict(dict):
+    """A dict that knows the 1-based line of each key (``d.line_of(key)``)."""
+
+    line = None
+
+    def line_of(self, key=None):
+        if key is not None and key in getattr(self, "lines", {}):
+            return self.lines[key]
+        return self.line
+
+
+class LineList(list):
+    line = None
+    lines: list
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that refuses deep nesting and too many aliases while composing."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+        self._aliases = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > limits.MAX_ALIASES:
+                raise _Limit(f"more than {limits.MAX_ALIASES} alias references (*name)",
+                             self.peek_event().start_mark)
+        self._depth += 1
+        if self._depth > limits.MAX_DEPTH:
+            raise _Limit(f"lists and mappings nested deeper than {limits.MAX_DEPTH} levels",
+                         self.peek_event().start_mark)
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+class _Limit(Exception):
+    def __init__(self, message, mark):
+        super().__init__(message)
+        self.message = message
+        self.line = mark.line + 1 if mark is not None else None
+
+
+def _expanded_size(root):
+    """Nodes of ``root`` with every alias expanded, and the check of per-node bounds.
+
+    Iterative and memoised per node object, so shared (aliased) subtrees cost once to
+    measure however often they are referenced.
+    """
+    memo = {}
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if key in memo:
+            continue
+        if isinstance(node, yaml.ScalarNode):
+            if len(node.value) > limits.MAX_STRING:
+                raise _Limit(f"a text longer than {limits.MAX_STRING} characters",
+                             node.start_mark)
+            memo[key] = 1
+            continue
+        children = ([c for kv in node.value for c in kv]
+                    if isinstance(node, yaml.MappingNode) else list(node.value))
+        if len(node.value) > limits.MAX_ITEMS:
+            raise _Limit(f"a list or mapping with more than {limits.MAX_ITEMS} entries "
+                         f"({len(node.value)})", node.start_mark)
+        if not done:
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in memo)
+            continue
+        total = 1
+        for c in children:
+            total += memo[id(c)]
+            if total > limits.MAX_NODES:
+                raise _Limit(f"more than {limits.MAX_NODES} values once aliases are expanded "
+                             f"(an alias bomb?)", node.start_mark)
+        memo[key] = total
+    return memo.get(id(root), 0)
+
+
+def _construct_mapping(loader, node):
+    loader.flatten_mapping(node)
+    d = LineDict()
+    d.line = node.start_mark.line + 1
+    d.lines = {}
+    for knode, vnode in node.value:
+        key = loader.construct_object(knode, deep=True)
+        try:
+            hash(key)
+        except TypeError:
+            raise DiagramError(f"mapping key {key!r} is not a scalar",
+                               line=knode.start_mark.line + 1) from None
+        if key in d:
+            raise DiagramError(f"duplicate key '{key}' (first on line {d.lines[key]})",
+                               line=knode.start_mark.line + 1)
+        d[key] = loader.construct_object(vnode, deep=True)
+        d.lines[key] = knode.start_mark.line + 1
+    return d
+
+
+def _construct_sequence(loader, node):
+    out = LineList(loader.construct_object(c, deep=True) for c in node.value)
+    out.line = node.start_mark.line + 1
+    out.lines = [c.start_mark.line + 1 for c in node.value]
+    return out
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _construct_sequence)
+
+
+def decode(raw: bytes, file: str) -> str:
+    """UTF-8 text of a file's bytes within :data:`limits.MAX_FILE_BYTES`, or a DiagramError
+    naming the file and the offset of the first byte that is not UTF-8."""
+    if len(raw) > limits.MAX_FILE_BYTES:
+        raise DiagramError(f"file is {len(raw)} bytes, more than the limit of "
+                           f"{limits.MAX_FILE_BYTES} bytes for a diagram file", file=file)
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise DiagramError(f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte offset "
+                           f"{exc.start}; save the file as UTF-8", file=file,
+                           line=line) from None
+
+
+def read_file(path: str):
+    """Read and parse a YAML file within bounds (see :func:`load_text`)."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(limits.MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise DiagramError(f"cannot read file: {exc.strerror}", file=path) from None
+    return load_text(decode(raw, path), path)
+
+
+def load_text(text: str, file: str = "<string>"):
+    """Parse YAML text; syntax errors and exceeded limits become :class:`DiagramError` with
+    file and line."""
+    if len(text) > limits.MAX_FILE_BYTES:
+        raise DiagramError(f"text of {len(text)} characters, more than the limit of "
+                           f"{limits.MAX_FILE_BYTES}", file=file)
+    if "\x00" in text:
+        raise DiagramError(f"NUL character at offset {text.index(chr(0))}: not a text "
+                           f"file", file=file, line=text[:text.index(chr(0))].count("\n") + 1)
+    loader = _Loader(text)  # SafeLoader subclass: plain data only
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node)
+        data = loader.construct_document(node)
+    except _Limit as exc:
+        raise DiagramError(f"{exc.message}: over the limit for a diagram file (see "
+                           f"'Limits' in the README)", file=file, line=exc.line) from None
+    except RecursionError:
+        raise DiagramError("nesting too deep to read", file=file) from None
+    except DiagramError as exc:
+        exc.file = file
+        raise
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark else None
+        msg = " ".join(str(m) for m in (exc.context, exc.problem) if m)
+        raise DiagramError(f"YAML syntax error: {msg}", file=file, line=line) from None
+    except yaml.YAMLError as exc:
+        raise DiagramError(f"YAML error: {exc}", file=file) from None
+    finally:
+        loader.dispose()
+    return data
