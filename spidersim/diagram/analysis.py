@@ -92,7 +92,6 @@ class Linearizer:
     """A diagram transformed with analysis points, ready to be differentiated."""
 
     def __init__(self, d, inputs, outputs, open=(), jit=True):
-        from .model import Diagram
         self.d = d
         inputs, outputs, open = list(inputs), list(outputs), list(open or ())
         refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
@@ -127,7 +126,8 @@ class Linearizer:
             if name in inputs:
                 self.in_slots.append((name, delta, n))
         flat2 = type(flat)(blocks, conns, flat.subsystem_instances, flat.aliases)
-        self.dlin = Diagram.__new__(Diagram)
+        # a copy of the diagram's class without importing model (no import cycle)
+        self.dlin = type(d).__new__(type(d))
         self.dlin.__dict__.update({k: v for k, v in d.__dict__.items()
                                    if k not in ("_modules",)})
         self.dlin._modules = {}
