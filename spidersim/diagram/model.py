@@ -246,6 +246,9 @@ class Diagram:
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
         system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]
         system.structure_key = key
+        # every system, not only the warm-up one, calls the machine code directly
+        # (no-op before the first warm-up compiled the functions)
+        system._bind_entry_points()
         return system
 
     def simulate(self, t_end=None, method=None, rtol=None, atol=None, max_step=None,
