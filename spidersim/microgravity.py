@@ -1,0 +1,240 @@
+"""Microgravity assessment: station acceleration from the base wrench, one-third-octave band
+RMS levels against the ISS vibratory limit curve, and the peak transient acceleration.
+
+The question of the paper's Fig. 8: does the arm, moving with its drive trains' torque
+ripple, disturb the station beyond what the microgravity experiments tolerate?
+
+Model
+-----
+The station is one rigid body of mass ``M`` [kg]; the force ``F(t)`` [N] the arm applies to
+its mounting accelerates it by ``a(t) = F(t) / M`` [m/s^2]; levels are given in micro-g,
+``1 micro-g = 9.80665e-6 m/s^2``. Each axis is assessed separately and the worst axis decides
+each band.
+
+Band analysis
+-------------
+One-third-octave bands with base-10 centres (IEC 61260-1 / ANSI S1.11):
+``f_c = 1000 * 10^(n/10)`` Hz, edges ``f_c * 10^(-1/20)`` and ``f_c * 10^(+1/20)``. Over the
+chosen window the signal is sampled uniformly (linear interpolation of the recorded points
+when the record is not uniform), its mean is removed, and the mean square in a band is the
+sum of the one-sided periodogram over the FFT bins inside the band (Parseval, rectangular
+window)::
+
+    ms_band = sum_{f_lo <= f_k < f_hi} c_k |X_k|^2 / N^2,    c_k = 2 (1 for 0 and Nyquist)
+
+so a sine of amplitude ``A`` in a band gives ``A / sqrt(2)``. A band is reported only where
+the record resolves it: at least two bins wide (``f_hi - f_lo >= 2 / T``) and below the
+Nyquist frequency.
+
+Limit curve
+-----------
+The ISS vibratory microgravity requirement (NASA SSP 41000, ISS System Specification, the
+vibratory limit as RMS per one-third-octave band, also in SSP 57000):
+
+- 1.6 micro-g for 0.01 <= f <= 0.1 Hz,
+- f x 16 micro-g for 0.1 < f <= 100 Hz,
+- 1600 micro-g for 100 < f <= 300 Hz,
+
+evaluated at each band's centre frequency. The margin of a band is
+``20 log10(limit / level)`` dB (positive: inside the limit).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+G0 = 9.80665            # m/s^2 per g
+MICRO_G = G0 * 1e-6     # m/s^2 per micro-g
+
+
+def iss_limit(f):
+    """ISS vibratory limit [micro-g RMS per one-third-octave band] at frequency ``f`` [Hz].
+
+    NaN outside 0.01..300 Hz, where the requirement says nothing.
+    """
+    f = np.asarray(f, dtype=float)
+    out = np.where(f <= 0.1, 1.6, np.where(f <= 100.0, 16.0 * f, 1600.0))
+    return np.where((f >= 0.01) & (f <= 300.0), out, np.nan)
+
+
+def third_octave_bands(f_min=0.01, f_max=300.0):
+    """Base-10 one-third-octave bands whose centres lie in ``[f_min, f_max]``.
+
+    Returns an array of shape (n, 3): lower edge, centre, upper edge [Hz].
+    """
+    n0 = int(np.ceil(10 * np.log10(f_min / 1000.0) - 1e-9))
+    n1 = int(np.floor(10 * np.log10(f_max / 1000.0) + 1e-9))
+    fc = 1000.0 * 10.0 ** (np.arange(n0, n1 + 1) / 10.0)
+    return np.column_stack([fc * 10 ** -0.05, fc, fc * 10 ** 0.05])
+
+
+def uniform(t, y, t0=None, t1=None):
+    """``(dt, samples)`` of ``y(t)`` on a uniform grid over ``[t0, t1]``.
+
+    Recorded points already uniform (to 1e-9 relative) are used as they are; otherwise the
+    grid step is the median recorded step and the values are interpolated linearly.
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    t0 = t[0] if t0 is None else t0
+    t1 = t[-1] if t1 is None else t1
+    if not t[0] <= t0 < t1 <= t[-1]:
+        raise ValueError(f"window [{t0}, {t1}] s is not inside the record "
+                         f"[{t[0]}, {t[-1]}] s")
+    sel = (t >= t0) & (t <= t1)
+    ts, ys = t[sel], y[sel]
+    steps = np.diff(ts)
+    if steps.size and np.ptp(steps) <= 1e-9 * steps.mean():
+        return float(steps.mean()), ys
+    dt = float(np.median(np.diff(t[(t >= t0) & (t <= t1)]))) if sel.sum() > 2 else \
+        (t1 - t0) / 100
+    n = int(np.floor((t1 - t0) / dt)) + 1
+    grid = t0 + dt * np.arange(n)
+    ys = np.column_stack([np.interp(grid, t, y[:, k]) for k in range(y.shape[1])]) \
+        if y.ndim == 2 else np.interp(grid, t, y)
+    return dt, ys
+
+
+def band_rms(x, dt, bands):
+    """RMS of ``x`` (1-D, uniform step ``dt`` [s]) in each band of ``bands`` (n, 3).
+
+    The mean is removed first. Bands the record cannot resolve (narrower than two bins or
+    above Nyquist) get NaN.
+    """
+    x = np.asarray(x, dtype=float)
+    x = x - x.mean()
+    n = x.size
+    X = np.fft.rfft(x)
+    f = np.fft.rfftfreq(n, dt)
+    p = np.abs(X) ** 2 / n ** 2
+    p[1:] *= 2.0
+    if n % 2 == 0:
+        p[-1] /= 2.0                       # the Nyquist bin is not doubled
+    df = 1.0 / (n * dt)
+    out = np.full(len(bands), np.nan)
+    for k, (lo, _, hi) in enumerate(bands):
+        if hi - lo < 2 * df or hi > f[-1]:
+            continue
+        out[k] = np.sqrt(p[(f >= lo) & (f < hi)].sum())
+    return out
+
+
+@dataclass
+class Assessment:
+    """Band levels and verdict of one microgravity assessment (levels in micro-g)."""
+
+    bands: np.ndarray                 # (n, 3) lower, centre, upper [Hz]
+    levels: np.ndarray                # (n, axes) RMS per band and axis [micro-g]
+    limit: np.ndarray                 # (n,) ISS limit at the centres [micro-g]
+    peak: float                       # largest |a| over the window, worst axis [micro-g]
+    peak_time: float                  # when [s]
+    window: tuple                     # (t0, t1) [s]
+    axes: list = field(default_factory=list)
+
+    @property
+    def worst(self):
+        """Worst axis level per band [micro-g]."""
+        return np.nanmax(self.levels, axis=1)
+
+    @property
+    def margin_db(self):
+        """``20 log10(limit / level)`` per band (positive: inside the limit)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 20 * np.log10(self.limit / self.worst)
+
+    @property
+    def passed(self):
+        m = self.margin_db
+        return bool(np.all(m[np.isfinite(m)] >= 0.0))
+
+    def table(self):
+        """Printable per-band table with the verdict."""
+        rows = [f"microgravity: window {self.window[0]:g}..{self.window[1]:g} s, "
+                f"{len(self.bands)} one-third-octave bands (ISS limit, SSP 41000)",
+                f"  {'band [Hz]':>18} {'level [ug]':>11} {'limit [ug]':>11} "
+                f"{'margin [dB]':>11}  verdict"]
+        for (lo, fc, hi), lev, lim, m in zip(self.bands, self.worst, self.limit,
+                                             self.margin_db):
+            verdict = "ok" if m >= 0 else "EXCEEDS"
+            rows.append(f"  {fc:8.3g} ({lo:.3g}-{hi:.3g}) {lev:11.3g} {lim:11.3g} "
+                        f"{m:11.1f}  {verdict}")
+        m = self.margin_db
+        worst = int(np.nanargmin(m)) if np.isfinite(m).any() else None
+        rows.append(f"  peak transient: {self.peak:.3g} micro-g at t = {self.peak_time:.3f} s")
+        if worst is not None:
+            rows.append(f"  verdict: {'PASS' if self.passed else 'FAIL'}; smallest margin "
+                        f"{m[worst]:.1f} dB in the {self.bands[worst, 1]:.3g} Hz band")
+        return "\n".join(rows)
+
+    def as_dict(self):
+        return {"window": list(self.window), "passed": self.passed,
+                "peak_ug": self.peak, "peak_time": self.peak_time,
+                "bands": [{"center_hz": float(b[1]), "lower_hz": float(b[0]),
+                           "upper_hz": float(b[2]), "level_ug": float(lev),
+                           "limit_ug": float(lim), "margin_db": float(m)}
+                          for b, lev, lim, m in zip(self.bands, self.worst, self.limit,
+                                                    self.margin_db)]}
+
+
+def assess(t, force, mass, window=None, f_range=(0.01, 300.0)):
+    """Assess a base-force record against the ISS vibratory limit.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Times [s].
+    force : (n,) or (n, k) array
+        Force the arm applies to the station [N], one column per axis.
+    mass : float
+        Station mass [kg] (rigid body).
+    window : (t0, t1), optional
+        Part of the record to assess [s] (default: all of it).
+    f_range : (f_min, f_max)
+        Band centres considered [Hz]; bands the record cannot resolve are left out.
+    """
+    if not mass > 0:
+        raise ValueError(f"station mass must be > 0, got {mass}")
+    force = np.asarray(force, dtype=float)
+    if force.ndim == 1:
+        force = force[:, None]
+    t0, t1 = window if window is not None else (t[0], t[-1])
+    dt, f_u = uniform(t, force, t0, t1)
+    a_ug = f_u / mass / MICRO_G
+    bands = third_octave_bands(*f_range)
+    levels = np.column_stack([band_rms(a_ug[:, k], dt, bands) for k in range(a_ug.shape[1])])
+    keep = np.isfinite(levels).any(axis=1)
+    if not keep.any():
+        raise ValueError(f"the window {t1 - t0:g} s with step {dt:g} s resolves no "
+                         f"one-third-octave band in {f_range[0]:g}..{f_range[1]:g} Hz")
+    bands, levels = bands[keep], levels[keep]
+    sel = (np.asarray(t) >= t0) & (np.asarray(t) <= t1)
+    a_rec = np.abs(force[sel]) / mass / MICRO_G
+    i, k = np.unravel_index(int(np.argmax(a_rec)), a_rec.shape)
+    return Assessment(bands, levels, iss_limit(bands[:, 1]), float(a_rec[i, k]),
+                      float(np.asarray(t)[sel][i]), (float(t0), float(t1)))
+
+
+def plot(assessment, path, title="Station acceleration vs ISS vibratory limit"):
+    """Band levels per axis with the limit curve (log-log), written to ``path``."""
+    import matplotlib.pyplot as plt
+    a = assessment
+    fig, ax = plt.subplots(figsize=(8, 5))
+    f = np.logspace(-2, np.log10(300), 400)
+    ax.loglog(f, iss_limit(f), "k-", lw=2, label="ISS limit (SSP 41000)")
+    names = a.axes or [f"axis {k}" for k in range(a.levels.shape[1])]
+    for k in range(a.levels.shape[1]):
+        ax.loglog(a.bands[:, 1], a.levels[:, k], "o-", ms=4, label=names[k])
+    bad = a.margin_db < 0
+    if bad.any():
+        ax.loglog(a.bands[bad, 1], a.worst[bad], "rx", ms=10, mew=2, label="exceeds")
+    ax.set_xlabel("one-third-octave band centre [Hz]")
+    ax.set_ylabel("RMS acceleration per band [micro-g]")
+    verdict = "PASS" if a.passed else "FAIL"
+    ax.set_title(f"{title}\n{verdict}; window {a.window[0]:g}-{a.window[1]:g} s; "
+                 f"peak {a.peak:.3g} micro-g")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
