@@ -92,6 +92,7 @@ def cmd_run(args):
     prog.close()
     r.save(out)
     pngs = make_plots(r, d.spec.plots, out) if not args.no_plots else []
+    pngs += _microgravity_report(d, r, out, plots=not args.no_plots)
     s = r.stats
     print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
           f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration + "
@@ -99,6 +100,42 @@ def cmd_run(args):
     print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
     return 0
+
+
+def _microgravity_report(d, r, out, plots=True):
+    """The diagram's ``microgravity`` assessment of a run: table on stdout,
+    ``microgravity.json`` (and ``microgravity.png``) in ``out``; returns the plots written."""
+    mg_spec = d.microgravity
+    if mg_spec is None:
+        return []
+    import json
+
+    from . import microgravity as mg
+    t_end = float(r.t[-1])
+    t0, t1 = mg_spec["window"] or (0.0, t_end)
+    if t1 > t_end:
+        print(f"spidersim: microgravity: window ends at {t1:g} s after the run's end "
+              f"({t_end:g} s); assessing up to {t_end:g} s", file=sys.stderr)
+        t1 = t_end
+    if not t0 < t1:
+        print(f"spidersim: microgravity: the run ended ({t_end:g} s) before the window "
+              f"starts ({t0:g} s): no assessment", file=sys.stderr)
+        return []
+    try:
+        a = mg.assess(r.t, r[mg_spec["signal"]], mg_spec["mass"], window=(t0, t1),
+                      f_range=(mg_spec["f_min"], mg_spec["f_max"]))
+    except ValueError as exc:
+        print(f"spidersim: microgravity: {exc}", file=sys.stderr)
+        return []
+    a.axes = ["x", "y", "z"][:a.levels.shape[1]] if a.levels.shape[1] <= 3 else []
+    print(a.table())
+    with open(os.path.join(out, "microgravity.json"), "w") as fh:
+        json.dump(a.as_dict(), fh, indent=1)
+    if not plots:
+        return []
+    path = os.path.join(out, "microgravity.png")
+    mg.plot(a, path)
+    return [path]
 
 
 def cmd_check(args):

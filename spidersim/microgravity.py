@@ -127,7 +127,7 @@ class Assessment:
     bands: np.ndarray                 # (n, 3) lower, centre, upper [Hz]
     levels: np.ndarray                # (n, axes) RMS per band and axis [micro-g]
     limit: np.ndarray                 # (n,) ISS limit at the centres [micro-g]
-    peak: float                       # largest |a| over the window, worst axis [micro-g]
+    peak: float                       # largest |a| over the whole record, worst axis [micro-g]
     peak_time: float                  # when [s]
     window: tuple                     # (t0, t1) [s]
     axes: list = field(default_factory=list)
@@ -161,7 +161,8 @@ class Assessment:
                         f"{m:11.1f}  {verdict}")
         m = self.margin_db
         worst = int(np.nanargmin(m)) if np.isfinite(m).any() else None
-        rows.append(f"  peak transient: {self.peak:.3g} micro-g at t = {self.peak_time:.3f} s")
+        rows.append(f"  peak transient (whole run): {self.peak:.3g} micro-g at t = "
+                    f"{self.peak_time:.3f} s")
         if worst is not None:
             rows.append(f"  verdict: {'PASS' if self.passed else 'FAIL'}; smallest margin "
                         f"{m[worst]:.1f} dB in the {self.bands[worst, 1]:.3g} Hz band")
@@ -189,7 +190,8 @@ def assess(t, force, mass, window=None, f_range=(0.01, 300.0)):
     mass : float
         Station mass [kg] (rigid body).
     window : (t0, t1), optional
-        Part of the record to assess [s] (default: all of it).
+        Part of the record whose band levels are assessed [s] (default: all of it); the
+        peak transient is taken over the whole record.
     f_range : (f_min, f_max)
         Band centres considered [Hz]; bands the record cannot resolve are left out.
     """
@@ -208,11 +210,11 @@ def assess(t, force, mass, window=None, f_range=(0.01, 300.0)):
         raise ValueError(f"the window {t1 - t0:g} s with step {dt:g} s resolves no "
                          f"one-third-octave band in {f_range[0]:g}..{f_range[1]:g} Hz")
     bands, levels = bands[keep], levels[keep]
-    sel = (np.asarray(t) >= t0) & (np.asarray(t) <= t1)
-    a_rec = np.abs(force[sel]) / mass / MICRO_G
+    # the peak transient is taken over the whole record: starts and stops are transients
+    a_rec = np.abs(force) / mass / MICRO_G
     i, k = np.unravel_index(int(np.argmax(a_rec)), a_rec.shape)
     return Assessment(bands, levels, iss_limit(bands[:, 1]), float(a_rec[i, k]),
-                      float(np.asarray(t)[sel][i]), (float(t0), float(t1)))
+                      float(np.asarray(t)[i]), (float(t0), float(t1)))
 
 
 def plot(assessment, path, title="Station acceleration vs ISS vibratory limit"):

@@ -164,6 +164,27 @@ def amplitude_spectrum(t, y, t_min=None, t_max=None):
     return np.fft.rfftfreq(n, dt), amp
 
 
+def _label_peaks(ax, peaks, min_rel=0.05):
+    """Label peaks in Hz, largest first, in the colour of their trace; a peak below
+    ``min_rel`` of the largest, or whose label would sit within 6 % of the axis width and
+    8 % of its height of a label already placed, is left unlabelled (legible, not crowded)."""
+    if not peaks:
+        return
+    peaks = sorted(peaks, reverse=True)
+    top = peaks[0][0]
+    x0, x1 = ax.get_xlim()
+    placed = []
+    for amp, fk, x, colour in peaks:
+        if amp < min_rel * top:
+            break
+        if any(abs(x - px) < 0.06 * (x1 - x0) and abs(amp - pa) < 0.08 * top
+               for px, pa in placed):
+            continue
+        placed.append((x, amp))
+        ax.annotate(f"{fk:.1f} Hz", (x, amp), textcoords="offset points", xytext=(4, 4),
+                    fontsize="small", color=colour)
+
+
 def spectrum_plot(result, spec, path):
     """Draw the amplitude spectra of the plot's signals, peaks labelled in Hz."""
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -176,11 +197,12 @@ def spectrum_plot(result, spec, path):
             traces.append((s, y))
         else:
             traces += [(f"{s}[{i}]", y[:, i]) for i in range(y.shape[1])]
+    peaks = []            # (amplitude, frequency, x, colour) of every trace's local maxima
     for label, y in traces:
         f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
         sel = f <= f_max if f_max else np.ones_like(f, bool)
         f, a = f[sel], a[sel]
-        ax.plot(f, a, label=f"{label} [{result.units.get(label.split('[')[0], '1')}]")
+        line, = ax.plot(f, a, label=f"{label} [{result.units.get(label.split('[')[0], '1')}]")
         if n_peaks and len(a) > 3:
             loc = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
             loc = loc[np.argsort(a[loc])[::-1][:n_peaks]]
@@ -190,8 +212,8 @@ def spectrum_plot(result, spec, path):
                 al, be, ga = a[k - 1], a[k], a[k + 1]
                 den = al - 2 * be + ga
                 fk = f[k] + (0.5 * (al - ga) / den * df if den != 0 else 0.0)
-                ax.annotate(f"{fk:.1f} Hz", (f[k], a[k]), textcoords="offset points",
-                            xytext=(4, 4), fontsize="small")
+                peaks.append((a[k], fk, f[k], line.get_color()))
+    _label_peaks(ax, peaks)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("amplitude")
     ax.grid(True, alpha=0.3)

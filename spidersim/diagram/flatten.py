@@ -49,6 +49,7 @@ class Flat:
     conns: list                  # FlatConn
     subsystem_instances: dict    # path -> file
     aliases: dict = field(default_factory=dict)  # "sub.out" -> (path, port, start, stop)
+    scope: dict = field(default_factory=dict)    # top-level parameters, evaluated
 
 
 def _eval_value(value, scope, decl, file, line, what, block=None):
@@ -103,7 +104,7 @@ def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
     scope0, _ = eval_parameters(spec, top_given, "")
     for k, v in list(top_given.items()):
         scope0[k] = v
-    flat = Flat({}, [], {})
+    flat = Flat({}, [], {}, scope=dict(scope0))
     sub_overrides = {k: v for k, v in overrides.items() if "." in k}
     _instantiate(spec, "", scope0, sub_overrides, flat, [os.path.abspath(spec.file)], used,
                  top=True)

@@ -58,6 +58,7 @@ class Diagram:
         self.p = self._param_array()
         self._modules = {}
         self._log = self._log_spec(spec.log)
+        self.microgravity = self._microgravity_spec(spec.microgravity)
 
     # ------------------------------------------------------------------ set-up
     def _sim_value(self, key, v):
@@ -107,6 +108,59 @@ class Diagram:
     def signals(self):
         """Names of every signal that can be logged."""
         return [r[0] for r in self._signal_table()]
+
+    def _microgravity_spec(self, sec):
+        """The ``microgravity`` section checked: ``{signal, mass, window, f_min, f_max}``
+        with the mass evaluated (a number or an expression of the diagram's parameters),
+        or None without the section."""
+        if not sec:
+            return None
+        from ..text.expr import ExprError, evaluate
+        keys = {"signal", "mass", "window", "f_min", "f_max"}
+
+        def err(msg, key=None):
+            return DiagramError(f"microgravity: {msg}", file=self.file,
+                                line=sec.line_of(key) if key else sec.line)
+        for k in sec:
+            if k not in keys:
+                raise err(f"unknown key '{k}'; keys are {', '.join(sorted(keys))}", k)
+        for k in ("signal", "mass"):
+            if k not in sec:
+                raise err(f"'{k}' is required (signal: the base force, e.g. arm.base_force; "
+                          f"mass: the station mass in kg)")
+        sizes = self.logged_sizes()
+        if sec["signal"] not in sizes:
+            known = {r[0] for r in self._signal_table()}
+            if sec["signal"] in known:
+                raise err(f"signal '{sec['signal']}' is not logged (add it to 'log')",
+                          "signal")
+            import difflib
+            near = difflib.get_close_matches(str(sec["signal"]), sorted(known), n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise err(f"no signal '{sec['signal']}'{hint}", "signal")
+        out = {"signal": sec["signal"]}
+        for k, default in (("mass", None), ("f_min", 0.01), ("f_max", 300.0)):
+            v = sec.get(k, default)
+            try:
+                v = float(evaluate(v, self.flat.scope) if isinstance(v, str) else v)
+            except (ExprError, TypeError, ValueError):
+                raise err(f"'{k}' must be a number or an expression of parameters, got "
+                          f"{v!r}", k) from None
+            if isinstance(sec.get(k), bool) or not (np.isfinite(v) and v > 0):
+                raise err(f"'{k}' must be a finite number > 0, got {sec.get(k)!r}", k)
+            out[k] = v
+        if not out["f_min"] < out["f_max"]:
+            raise err(f"f_min ({out['f_min']:g}) must be below f_max ({out['f_max']:g})")
+        w = sec.get("window")
+        if w is not None:
+            if not (isinstance(w, list) and len(w) == 2 and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in w)
+                    and 0 <= w[0] < w[1]):
+                raise err(f"'window' must be [t0, t1] with 0 <= t0 < t1 (seconds), got {w!r}",
+                          "window")
+            w = (float(w[0]), float(w[1]))
+        out["window"] = w
+        return out
 
     def logged_sizes(self):
         """Logged signals (what a run's result holds) -> number of values of each."""

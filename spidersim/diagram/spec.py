@@ -19,6 +19,8 @@ A diagram file has these top-level sections (all optional but ``blocks``)::
     commands               named high-level commands for the remote service: name ->
                            {doc, set, arguments, t_end} (see spidersim.service.commands);
                            ignored by local runs
+    microgravity           {signal, mass, window, f_min, f_max}: station acceleration bands
+                           against the ISS limit after a run (see spidersim.microgravity)
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from ..text.yamlio import LineDict, load_text, read_file
 
 SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
             "inputs", "outputs", "simulation", "log", "plots", "analysis", "metrics",
-            "commands")
+            "commands", "microgravity")
 SIM_KEYS = {"t_end": "simulated time [s]", "method": "LSODA, RK45, DOP853, Radau or BDF",
             "rtol": "relative tolerance", "atol": "absolute tolerance",
             "max_step": "largest step [s]", "output_interval": "spacing of output samples [s]",
@@ -96,6 +98,7 @@ class DiagramSpec:
     plots: list
     analysis: dict
     metrics: dict = field(default_factory=dict)
+    microgravity: dict = field(default_factory=dict)
     data: dict = field(repr=False, default=None)
 
 
@@ -247,6 +250,7 @@ def _parse_data(data, file: str) -> DiagramSpec:
     plots = _section(data, "plots", list, file)
     analysis = _section(data, "analysis", LineDict, file)
     metrics = _section(data, "metrics", LineDict, file)
+    microgravity = _section(data, "microgravity", LineDict, file)
     return DiagramSpec(
         file=file, name=str(data.get("name", os.path.splitext(os.path.basename(file))[0])),
         description=str(data.get("description", "")), parameters=dict(params),
@@ -255,4 +259,4 @@ def _parse_data(data, file: str) -> DiagramSpec:
         connections=conns, inputs=inputs, outputs=outputs, port_lines=port_lines,
         simulation=dict(sim), simulation_lines={k: sim.line_of(k) for k in sim}, log=log,
         log_line=data.line_of("log") if "log" in data else None, plots=list(plots),
-        analysis=dict(analysis), metrics=metrics, data=data)
+        analysis=dict(analysis), metrics=metrics, microgravity=microgravity, data=data)
