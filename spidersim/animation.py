@@ -22,14 +22,11 @@ from __future__ import annotations
 import math
 import os
 
-import matplotlib
+import matplotlib.pyplot as plt  # the CLI selects Agg; notebooks keep their backend
 import numpy as np
+from matplotlib.animation import FuncAnimation, PillowWriter
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.animation import FuncAnimation, PillowWriter  # noqa: E402
-
-from .errors import DiagramError  # noqa: E402
+from .errors import DiagramError
 
 _CHAINS = {}
 

@@ -14,7 +14,7 @@ import time
 
 import yaml
 
-from .errors import SpidersimError
+from .errors import DiagramError, SpidersimError
 
 
 class Progress:
@@ -70,13 +70,13 @@ def cmd_run(args):
     if args.remote:
         return cmd_run_remote(args)
     from . import load
-    from .plots import check_plot_specs, make_plots
+    from .plots import make_plots
 
     d = load(args.file, set=_parse_sets(args.set))
     t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
-    out = args.out or os.path.join("results", d.spec.name)
-    # logged signals with their sizes: plot checks (animation sizes too) before the run
-    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file)
+    validate_run(d, t_end, args.method)
+    out = args.out or default_out(d)
+    prepare_out(out)
     print(f"spidersim: {d.spec.name}: {len(d.blocks)} blocks, {d.layout.n_x} states; "
           f"compiling ({'numba' if not args.no_jit else 'interpreted'}) ...", file=sys.stderr)
     prog = Progress(t_end)
@@ -138,9 +138,90 @@ def _microgravity_report(d, r, out, plots=True):
     return [path]
 
 
+def default_out(d):
+    """``results/<name>``: the diagram's ``name:`` reduced to letters, digits, ``-`` and
+    ``_`` (else the file name's stem), so that a name can never choose a folder elsewhere."""
+    import re
+    for text in (d.spec.name, os.path.splitext(os.path.basename(d.file))[0]):
+        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", str(text)).strip("_-")[:80]
+        if stem:
+            return os.path.join("results", stem)
+    return os.path.join("results", "diagram")
+
+
+def prepare_out(out):
+    """Create the output folder and check it can be written, before any compiling."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise SpidersimError(f"output folder {out} exists and is not a folder; choose "
+                             f"another --out")
+    try:
+        os.makedirs(out, exist_ok=True)
+        probe = os.path.join(out, f".spidersim-write-test-{os.getpid()}")
+        with open(probe, "w") as fh:
+            fh.write("ok")
+        os.remove(probe)
+    except OSError as exc:
+        raise SpidersimError(f"cannot write into the output folder {out}: "
+                             f"{exc.strerror or exc}; choose another --out") from None
+
+
+def validate_run(d, t_end=None, method=None):
+    """Every check ``run`` makes before integrating, so that ``check`` refuses what ``run``
+    would: method, t_end, output_interval, plots (keys, signals, sizes, files), analysis
+    entries. (Loading already checked the blocks, parameters, wiring, log and metrics.)"""
+    from .linreport import analysis_request
+    from .plots import check_plot_specs
+    from .solver.integrate import METHODS
+    sim_line = d.spec.simulation_lines
+    method = method or d.simulation["method"]
+    if method not in METHODS:
+        import difflib
+        near = difflib.get_close_matches(str(method), list(METHODS), n=1)
+        raise DiagramError(f"simulation.method: unknown method '{method}'"
+                           + (f" (did you mean '{near[0]}'?)" if near else "")
+                           + f"; methods: {', '.join(METHODS)}", file=d.file,
+                           line=sim_line.get("method"))
+    t_end = d.simulation["t_end"] if t_end is None else t_end
+    if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
+        raise DiagramError(f"t_end must be a finite time > 0 s, got {t_end!r}", file=d.file,
+                           line=sim_line.get("t_end"))
+    oi = d.simulation.get("output_interval")
+    if oi is not None and not oi <= t_end:
+        raise DiagramError(f"simulation.output_interval ({oi:g} s) is longer than the run "
+                           f"(t_end = {t_end:g} s); make it at most t_end", file=d.file,
+                           line=sim_line.get("output_interval"))
+    for k in ("rtol", "atol", "max_step", "first_step"):
+        v = d.simulation.get(k)
+        if v is not None and not math.isfinite(v):
+            raise DiagramError(f"simulation.{k} must be finite, got {v!r}", file=d.file,
+                               line=sim_line.get(k))
+    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file)
+    from .sweep import parse_metrics
+    parse_metrics(d)
+    from .diagram.analysis import _signal_ref
+    for name in d.spec.analysis:
+        lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
+        inputs, outputs, opened, at, loop = analysis_request(d, name)
+        for s_ in inputs + outputs + opened + ([loop] if loop is not None else []):
+            try:
+                if not isinstance(s_, str):
+                    raise DiagramError(f"a signal name, got {s_!r}")
+                _signal_ref(d, s_)
+            except SpidersimError as exc:
+                raise DiagramError(f"analysis '{name}': {exc.message}", file=d.file,
+                                   line=lines(name)) from None
+        if at is not None and not (at in ("initial", "trim") or isinstance(at, dict) or (
+                isinstance(at, (int, float)) and not isinstance(at, bool)
+                and 0 <= at <= t_end)):
+            raise DiagramError(f"analysis '{name}': 'at' must be 'initial', 'trim', a "
+                               f"mapping or a time in [0, t_end], got {at!r}", file=d.file,
+                               line=lines(name))
+
+
 def cmd_check(args):
     from . import load
     d = load(args.file, set=_parse_sets(args.set))
+    validate_run(d)
     print(d.summary())
     print("OK")
     return 0
@@ -342,6 +423,8 @@ def build_parser():
 
 
 def main(argv=None):
+    # plots are files here: a non-interactive backend unless the user chose one
+    os.environ.setdefault("MPLBACKEND", "Agg")
     args = build_parser().parse_args(argv)
     try:
         return args.fn(args)

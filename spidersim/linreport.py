@@ -77,8 +77,6 @@ def report(sys, title=""):
 def bode_png(sys, path, title=""):
     """Magnitude and phase of every input/output pair."""
     import control
-    import matplotlib
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     poles = [abs(p) for p in control.poles(sys) if abs(p) > 0] if sys.nstates else []

@@ -24,16 +24,14 @@ from the joint angles of an Arm block; keys ``model``, ``frames``, ``fps``, ``tr
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 
-import matplotlib
+import matplotlib.pyplot as plt  # the CLI selects Agg; notebooks keep their backend
 import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from .errors import DiagramError  # noqa: E402
+from .errors import DiagramError
 
 KINDS = ("time", "spectrum", "animation")
 KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks",
@@ -41,7 +39,7 @@ KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max",
 
 
 def _slug(text):
-    return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_").lower() or "plot"
+    return re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_").lower() or "plot"
 
 
 _ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]\Z")
@@ -60,6 +58,24 @@ def signal_values(result, s):
     if idx is None:
         return y
     return y if y.ndim == 1 else y[:, idx]
+
+
+#: plot file names: a bare name inside the output folder, with a known extension
+_PLOT_FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
+PLOT_EXTENSIONS = (".png", ".svg", ".pdf")
+
+
+def check_plot_file(name, kind, what, file=None, line=None):
+    """A plot's ``file:`` must be a bare file name (no folder, no ``..``) with an extension
+    matplotlib writes (.png, .svg, .pdf; .gif for animations); raise DiagramError."""
+    exts = (".gif",) if kind == "animation" else PLOT_EXTENSIONS
+    if not isinstance(name, str) or not _PLOT_FILE.match(name) or ".." in name:
+        raise DiagramError(f"{what}: 'file' must be a bare file name inside the output "
+                           f"folder (letters, digits, _ - .; no folder separators, no '..'), "
+                           f"got {name!r}", file=file, line=line)
+    if not name.lower().endswith(exts):
+        raise DiagramError(f"{what}: 'file' {name!r} must end with "
+                           f"{', '.join(exts)}", file=file, line=line)
 
 
 def check_plot_specs(plots, signals, file=None):
@@ -82,6 +98,26 @@ def check_plot_specs(plots, signals, file=None):
         if kind not in KINDS:
             raise DiagramError(f"plots[{k}]: unknown kind '{kind}' (kinds: {', '.join(KINDS)})",
                                file=file, line=line)
+
+        def key_line(key):
+            return p.line_of(key) if hasattr(p, "line_of") else line
+        if "file" in p:
+            check_plot_file(p["file"], kind, f"plots[{k}]", file, key_line("file"))
+        for key in ("t_min", "t_max", "f_max"):
+            v = p.get(key)
+            if key in p and (isinstance(v, bool) or not isinstance(v, (int, float))
+                             or not math.isfinite(v)):
+                raise DiagramError(f"plots[{k}]: '{key}' must be a finite number of seconds"
+                                   f"{' (Hz)' if key == 'f_max' else ''}, got {v!r}",
+                                   file=file, line=key_line(key))
+        if "peaks" in p and (isinstance(p["peaks"], bool) or not isinstance(p["peaks"], int)
+                             or not 0 <= p["peaks"] <= 20):
+            raise DiagramError(f"plots[{k}]: 'peaks' must be an integer 0..20, got "
+                               f"{p['peaks']!r}", file=file, line=key_line("peaks"))
+        for key in ("title", "ylabel"):
+            if key in p and not isinstance(p[key], (str, int, float)):
+                raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
+                                   f"{type(p[key]).__name__}", file=file, line=key_line(key))
         sigs = p.get("signals")
         if not isinstance(sigs, list) or not sigs:
             raise DiagramError(f"plots[{k}] needs a non-empty list 'signals'", file=file,

@@ -247,8 +247,6 @@ class SweepResult:
     def plot(self, folder):
         """One PNG per metric: metric vs the first parameter, one line per value of the
         second (the paper's Fig. 9); further parameters give one figure per combination."""
-        import matplotlib
-        matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         p1, v1 = self.vary[0]
         second = self.vary[1] if len(self.vary) > 1 else None

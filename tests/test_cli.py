@@ -151,10 +151,11 @@ def test_set_from_the_command_line(tmp_path, capsys):
                          ids=[os.path.relpath(f, ROOT) for f in SUBSYSTEMS])
 def test_subsystem_files_are_used_and_checked(path, capsys):
     """Each top-level subsystem file is used by at least one runnable diagram, and running
-    it alone says which input is unconnected (not a traceback)."""
+    it alone says it is a subsystem to use from a parent (not a traceback)."""
     name = os.path.basename(path)
     users = [f for f in FILES if name in open(f).read()]
     assert users, f"{name} is used by no diagram"
     rc = main(["check", path])
     err = capsys.readouterr().err
-    assert rc == 2 and "is not connected" in err and "Traceback" not in err
+    assert rc == 2 and "is a subsystem" in err and "parent" in err and "Traceback" not in err
+    assert f"{name}:" in err

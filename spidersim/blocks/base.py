@@ -87,6 +87,9 @@ class Param:
     structural : bool
         A ``real`` parameter that decides structure (e.g. an inductance whose zero makes a
         port feedthrough).
+    allow_inf : bool
+        ``inf``/``-inf`` are meaningful values (an absent limit). Otherwise every element of a
+        ``real`` parameter must be finite (``1e400`` overflows to ``inf`` and is refused).
     """
 
     default: Any = REQUIRED
@@ -100,6 +103,7 @@ class Param:
     kind: str = "real"
     choices: tuple | None = None
     structural: bool = False
+    allow_inf: bool = False
 
     @property
     def is_structural(self):
@@ -323,6 +327,10 @@ class Block:
             fail(f"must be true or false, got {value!r}")
         if isinstance(value, str):
             fail(f"must be a number, got the string '{value}'")
+        if isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(
+                isinstance(v, bool) for v in np.ravel(np.array(value, dtype=object)))):
+            fail(f"must be a number, got a boolean ({value!r}; write 1 or 0 if you mean "
+                 f"a number)")
         try:
             arr = np.asarray(value, dtype=float)
         except (TypeError, ValueError, OverflowError):
@@ -334,6 +342,9 @@ class Block:
             return int(arr)
         if np.any(np.isnan(arr)):
             fail(f"must not be NaN, got {value!r}")
+        if not decl.allow_inf and np.any(np.isinf(arr)):
+            fail(f"must be finite, got {str(value)[:40]} (a number beyond 1.8e308, such as "
+                 f"1e400, is infinite)")
         shape = decl.shape
         if shape == ():
             if arr.ndim != 0:

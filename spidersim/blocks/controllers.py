@@ -120,8 +120,8 @@ def _aw_params(params):
 _COMMON = {
     "kp": Param(1.0, doc="proportional gain [output/input]"),
     "ki": Param(0.0, doc="integral gain [output/(input s)]"),
-    "y_min": Param(-math.inf, doc="lower output limit"),
-    "y_max": Param(math.inf, doc="upper output limit"),
+    "y_min": Param(-math.inf, doc="lower output limit", allow_inf=True),
+    "y_max": Param(math.inf, doc="upper output limit", allow_inf=True),
     "antiwindup": Param("clamping", kind="str", choices=_AW,
                         doc="anti-windup scheme while the output is limited"),
     "kb": Param(0.0, "1/s", "back-calculation tracking gain", ge=0.0),

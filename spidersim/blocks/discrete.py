@@ -106,8 +106,8 @@ class DiscreteTransferFunction(_Sampled):
         k[0] += 1.0
 
 
-_LIM = {"y_min": Param(-math.inf, doc="lower output limit"),
-        "y_max": Param(math.inf, doc="upper output limit"),
+_LIM = {"y_min": Param(-math.inf, doc="lower output limit", allow_inf=True),
+        "y_max": Param(math.inf, doc="upper output limit", allow_inf=True),
         "I0": Param(0.0, doc="initial integral term (output units)")}
 
 

@@ -63,7 +63,8 @@ class Saturation(_Corners):
     (at lower / linear / at upper)."""
 
     category = "nonlinear"
-    parameters = {"lower": Param(-1.0, doc="lower limit"), "upper": Param(1.0, doc="upper limit"),
+    parameters = {"lower": Param(-1.0, doc="lower limit", allow_inf=True),
+                  "upper": Param(1.0, doc="upper limit", allow_inf=True),
                   "zero_crossing": _ZC}
     inputs = {"u": Port(size=None, doc="input")}
     outputs = {"y": Port(size="@u", feedthrough=("u",), doc="limited input")}

@@ -47,6 +47,14 @@ class Diagram:
     def __init__(self, spec: DiagramSpec, overrides=None):
         self.spec = spec
         self.file = spec.file
+        if spec.inputs:
+            first = next(iter(spec.inputs))
+            raise DiagramError(
+                f"this file is a subsystem (it has 'inputs:', e.g. '{first}'): it runs inside "
+                f"a parent diagram, not alone. Use it from a parent: 'subsystems: {{my_type: "
+                f"{os.path.basename(spec.file)}}}' and a block '{{type: my_type}}' whose inputs "
+                f"are connected", file=spec.file, line=spec.data.line_of("inputs")
+                if hasattr(spec.data, "line_of") else None)
         self.flat = flatten(spec, overrides)
         if not self.flat.blocks:
             raise DiagramError("the diagram has no blocks", file=spec.file)
