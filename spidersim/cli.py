@@ -419,7 +419,36 @@ def build_parser():
     b = sub.add_parser("blocks", help="list block types or document one")
     b.add_argument("type", nargs="?")
     b.set_defaults(fn=cmd_blocks)
+
+    ca = sub.add_parser("cache", help="the compiled-code cache: info or clear")
+    ca.add_argument("action", choices=("info", "clear"))
+    ca.set_defaults(fn=cmd_cache)
+    ap.add_argument("--version", action="version", version=f"spidersim {_version()}")
     return ap
+
+
+def _version():
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("spidersim")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def cmd_cache(args):
+    from .solver import compiled
+    if args.action == "clear":
+        n = compiled.clear()
+        print(f"spidersim: cache: removed {n} file(s) from {compiled.configured_dir()}")
+        return 0
+    i = compiled.info()
+    state = {True: "writable", False: "NOT writable (a temporary folder is used instead)",
+             None: "not created yet"}[i["usable"]]
+    print(f"folder:  {i['folder']} ({state})\n"
+          f"entries: {i['entries']} compiled diagram structure(s)\n"
+          f"size:    {i['bytes'] / 1e6:.1f} MB\n"
+          f"set SPIDERSIM_CACHE to move it; 'spidersim cache clear' empties it")
+    return 0
 
 
 def main(argv=None):

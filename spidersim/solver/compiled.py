@@ -6,7 +6,11 @@ cached module. numba's own cache (``cache=True``) then lives beside it, so that 
 of the same diagram structure loads machine code instead of compiling. Parameter values are
 not in the text: a new value never recompiles.
 
-The cache folder is ``$SPIDERSIM_CACHE``, else ``~/.cache/spidersim``.
+The cache folder is ``$SPIDERSIM_CACHE``, else ``~/.cache/spidersim``; when it is not a
+writable folder a private temporary one is used for the process, with a warning. Every entry
+is verified before it is imported (its text, the hash written beside it and its key must
+agree): a truncated, emptied, appended or swapped entry is discarded and compiled again.
+``spidersim cache info`` and ``spidersim cache clear`` show and empty it.
 """
 from __future__ import annotations
 
@@ -18,11 +22,43 @@ import time
 from functools import lru_cache
 
 
-def cache_dir() -> str:
-    d = os.environ.get("SPIDERSIM_CACHE") or os.path.join(
+_FALLBACK: list = []     # the private temporary folder used when the cache is unusable
+
+
+def _warn(msg):
+    print(f"spidersim: cache: {msg}", file=sys.stderr)
+
+
+def _usable(d) -> bool:
+    try:
+        os.makedirs(d, exist_ok=True)
+        probe = os.path.join(d, f".probe-{os.getpid()}")
+        with open(probe, "w") as fh:
+            fh.write("ok")
+        os.remove(probe)
+        return True
+    except OSError:
+        return False
+
+
+def configured_dir() -> str:
+    """The cache folder asked for: ``$SPIDERSIM_CACHE``, else ``~/.cache/spidersim``."""
+    return os.environ.get("SPIDERSIM_CACHE") or os.path.join(
         os.path.expanduser("~"), ".cache", "spidersim")
-    os.makedirs(d, exist_ok=True)
-    return d
+
+
+def cache_dir() -> str:
+    """The cache folder in use: the configured one when it is a writable folder, else a
+    private temporary folder for this process (with a one-line warning)."""
+    d = configured_dir()
+    if _usable(d):
+        return d
+    if not _FALLBACK:
+        import tempfile
+        _FALLBACK.append(tempfile.mkdtemp(prefix="spidersim-cache-"))
+        _warn(f"{d} is not a writable folder; compiling into {_FALLBACK[0]} for this run "
+              f"(set SPIDERSIM_CACHE to a writable folder to keep compiled code)")
+    return _FALLBACK[0]
 
 
 @lru_cache(maxsize=1)
@@ -50,24 +86,132 @@ _LOADED: dict = {}
 COUNTS = {"written": 0, "imported": 0}
 
 
+PREFIX = "spidersim_gen_"
+
+
+def _sha(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _write_atomic(path, text):
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+
+
+def _numba_files(folder, name):
+    pyc = os.path.join(folder, "__pycache__")
+    if not os.path.isdir(pyc):
+        return []
+    return [os.path.join(pyc, f) for f in os.listdir(pyc) if f.startswith(name + ".")
+            or f.startswith(name + "-")]
+
+
+def _verified(path, text, key) -> bool:
+    """The cached module at ``path`` is exactly ``text``, its recorded hash matches and its
+    name is the key of its content: anything else (truncated, emptied, appended, swapped
+    for another diagram's, hash missing) is not trusted."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            content = fh.read()
+        with open(path[:-3] + ".sha256", encoding="ascii") as fh:
+            recorded = fh.read().strip()
+    except (OSError, UnicodeDecodeError):
+        return False
+    return (content == text and recorded == _sha(content)
+            and _sha(package_hash() + content)[:20] == key)
+
+
 def load_module(text: str, jit: bool):
-    """Import the generated module ``text``; return ``(module, key, seconds)``."""
-    key = hashlib.sha256((package_hash() + text).encode()).hexdigest()[:20]
-    name = f"spidersim_gen_{key}"
+    """Import the generated module ``text``; return ``(module, key, seconds)``.
+
+    The cache entry is verified before it is imported (see :func:`_verified`); an entry
+    that fails is discarded with a one-line warning and written anew, so numba compiles it
+    again. Module and hash are written to temporary names and renamed (atomic).
+    """
+    key = _sha(package_hash() + text)[:20]
+    name = f"{PREFIX}{key}"
     if name in _LOADED:
         return _LOADED[name], key, 0.0
     t0 = time.perf_counter()
-    path = os.path.join(cache_dir(), name + ".py")
+    folder = cache_dir()
+    path = os.path.join(folder, name + ".py")
+    if os.path.exists(path) and not _verified(path, text, key):
+        _warn(f"entry {key} does not match its hash (truncated, edited or replaced); "
+              f"discarded and compiled again")
+        for f in [path, path[:-3] + ".sha256"] + _numba_files(folder, name):
+            try:
+                os.remove(f)
+            except OSError:
+                pass
     if not os.path.exists(path):
-        tmp = f"{path}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
+        _write_atomic(path[:-3] + ".sha256", _sha(text) + "\n")
+        _write_atomic(path, text)
         COUNTS["written"] += 1
     COUNTS["imported"] += 1
+    try:
+        mod = _import(name, path)
+    except Exception as exc:  # a corrupt numba cache beside a verified module: once more
+        for f in _numba_files(folder, name):
+            try:
+                os.remove(f)
+            except OSError:
+                pass
+        _warn(f"entry {key} could not be loaded ({type(exc).__name__}); its compiled code "
+              f"was discarded, compiling again")
+        try:
+            mod = _import(name, path)
+        except Exception as exc2:
+            from ..errors import SpidersimError
+            raise SpidersimError(f"the compiled-code cache entry {key} in {folder} cannot be "
+                                 f"loaded ({type(exc2).__name__}: {exc2}); run "
+                                 f"'spidersim cache clear' and try again") from None
+    _LOADED[name] = mod
+    return mod, key, time.perf_counter() - t0
+
+
+def _import(name, path):
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    _LOADED[name] = mod
-    return mod, key, time.perf_counter() - t0
+    try:
+        spec.loader.exec_module(mod)
+    except BaseException:
+        sys.modules.pop(name, None)
+        raise
+    return mod
+
+
+def info() -> dict:
+    """Folder, number of compiled diagram structures and bytes used by the cache."""
+    folder = configured_dir()
+    entries, size = 0, 0
+    if os.path.isdir(folder):
+        for d, _, files in os.walk(folder):
+            for f in files:
+                if f.startswith(PREFIX):
+                    size += os.path.getsize(os.path.join(d, f))
+                    entries += f.endswith(".py") and d == folder
+    return {"folder": folder, "entries": entries, "bytes": size,
+            "usable": _usable(folder) if os.path.exists(folder) else None}
+
+
+def clear() -> int:
+    """Remove every cache file spidersim wrote (names starting ``spidersim_gen_``) and
+    nothing else; return how many were removed."""
+    folder = configured_dir()
+    n = 0
+    for d in (folder, os.path.join(folder, "__pycache__")):
+        if not os.path.isdir(d):
+            continue
+        for f in os.listdir(d):
+            if f.startswith(PREFIX):
+                try:
+                    os.remove(os.path.join(d, f))
+                    n += 1
+                except OSError:
+                    pass
+    for name in [k for k in _LOADED]:
+        del _LOADED[name]
+    return n
