@@ -70,7 +70,6 @@ def cmd_run(args):
     if args.remote:
         return cmd_run_remote(args)
     from . import load
-    from .plots import make_plots
 
     d = load(args.file, set=_parse_sets(args.set))
     t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
@@ -80,19 +79,25 @@ def cmd_run(args):
     print(f"spidersim: {d.spec.name}: {len(d.blocks)} blocks, {d.layout.n_x} states; "
           f"compiling ({'numba' if not args.no_jit else 'interpreted'}) ...", file=sys.stderr)
     prog = Progress(t_end)
+    stop = StopRequest()
     try:
-        r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit, progress=prog)
+        with stop.installed():
+            r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit,
+                           progress=prog, should_stop=stop)
     except SpidersimError as exc:
         prog.close()
         if getattr(exc, "partial", None) is not None:
-            exc.partial.save(out)
-            print(f"spidersim: partial data up to the failure written to {out}/",
-                  file=sys.stderr)
+            _write_results(exc.partial, d, out, args.no_plots)
+            print(f"spidersim: partial data up to the failure (data and plots) written to "
+                  f"{out}/", file=sys.stderr)
         raise
     prog.close()
-    r.save(out)
-    pngs = make_plots(r, d.spec.plots, out) if not args.no_plots else []
-    pngs += _microgravity_report(d, r, out, plots=not args.no_plots)
+    pngs = _write_results(r, d, out, args.no_plots)
+    if r.status == "interrupted":
+        print(f"spidersim: {stop.name} at t = {r.stats['t_reached']:.6g} s: results up to "
+              f"there written to {out}/ (report says 'status: interrupted')",
+              file=sys.stderr)
+        return stop.exit_code
     s = r.stats
     print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
           f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration + "
@@ -100,6 +105,76 @@ def cmd_run(args):
     print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
     return 0
+
+
+class StopRequest:
+    """SIGINT/SIGTERM during a run: the first one asks the integration to stop at the current
+    step (the results up to there are written); before the integration starts, or a second
+    time, it interrupts at once. Callable: ``stop()`` is the integration's ``should_stop``."""
+
+    CODES = {"SIGINT": 130, "SIGTERM": 143}
+
+    def __init__(self):
+        self.requested = False
+        self.name = None
+        self.integrating = False
+
+    def __call__(self):
+        self.integrating = True
+        return self.requested
+
+    @property
+    def exit_code(self):
+        return self.CODES.get(self.name, 130)
+
+    def _handle(self, signum, frame):
+        import signal
+        name = signal.Signals(signum).name
+        if self.requested or not self.integrating:
+            raise _Interrupted(name)
+        self.requested, self.name = True, name
+
+    def installed(self):
+        import contextlib
+        import signal
+        import threading
+
+        @contextlib.contextmanager
+        def ctx():
+            if threading.current_thread() is not threading.main_thread():
+                yield
+                return
+            old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                yield
+            finally:
+                for s_, h in old.items():
+                    signal.signal(s_, h)
+        return ctx()
+
+
+class _Interrupted(SpidersimError):
+    """Interrupted before or outside the integration: nothing computed to keep."""
+
+    def __init__(self, name):
+        super().__init__(f"interrupted ({name}) before the integration produced data")
+        self.exit_code = StopRequest.CODES.get(name, 130)
+
+
+def _write_results(r, d, out, no_plots):
+    """Data, report, plots and the microgravity assessment of a (possibly partial) result;
+    a file that cannot be written is an error naming it (never a truncated file)."""
+    from .plots import make_plots
+    try:
+        r.save(out)
+        if no_plots or len(r.t) < 2:
+            return _microgravity_report(d, r, out, plots=False) if len(r.t) > 1 else []
+        pngs = make_plots(r, d.spec.plots, out)
+        return pngs + _microgravity_report(d, r, out, plots=True)
+    except OSError as exc:
+        raise SpidersimError(f"{exc.strerror or exc}; the results folder {out} keeps only "
+                             f"complete files (free some space or choose another --out)"
+                             ) from None
 
 
 def _microgravity_report(d, r, out, plots=True):
@@ -129,12 +204,15 @@ def _microgravity_report(d, r, out, plots=True):
         return []
     a.axes = ["x", "y", "z"][:a.levels.shape[1]] if a.levels.shape[1] <= 3 else []
     print(a.table())
-    with open(os.path.join(out, "microgravity.json"), "w") as fh:
-        json.dump(a.as_dict(), fh, indent=1)
+    from .solver.result import write_atomic
+    write_atomic(os.path.join(out, "microgravity.json"),
+                 lambda fh: json.dump(a.as_dict(), fh, indent=1))
     if not plots:
         return []
     path = os.path.join(out, "microgravity.png")
-    mg.plot(a, path)
+    tmp = os.path.join(out, f".tmp-{os.getpid()}-microgravity.png")
+    mg.plot(a, tmp)
+    os.replace(tmp, path)
     return [path]
 
 

@@ -279,5 +279,15 @@ def make_plots(result, plots, folder):
             from .animation import arm_animation as draw
         else:
             draw = spectrum_plot if kind == "spectrum" else time_plot
-        written.append(draw(result, spec, os.path.join(folder, name)))
+        # drawn under a temporary name (same extension: it picks the format), then renamed
+        final = os.path.join(folder, name)
+        tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+        try:
+            draw(result, spec, tmp)
+            os.replace(tmp, final)
+        except OSError as exc:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+            raise OSError(exc.errno, f"cannot write {final}: {exc.strerror or exc}") from None
+        written.append(final)
     return written

@@ -314,7 +314,7 @@ class Diagram:
         return system
 
     def simulate(self, t_end=None, method=None, rtol=None, atol=None, max_step=None,
-                 output_interval=None, jit=True, progress=None):
+                 output_interval=None, jit=True, progress=None, should_stop=None):
         """Run the diagram; arguments left ``None`` come from the file's ``simulation``.
 
         Returns a :class:`~spidersim.solver.result.Result`; raises
@@ -338,6 +338,7 @@ class Diagram:
                              atol=cfg["atol"], max_step=cfg["max_step"],
                              first_step=cfg["first_step"],
                              output_interval=cfg["output_interval"], progress=progress,
+                             should_stop=should_stop,
                              stats=stats)
         except SpidersimError as exc:
             if exc.file is None:

@@ -167,7 +167,8 @@ def integrate(system, t_end, **kw):
 
 
 def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_step=math.inf,
-              first_step=None, output_interval=None, progress=None, stats=None):
+              first_step=None, output_interval=None, progress=None, stats=None,
+              should_stop=None):
     """Integrate ``system`` from ``t0`` to ``t_end``; return a :class:`Result`.
 
     Parameters
@@ -182,6 +183,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         Record on a uniform grid of this spacing instead of at every step.
     progress : callable, optional
         ``progress(t)`` after every accepted step.
+    should_stop : callable, optional
+        ``should_stop() -> bool`` polled after every accepted step (keep it a flag check);
+        when true the run stops at that step and the result up to it is returned with
+        ``status == "interrupted"`` (the CLI sets it from SIGINT/SIGTERM).
     stats : dict, optional
         Extra entries for ``Result.stats``.
     """
@@ -359,6 +364,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if not rec.add(t, x):
         fail("non-finite value at the start", t, x)
     grid_k = 1
+    interrupted = False
     while t < t_end:
         if system.next_time(t) <= t + 1e-12 * max(1.0, abs(t)):
             # a time event due here (a state event may have stopped exactly on it)
@@ -429,6 +435,16 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                     record_grid(solver.dense_output(), t_old, solver.t)
             if progress is not None:
                 progress(solver.t)
+            if should_stop is not None and should_stop():
+                interrupted = True
+                break
+        if interrupted:
+            # stop at the step reached: what was recorded so far is the result
+            st["rhs_calls"] += int(solver.nfev)
+            t, x = solver.t, solver.y.copy()
+            if output_interval is not None and (not rec.n or rec.t[-1] < t):
+                rec.add(t, x)
+            break
         if restarted:
             continue
         st["rhs_calls"] += int(solver.nfev)
@@ -446,14 +462,16 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
             grid_k += 1
         if t >= t_end:
             break
-    if output_interval is not None and (not rec.n or rec.t[-1] < t_end * (1 - 1e-12)):
+    if not interrupted and output_interval is not None and (
+            not rec.n or rec.t[-1] < t_end * (1 - 1e-12)):
         rec.add(t_end, x)
     st["t_reached"] = t
     st["events"] = len(events)
     st["newton_iterations"] = system.newton_iterations()
     st["samples"] = rec.n
     st["wall_time"] = time.perf_counter() - wall0
-    result = rec.result(events, st)
+    result = (rec.result(events, st, "interrupted", f"interrupted at t = {t:.9g} s")
+              if interrupted else rec.result(events, st))
     x_final = x if not isinstance(system, _Clock) else x[:0]
     result.final = (float(t), np.array(x_final, dtype=float), system.modes.copy())
     return result

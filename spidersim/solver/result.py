@@ -60,20 +60,27 @@ class Result:
                 yield (name if b - a == 1 else f"{name}[{k - a}]"), self._data[:, k]
 
     def save(self, folder):
-        """Write ``result.npz``, ``result.csv`` and ``report.txt`` into ``folder``."""
+        """Write ``result.npz``, ``result.csv`` and ``report.txt`` into ``folder``.
+
+        Each file is written to a temporary name in ``folder`` and renamed when complete, so
+        a full disk or a crash leaves either the complete file or none (an OSError names the
+        file; the temporary is removed).
+        """
         os.makedirs(folder, exist_ok=True)
         arrays = {"t": self.t}
         arrays.update({n: self[n] for n in self.names})
-        np.savez(os.path.join(folder, "result.npz"), **arrays)
-        cols = list(self.columns())
-        with open(os.path.join(folder, "result.csv"), "w", newline="") as fh:
+        write_atomic(os.path.join(folder, "result.npz"), lambda fh: np.savez(fh, **arrays),
+                     binary=True)
+
+        def csv_rows(fh):
             w = csv.writer(fh)
+            cols = list(self.columns())
             w.writerow(["t"] + [h for h, _ in cols])
             data = np.column_stack([self.t] + [c for _, c in cols]) if len(self.t) else []
             for row in data:
                 w.writerow([repr(float(v)) for v in row])
-        with open(os.path.join(folder, "report.txt"), "w") as fh:
-            fh.write(self.report())
+        write_atomic(os.path.join(folder, "result.csv"), csv_rows)
+        write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(self.report()))
         return folder
 
     def report(self):
@@ -97,3 +104,24 @@ class Result:
     def to_json(self):
         return json.dumps({"status": self.status, "message": self.message,
                            "stats": self.stats}, default=float, indent=1)
+
+
+def write_atomic(path, write, binary=False):
+    """``write(fh)`` into a temporary file beside ``path``, then rename it to ``path``.
+
+    On failure (disk full, folder removed, ...) the temporary is removed and an
+    :class:`OSError` naming ``path`` is raised: no truncated file is ever left at ``path``.
+    """
+    tmp = f"{path}.tmp-{os.getpid()}"
+    try:
+        with open(tmp, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
