@@ -216,15 +216,22 @@ def _microgravity_report(d, r, out, plots=True):
     return [path]
 
 
-def default_out(d):
-    """``results/<name>``: the diagram's ``name:`` reduced to letters, digits, ``-`` and
-    ``_`` (else the file name's stem), so that a name can never choose a folder elsewhere."""
+def safe_stem(*candidates):
+    """The first candidate reduced to letters, digits, ``-`` and ``_`` that is not empty:
+    a folder name that can never point outside ``results/``."""
     import re
-    for text in (d.spec.name, os.path.splitext(os.path.basename(d.file))[0]):
+    for text in candidates:
         stem = re.sub(r"[^A-Za-z0-9_-]+", "_", str(text)).strip("_-")[:80]
         if stem:
-            return os.path.join("results", stem)
-    return os.path.join("results", "diagram")
+            return stem
+    return "diagram"
+
+
+def default_out(d, suffix=""):
+    """``results/<name><suffix>``: the diagram's ``name:`` made safe (else the file name's
+    stem), so that a name can never choose a folder elsewhere."""
+    return os.path.join("results", safe_stem(d.spec.name, os.path.splitext(
+        os.path.basename(d.file))[0]) + suffix)
 
 
 def prepare_out(out):
@@ -353,8 +360,8 @@ def cmd_linearize(args):
             raise SpidersimError("give at least one --output signal", file=d.file)
         sys = d.linearize(inputs, outputs, at=at, open=opened, jit=jit)
     print(report(sys, title))
-    out = args.out or os.path.join("results", d.spec.name, "linearize" + (
-        f"_{name}" if name else ""))
+    out = args.out or os.path.join(default_out(d), "linearize" + (
+        f"_{safe_stem(name)}" if name else ""))
     save_matrices(sys, out)
     bode_png(sys, os.path.join(out, "bode.png"), title)
     print(f"spidersim: wrote {out}/linearization.npz, linearization.json and bode.png")
@@ -379,7 +386,8 @@ def cmd_sweep(args):
           f"compiling once ...", file=sys.stderr)
     res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
                 set=_parse_sets(args.set), sim=sim, progress=print_progress)
-    out = args.out or os.path.join("results", f"{res.extra['name']}_sweep")
+    out = args.out or os.path.join("results", safe_stem(
+        res.extra["name"], os.path.splitext(os.path.basename(args.file))[0]) + "_sweep")
     os.makedirs(out, exist_ok=True)
     res.write_csv(os.path.join(out, "sweep.csv"))
     pngs = res.plot(out) if not args.no_plots else []
@@ -400,7 +408,7 @@ def cmd_run_remote(args):
                    plots=not args.no_plots)
     print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
     st = c.wait(job, timeout=args.timeout)
-    out = args.out or os.path.join("results", name)
+    out = args.out or os.path.join("results", safe_stem(name))
     paths = c.download(job, out)
     print(f"spidersim: {st['state']}: t = {st['progress']:g} / {st['t_end']:g} s"
           + (f" ({st['message']})" if st["message"] else "")
