@@ -66,12 +66,89 @@ def _parse_sets(items):
     return out
 
 
+def _raw_sets(items):
+    """``--set`` items as given (path -> the value's text), for the report."""
+    return dict(item.split("=", 1) for item in items or [] if "=" in item)
+
+
+def provenance(args, d, sets):
+    """What a run's report must hold to be repeated: versions, platform, date, the hashes
+    of the diagram file and its subsystem files, the command line, every --set."""
+    import datetime
+    import hashlib
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    def v(pkg):
+        try:
+            return version(pkg)
+        except PackageNotFoundError:
+            return "not installed"
+
+    files = [d.file] + sorted(set(d.flat.subsystem_instances.values()))
+    hashes = {}
+    for f in files:
+        with open(f, "rb") as fh:
+            hashes[os.path.relpath(f)] = hashlib.sha256(fh.read()).hexdigest()
+    return {
+        "versions": {"spidersim": _version(), "python": platform.python_version(),
+                     **{p: v(p) for p in ("numpy", "scipy", "numba", "networkx",
+                                          "control")}},
+        "platform": platform.platform(),
+        "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "file": os.path.abspath(d.file),
+        "file_sha256": hashes,
+        "command": " ".join(sys.argv) if sys.argv and sys.argv[0] else "",
+        "rerun": {"file": os.path.abspath(d.file), "set": dict(sets),
+                  "t_end": args.t_end, "method": args.method, "jit": not args.no_jit},
+    }
+
+
+def _rerun_args(args):
+    """Fill ``args`` from a run's report (``report.json``, or the folder holding it)."""
+    import hashlib
+    import json
+    path = args.rerun
+    if os.path.isdir(path):
+        path = os.path.join(path, "report.json")
+    elif path.endswith("report.txt"):
+        path = path[:-4] + ".json"
+    try:
+        with open(path, encoding="utf-8") as fh:
+            prov = json.load(fh)["provenance"]
+        spec = prov["rerun"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SpidersimError(f"--rerun {args.rerun}: not a spidersim run report "
+                             f"(report.json with its provenance): {exc}") from None
+    if args.file is not None or args.set or args.t_end is not None or args.method:
+        raise SpidersimError("--rerun repeats a run exactly: give no FILE, --set, --t-end "
+                             "or --method with it")
+    args.file = spec["file"]
+    args.set = [f"{k}={v}" for k, v in spec["set"].items()]
+    args.t_end, args.method, args.no_jit = spec["t_end"], spec["method"], not spec["jit"]
+    for f, h in prov.get("file_sha256", {}).items():
+        try:
+            with open(f, "rb") as fh:
+                now = hashlib.sha256(fh.read()).hexdigest()
+        except OSError:
+            now = None
+        if now != h:
+            print(f"spidersim: warning: {f} has changed since the reported run (its SHA-256 "
+                  f"differs): the rerun uses the file as it is now", file=sys.stderr)
+    return args
+
+
 def cmd_run(args):
     if args.remote:
         return cmd_run_remote(args)
     from . import load
+    if args.rerun:
+        args = _rerun_args(args)
+    if args.file is None:
+        raise SpidersimError("spidersim run: give a diagram FILE (or --rerun REPORT)")
 
-    d = load(args.file, set=_parse_sets(args.set))
+    sets = _parse_sets(args.set)
+    d = load(args.file, set=sets)
     t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
     validate_run(d, t_end, args.method)
     out = args.out or default_out(d)
@@ -87,11 +164,13 @@ def cmd_run(args):
     except SpidersimError as exc:
         prog.close()
         if getattr(exc, "partial", None) is not None:
+            exc.partial.provenance = provenance(args, d, _raw_sets(args.set))
             _write_results(exc.partial, d, out, args.no_plots)
             print(f"spidersim: partial data up to the failure (data and plots) written to "
                   f"{out}/", file=sys.stderr)
         raise
     prog.close()
+    r.provenance = provenance(args, d, _raw_sets(args.set))
     pngs = _write_results(r, d, out, args.no_plots)
     if r.status == "interrupted":
         print(f"spidersim: {stop.name} at t = {r.stats['t_reached']:.6g} s: results up to "
@@ -434,7 +513,9 @@ def build_parser():
     ap = argparse.ArgumentParser(prog="spidersim", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="simulate a diagram, write data, report and plots")
-    r.add_argument("file")
+    r.add_argument("file", nargs="?")
+    r.add_argument("--rerun", metavar="REPORT",
+                   help="repeat a run from its report.json (or its results folder)")
     r.add_argument("--set", action="append", metavar="PATH=VALUE",
                    help="override a parameter (name, block.param or sub.block.param)")
     r.add_argument("--t-end", type=float, help="simulated time [s]")

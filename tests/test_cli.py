@@ -66,12 +66,15 @@ def test_run_writes_data_report_and_plots(path, tmp_path, capsys):
         assert len(t) >= 2 and t[0] == 0.0 and t[-1] == pytest.approx(t_end)
         assert len(z.files) > 1
         for name in z.files:
+            if name == "__meta__":            # units, sizes, statistics, provenance
+                continue
             assert len(z[name]) == len(t), name
             assert np.all(np.isfinite(z[name])), name
 
     with open(out / "result.csv", newline="") as fh:
         rows = list(csv.reader(fh))
-    assert rows[0][0] == "t" and len(rows[0]) > 1
+    assert rows[0][0] == "t [s]" and len(rows[0]) > 1
+    assert all(h.endswith("]") for h in rows[0])   # every header carries its unit
     assert len(rows) == len(t) + 1
     assert all(len(r) == len(rows[0]) for r in rows)
     float(rows[1][0])                       # data rows are numbers

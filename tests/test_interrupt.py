@@ -71,6 +71,7 @@ def test_full_disk_leaves_no_truncated_file(tmp_path, monkeypatch):
     monkeypatch.setattr(result_mod.np, "savez", full_disk)
     with pytest.raises(OSError, match="result.npz.*No space left"):
         r.save(tmp_path)
-    assert sorted(os.listdir(tmp_path)) == ["report.txt", "result.csv", "result.npz"]
+    assert sorted(os.listdir(tmp_path)) == ["report.json", "report.txt", "result.csv",
+                                             "result.npz"]
     assert (tmp_path / "result.csv").read_bytes() == before
     np.load(tmp_path / "result.npz")                 # the earlier complete file

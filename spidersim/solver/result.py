@@ -21,6 +21,9 @@ class Result:
     """
 
     final = None
+    #: how the run was made (versions, platform, date, file hashes, command line, --set);
+    #: filled by the CLI, written into report.txt, report.json and the NPZ metadata
+    provenance: dict = {}
 
     def __init__(self, t, data, slices, units, events, stats, status="ok", message=""):
         self.t = np.asarray(t)
@@ -31,6 +34,7 @@ class Result:
         self.stats = stats
         self.status = status
         self.message = message
+        self.provenance = {}
 
     @property
     def names(self):
@@ -69,19 +73,47 @@ class Result:
         os.makedirs(folder, exist_ok=True)
         arrays = {"t": self.t}
         arrays.update({n: self[n] for n in self.names})
+        arrays["__meta__"] = np.array(json.dumps(self.meta(), default=_jsonable))
         write_atomic(os.path.join(folder, "result.npz"), lambda fh: np.savez(fh, **arrays),
                      binary=True)
 
         def csv_rows(fh):
             w = csv.writer(fh)
             cols = list(self.columns())
-            w.writerow(["t"] + [h for h, _ in cols])
+            w.writerow(["t [s]"] + [f"{h} [{self.units.get(h.split('[')[0], '1')}]"
+                                    for h, _ in cols])
             data = np.column_stack([self.t] + [c for _, c in cols]) if len(self.t) else []
             for row in data:
                 w.writerow([repr(float(v)) for v in row])
         write_atomic(os.path.join(folder, "result.csv"), csv_rows)
         write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(self.report()))
+        write_atomic(os.path.join(folder, "report.json"),
+                     lambda fh: json.dump(self.meta(), fh, indent=1, default=_jsonable))
         return folder
+
+    def meta(self):
+        """Everything but the samples: status, units, sizes, statistics, events, provenance."""
+        return {"status": self.status, "message": self.message, "units": self.units,
+                "sizes": {n: b - a for n, (a, b) in self._slices.items()},
+                "stats": self.stats, "events": [list(e) for e in self.events],
+                "provenance": self.provenance}
+
+    @classmethod
+    def load(cls, folder):
+        """The result a ``save(folder)`` wrote (``result.npz`` with its metadata)."""
+        with np.load(os.path.join(folder, "result.npz"), allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"]))
+            t = z["t"]
+            cols, slices, k = [], {}, 0
+            for name, size in meta["sizes"].items():
+                cols.append(np.asarray(z[name], dtype=float).reshape(len(t), size))
+                slices[name] = (k, k + size)
+                k += size
+        data = np.hstack(cols) if cols else np.zeros((len(t), 0))
+        r = cls(t, data, slices, meta["units"], [tuple(e) for e in meta["events"]],
+                meta["stats"], meta["status"], meta["message"])
+        r.provenance = meta.get("provenance", {})
+        return r
 
     def report(self):
         s = self.stats
@@ -96,6 +128,11 @@ class Result:
             if k in s:
                 v = s[k]
                 lines.append(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}")
+        for k, v in self.provenance.items():
+            if isinstance(v, dict):
+                lines += [f"{k}:"] + [f"  {a}: {b}" for a, b in v.items()]
+            else:
+                lines.append(f"{k}: {v}")
         if self.events:
             lines.append(f"event log ({len(self.events)}, first 20):")
             lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]
@@ -104,6 +141,14 @@ class Result:
     def to_json(self):
         return json.dumps({"status": self.status, "message": self.message,
                            "stats": self.stats}, default=float, indent=1)
+
+
+def _jsonable(v):
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return str(v)
 
 
 def write_atomic(path, write, binary=False):

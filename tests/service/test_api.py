@@ -140,7 +140,8 @@ def test_run_results_equal_local_run(server, tmp_path):
     # downloads: csv, per-signal JSON, plots
     http = server.client(server.alice)
     csv = http.get(f"/jobs/{job}/result.csv").text.splitlines()
-    assert csv[0].split(",") == ["t"] + ref.names and len(csv) == len(ref.t) + 1
+    assert csv[0].split(",") == ["t [s]"] + [f"{n} [{ref.units[n]}]" for n in ref.names]
+    assert len(csv) == len(ref.t) + 1
     sig = http.get(f"/jobs/{job}/signals/motor.w.json", params={"stride": 3}).json()
     assert sig["unit"] == ref.units["motor.w"]
     assert np.array_equal(sig["values"], ref["motor.w"][::3])
