@@ -172,6 +172,8 @@ def cmd_run(args):
     prog.close()
     r.provenance = provenance(args, d, _raw_sets(args.set))
     pngs = _write_results(r, d, out, args.no_plots)
+    if getattr(args, "show", False) and r.status != "interrupted":
+        _show(r, d)
     if r.status == "interrupted":
         print(f"spidersim: {stop.name} at t = {r.stats['t_reached']:.6g} s: results up to "
               f"there written to {out}/ (report says 'status: interrupted')",
@@ -184,6 +186,26 @@ def cmd_run(args):
     print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
     return 0
+
+
+def _show(r, d):
+    """The diagram's time plots in windows (``run --show``); files are written already."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+    if matplotlib.get_backend().lower() == "agg":
+        try:
+            plt.switch_backend("TkAgg")
+        except Exception:          # noqa: BLE001 (no display or no Tk: say so, keep files)
+            print("spidersim: --show: no interactive display available; the plots are in "
+                  "the results folder", file=sys.stderr)
+            return
+    for spec in d.spec.plots:
+        if spec.get("kind", "time") == "time":
+            r.plot(spec["signals"], title=spec.get("title"),
+                   one_panel=bool(spec.get("one_panel")))
+    if not d.spec.plots:
+        r.plot(title=d.spec.name)
+    plt.show()
 
 
 class StopRequest:
@@ -410,41 +432,49 @@ def cmd_blocks(args):
 
 def cmd_linearize(args):
     from . import load
-    from .linreport import analysis_request, bode_png, parse_at, report, save_matrices
+    from .linreport import analysis_request, parse_at
 
     d = load(args.file, set=_parse_sets(args.set))
-    name = args.name
-    if name is None and not (args.input or args.loop):
-        if len(d.spec.analysis) == 1:
-            name = next(iter(d.spec.analysis))
-        else:
-            raise SpidersimError(
-                "give an analysis name or --input/--output (or --loop); analyses in the file: "
-                + (", ".join(d.spec.analysis) or "none"), file=d.file)
-    if name is not None:
-        inputs, outputs, opened, at, loop = analysis_request(d, name)
-        if isinstance(at, str):
-            at = parse_at(at)
-    else:
-        inputs, outputs, opened = args.input or [], args.output or [], args.open or []
-        at, loop = None, args.loop
-    if args.at is not None:
-        at = parse_at(args.at)
     jit = not args.no_jit
+    if args.name is None and not (args.input or args.loop):
+        if not d.spec.analysis:
+            raise SpidersimError("the file has no 'analysis' section: give --input/--output "
+                                 "(or --loop)", file=d.file)
+        names = list(d.spec.analysis)          # every analysis of the file
+    else:
+        names = [args.name]
+    for name in names:
+        if name is not None:
+            inputs, outputs, opened, at, loop = analysis_request(d, name)
+            if isinstance(at, str):
+                at = parse_at(at)
+        else:
+            inputs, outputs, opened = args.input or [], args.output or [], args.open or []
+            at, loop = None, args.loop
+        if args.at is not None:
+            at = parse_at(args.at)
+        _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit)
+    return 0
+
+
+def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit):
+    """One analysis: report on stdout, matrices and Bode plot in its folder."""
+    from .linreport import bode_png, report, save_matrices
     title = name or (f"loop at {loop}" if loop else d.spec.name)
     if loop:
-        sys = d.loop_transfer(loop, at=at, jit=jit)
+        sys_ = d.loop_transfer(loop, at=at, jit=jit)
     else:
         if not outputs:
             raise SpidersimError("give at least one --output signal", file=d.file)
-        sys = d.linearize(inputs, outputs, at=at, open=opened, jit=jit)
-    print(report(sys, title))
+        sys_ = d.linearize(inputs, outputs, at=at, open=opened, jit=jit)
+    print(report(sys_, title, loop=bool(loop)))
     out = args.out or os.path.join(default_out(d), "linearize" + (
         f"_{safe_stem(name)}" if name else ""))
-    save_matrices(sys, out)
-    bode_png(sys, os.path.join(out, "bode.png"), title)
+    if args.out and name is not None and args.name is None:
+        out = os.path.join(args.out, safe_stem(name))     # several analyses: one folder each
+    save_matrices(sys_, out)
+    bode_png(sys_, os.path.join(out, "bode.png"), title)
     print(f"spidersim: wrote {out}/linearization.npz, linearization.json and bode.png")
-    return 0
 
 
 def cmd_sweep(args):
@@ -523,6 +553,8 @@ def build_parser():
     r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF")
     r.add_argument("--no-jit", action="store_true", help="interpreted mode (no numba)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    r.add_argument("--show", action="store_true",
+                   help="also show the plots in a window (interactive matplotlib backend)")
     r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE names "
                    "a model of its library) and download the results")
     r.add_argument("--token", help="service token (default: $SPIDERSIM_TOKEN)")

@@ -55,11 +55,12 @@ def parse_at(text):
         raise DiagramError(f"--at expects a time [s], 'initial' or 'trim', got '{text}'")
 
 
-def report(sys, title=""):
-    """Text: poles of the whole model, then the figures of each input/output pair."""
+def report(sys, title="", loop=False):
+    """Text: poles of the whole model, then the figures of each input/output pair (margins
+    and stability notes only when ``sys`` is a loop transfer)."""
     import control
 
-    from .solver.linearize import format_figures, siso_figures
+    from .solver.linearize import format_figures, loop_notes, peak_gain, siso_figures
 
     lines = [f"linear model{(' ' + title) if title else ''}: {sys.nstates} states, "
              f"{sys.ninputs} inputs, {sys.noutputs} outputs"]
@@ -70,7 +71,12 @@ def report(sys, title=""):
     for j, u in enumerate(sys.input_labels):
         for i, y in enumerate(sys.output_labels):
             sub = control.ss(sys.A, sys.B[:, [j]], sys.C[[i], :], sys.D[[i], [j]])
-            lines.append(format_figures(siso_figures(sub), f"{u} -> {y}:"))
+            fig = siso_figures(sub)
+            if loop:
+                fig["notes"] = loop_notes(sub)
+            else:
+                fig["peak"] = peak_gain(sub)
+            lines.append(format_figures(fig, f"{u} -> {y}:", loop=loop))
     return "\n".join(lines)
 
 
@@ -91,10 +97,17 @@ def bode_png(sys, path, title=""):
             g = resp[i, j]
             with np.errstate(divide="ignore"):
                 am.semilogx(w / (2 * math.pi), 20 * np.log10(np.abs(g)), label=f"{u} -> {y}")
-            ap.semilogx(w / (2 * math.pi), np.degrees(np.unwrap(np.angle(g))))
+            ph = np.degrees(np.unwrap(np.angle(g)))
+            # the usual range: shift by whole turns so that the low-frequency phase lies
+            # in (-360, 0]
+            ph -= 360.0 * np.ceil(ph[0] / 360.0)
+            ap.semilogx(w / (2 * math.pi), ph)
     am.set_ylabel("magnitude [dB]")
     ap.set_ylabel("phase [deg]")
     ap.set_xlabel("frequency [Hz]")
+    top = am.secondary_xaxis("top", functions=(lambda f: 2 * math.pi * f,
+                                               lambda w_: w_ / (2 * math.pi)))
+    top.set_xlabel("frequency [rad/s]")
     for a in (am, ap):
         a.grid(True, which="both", alpha=0.3)
     am.legend(fontsize="small")

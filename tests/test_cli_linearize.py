@@ -48,9 +48,23 @@ def test_ad_hoc_signals(tmp_path, capsys):
     assert "sat/y -> motor/i" in out and "sat/y -> motor/w" in out
 
 
-def test_errors(tmp_path, capsys):
+def test_every_analysis_without_a_name(tmp_path, capsys):
+    """No name: every analysis of the file, each in its own folder; margins only for the
+    loop transfers, bandwidth and peak for the closed-loop pair."""
     rc, out, err = _run(capsys, "linearize", SERVO, "--no-jit", "--out", tmp_path)
-    assert rc == 2 and "current_loop, speed_closed, position_loop" in err
+    assert rc == 0, err
+    blocks = out.split("linear model ")[1:]
+    assert [b.split(":")[0] for b in blocks] == ["current_loop", "speed_closed",
+                                                 "position_loop"]
+    closed = blocks[1]
+    assert "phase margin" not in closed and "peak gain" in closed and "bandwidth" in closed
+    assert "phase margin" in blocks[0] and "conditionally stable" in blocks[0]
+    assert "phase margin" in blocks[2] and "Hz)" in blocks[2]
+    for name in ("current_loop", "speed_closed", "position_loop"):
+        assert (tmp_path / name / "bode.png").exists()
+
+
+def test_errors(tmp_path, capsys):
     rc, out, err = _run(capsys, "linearize", SERVO, "speed_closd", "--no-jit")
     assert rc == 2 and "did you mean speed_closed" in err
     rc, out, err = _run(capsys, "linearize", SERVO, "--input", "sat.yy", "--output", "motor.w",

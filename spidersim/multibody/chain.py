@@ -47,7 +47,7 @@ class Chain:
         n = len(dh)
         self.n = n
         self.name = name
-        self.gravity = np.asarray(gravity, dtype=float)
+        self.gravity = gravity
         P = np.zeros((n, K.ROW))
         T = np.eye(4)
         for i in range(n):
@@ -65,6 +65,18 @@ class Chain:
         self._M = np.zeros((n, n))
         self._tmp = np.zeros(6 * n)
         self._base = np.zeros(6)
+
+    @property
+    def gravity(self):
+        """Gravity acceleration in base axes [m/s^2] (a float array of 3)."""
+        return self._gravity
+
+    @gravity.setter
+    def gravity(self, g):
+        g = np.asarray(g, dtype=float).reshape(-1)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers [m/s^2], got {g.tolist()}")
+        self._gravity = g
 
     @classmethod
     def from_yaml(cls, path=None):

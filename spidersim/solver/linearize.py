@@ -125,8 +125,54 @@ def siso_figures(sys):
     return out
 
 
-def format_figures(fig, name=""):
-    """Text table of :func:`siso_figures`."""
+def loop_notes(sys):
+    """Stability notes of a loop transfer ``L`` (negative feedback: closed loop L/(1+L)):
+    open-loop RHP poles P, Nyquist encirclements of -1, closed-loop RHP poles Z, and whether
+    the closed loop is conditionally stable (gain margin below 1: it goes unstable when the
+    loop gain *drops*)."""
+    import control
+    notes = []
+    with np.errstate(all="ignore"):
+        P = int(np.sum(np.real(control.poles(sys)) > 1e-9))
+        cl = control.feedback(sys, 1)
+        Z = int(np.sum(np.real(control.poles(cl)) > 1e-9))
+        try:
+            N = int(control.nyquist_response(sys, warn_encirclements=False,
+                                             warn_nyquist=False).count)
+        except Exception:                  # noqa: BLE001 (a plot helper; the count is a note)
+            N = None
+        gm = float(control.margin(sys)[0])
+    if P:
+        notes.append(f"open loop unstable: {P} right-half-plane pole(s); Nyquist: "
+                     f"{N if N is not None else '?'} encirclement(s) of -1, closed loop has "
+                     f"{Z} right-half-plane pole(s)" + (" (stable)" if Z == 0 else ""))
+    elif Z:
+        notes.append(f"closed loop UNSTABLE: {Z} right-half-plane pole(s) (Nyquist: "
+                     f"{N if N is not None else '?'} encirclement(s) of -1)")
+    if Z == 0 and np.isfinite(gm) and 0 < gm < 1:
+        notes.append(f"conditionally stable: the gain margin {gm:.3g} "
+                     f"({20 * math.log10(gm):.3g} dB) is a gain REDUCTION that destabilises "
+                     f"the loop")
+    return notes
+
+
+def peak_gain(sys, n=800):
+    """``(peak |G(jw)|, w at the peak [rad/s])`` over a grid spanning the poles and zeros."""
+    import control
+    with np.errstate(all="ignore"):
+        marks = [abs(p) for p in list(control.poles(sys)) + list(control.zeros(sys))
+                 if np.isfinite(p) and abs(p) > 0]
+        lo, hi = min(marks + [1.0]) / 1e3, max(marks + [1.0]) * 1e3
+        w = np.logspace(np.log10(lo), np.log10(hi), n)
+        mag = np.abs(np.asarray(sys(1j * w)).ravel())
+    k = int(np.nanargmax(mag))
+    return float(mag[k]), float(w[k])
+
+
+def format_figures(fig, name="", loop=False):
+    """Text table of :func:`siso_figures`: margins and crossovers only for a loop transfer
+    (``loop=True``), where they mean something; for other pairs bandwidth, peak and DC
+    gain. Frequencies in rad/s and Hz."""
     def num(v, unit=""):
         if v is None or (isinstance(v, float) and not np.isfinite(v)):
             return "none" if v is None else ("inf" if v > 0 else "-inf") if not np.isnan(
@@ -138,18 +184,31 @@ def format_figures(fig, name=""):
                          else f"{z.real:.6g}" for z in sorted(vals, key=lambda z: (
                              z.real, z.imag))) or "none"
 
+    def freq(v):
+        if v is None or not np.isfinite(v):
+            return num(v)
+        return f"{v:.6g} rad/s ({v / 2 / math.pi:.6g} Hz)"
+
     bw = fig["bandwidth"]
     lines = [f"  {name}" if name else "",
              f"    minimal states:        {fig['states']}",
              f"    poles [rad/s]:         {cplx(fig['poles'])}",
              f"    zeros [rad/s]:         {cplx(fig['zeros'])}",
-             f"    DC gain:               {num(fig['dc_gain'])}",
-             "    -3 dB bandwidth:       " + (f"{bw:.6g} rad/s ({bw / 2 / math.pi:.6g} Hz)"
-                                             if bw is not None else fig["bandwidth_note"]),
-             f"    gain crossover:        {num(fig['gain_crossover'], ' rad/s')}",
-             f"    phase crossover:       {num(fig['phase_crossover'], ' rad/s')}",
-             f"    gain margin:           {num(fig['gain_margin'])}"
-             + (f" ({20 * math.log10(fig['gain_margin']):.3g} dB)"
-                if np.isfinite(fig["gain_margin"]) and fig["gain_margin"] > 0 else ""),
-             f"    phase margin:          {num(fig['phase_margin'], ' deg')}"]
+             f"    DC gain:               {num(fig['dc_gain'])}"
+             + (" (a free integrator)" if np.isinf(fig["dc_gain"]) else "")]
+    if loop:
+        lines += [f"    gain crossover:        {freq(fig['gain_crossover'])}",
+                  f"    phase crossover:       {freq(fig['phase_crossover'])}",
+                  f"    gain margin:           {num(fig['gain_margin'])}"
+                  + (f" ({20 * math.log10(fig['gain_margin']):.3g} dB)"
+                     if np.isfinite(fig["gain_margin"]) and fig["gain_margin"] > 0 else ""),
+                  f"    phase margin:          {num(fig['phase_margin'], ' deg')}"]
+        lines += [f"    note: {n}" for n in fig.get("notes", [])]
+    else:
+        lines.append("    -3 dB bandwidth:       " + (freq(bw) if bw is not None
+                                                      else fig["bandwidth_note"]))
+        if "peak" in fig:
+            pk, wk = fig["peak"]
+            lines.append(f"    peak gain:             {pk:.6g} ({20 * math.log10(pk):.3g} dB) "
+                         f"at {freq(wk)}" if pk > 0 else "    peak gain:             0")
     return "\n".join(ln for ln in lines if ln)

@@ -57,6 +57,73 @@ class Result:
         return (f"<Result {self.status}: {len(self.t)} samples to t = "
                 f"{self.t[-1] if len(self.t) else 0:g} s, {len(self._slices)} signals>")
 
+    def plot(self, signals=None, title=None, one_panel=False, ax=None):
+        """Plot ``signals`` (default: every logged signal, up to 8) against time, one panel
+        per unit (or one panel); returns the matplotlib Figure. For notebooks and scripts:
+        the current matplotlib backend is used (nothing is written)."""
+        import matplotlib.pyplot as plt
+        signals = list(signals) if signals is not None else self.names[:8]
+        from ..plots import split_signal
+        units = []
+        for s_ in signals:
+            u = self.units.get(split_signal(s_)[0], "1")
+            if u not in units:
+                units.append(u)
+        if one_panel or ax is not None:
+            units = [", ".join(units)]
+        if ax is None:
+            fig, axes = plt.subplots(len(units), 1, sharex=True, squeeze=False,
+                                     figsize=(8, 2.2 + 2.0 * len(units)))
+            axes = axes[:, 0]
+        else:
+            fig, axes = ax.figure, [ax]
+        from ..plots import signal_values
+        for a, unit in zip(axes, units):
+            for s_ in signals:
+                if len(units) > 1 and self.units.get(split_signal(s_)[0], "1") != unit:
+                    continue
+                y = signal_values(self, s_)
+                if y.ndim == 1:
+                    a.plot(self.t, y, label=s_)
+                else:
+                    for i in range(y.shape[1]):
+                        a.plot(self.t, y[:, i], label=f"{s_}[{i}]")
+            a.set_ylabel(f"[{unit}]")
+            a.grid(True, alpha=0.3)
+            a.legend(fontsize="small", loc="best")
+        axes[-1].set_xlabel("time [s]")
+        if title:
+            axes[0].set_title(title)
+        return fig
+
+    def to_dataframe(self):
+        """A pandas DataFrame indexed by time, one column per element (``name[i]`` for
+        vectors); the units are in ``df.attrs["units"]``. Needs pandas
+        (``pip install spidersim[pandas]``)."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("Result.to_dataframe needs pandas: pip install "
+                              "'spidersim[pandas]' (or pip install pandas)") from None
+        df = pd.DataFrame({h: c for h, c in self.columns()},
+                          index=pd.Index(self.t, name="t [s]"))
+        df.attrs["units"] = dict(self.units)
+        return df
+
+    def _repr_html_(self):
+        import html
+        rows = "".join(f"<tr><td><code>{html.escape(n)}</code></td>"
+                       f"<td>{html.escape(self.units.get(n, '1'))}</td><td>{b - a}</td></tr>"
+                       for n, (a, b) in self._slices.items())
+        s = self.stats
+        return (f"<div><b>spidersim Result</b>: {html.escape(self.status)}, "
+                f"{len(self.t)} samples to t = {self.t[-1] if len(self.t) else 0:g} s; "
+                f"{s.get('steps', '?')} steps, {s.get('rhs_calls', '?')} RHS calls, "
+                f"{len(self.events)} events"
+                + (f"<br><i>{html.escape(self.message)}</i>" if self.message else "")
+                + "<table><tr><th>signal</th><th>unit</th><th>size</th></tr>"
+                + rows + "</table></div>")
+
     def columns(self):
         """(header, column) pairs with one column per element (``name[i]`` for vectors)."""
         for name, (a, b) in self._slices.items():

@@ -46,7 +46,8 @@ def test_cartesian_line_sets_ik_and_profile(lib):
         "kind": "cartesian_line", "direction": [0, 3, 4], "distance": 0.1, "speed": 0.02}})
     assert np.allclose(d.blocks["ik"].params["direction"], [0, 3, 4])
     p = d.blocks["path"].params
-    assert (p["q0"], p["q1"], p["v_max"]) == (0.0, 0.1, 0.02) and t_end == 10.0
+    assert (p["q0"], p["q1"], p["v_max"]) == (0.0, 0.1, 0.02)
+    assert t_end == d.simulation["t_end"]            # the model's own run length
 
 
 def test_joint_path_trapezoid_takes_the_given_time(tmp_path):

@@ -444,3 +444,20 @@ def test_trim_that_cannot_converge_names_the_residuals():
         d.trim(targets={"sq.y": -1.0}, derivatives=[], jit=False)
     msg = str(ei.value)
     assert "trim did not converge" in msg and "sq.y = 1" in msg
+
+
+def test_loop_notes_against_routh():
+    """L = K (s+1)^2 / s^3: closed loop s^3 + K s^2 + 2K s + K is stable iff K > 1/2
+    (Routh), so at K = 10 the loop is conditionally stable with gain margin 0.05; an
+    unstable open loop 2/(s-1) is stabilised (Nyquist: one counter-clockwise encirclement)."""
+    import control
+
+    from spidersim.solver.linearize import loop_notes
+    notes = loop_notes(control.tf([10, 20, 10], [1, 0, 0, 0]))
+    assert len(notes) == 1 and "conditionally stable" in notes[0] and "0.05 " in notes[0]
+    assert loop_notes(control.tf([0.6, 1.2, 0.6], [1, 0, 0, 0]))[0].startswith("conditionally")
+    assert "UNSTABLE" in loop_notes(control.tf([0.4, 0.8, 0.4], [1, 0, 0, 0]))[0]
+    un = loop_notes(control.tf([2], [1, -1]))
+    assert "open loop unstable: 1" in un[0] and "closed loop has 0" in un[0]
+    assert "closed loop has 1" in loop_notes(control.tf([0.5], [1, -1]))[0]
+    assert loop_notes(control.tf([1], [1, 1])) == []      # a plain stable loop: no note
