@@ -129,3 +129,44 @@ class WrenchSensor(Block):
                     u = -wrench[3 * h + r]
                 k = 3 * h + r
                 der_F[k] = a * (u + bias[k] - F[k])
+
+
+class RDC(Block):
+    """Resolver-to-digital converter: a type-II tracking loop on the resolver angle::
+
+        e        = sin(theta_q - theta_r)          (theta_q: the angle at ``bits`` resolution)
+        dtheta_r/dt = w_r + 2 zeta w_n e
+        dw_r/dt     = w_n^2 e,                      w_n = 2 pi f_n
+
+    For small errors the tracked angle follows the true one through
+    ``(2 zeta w_n s + w_n^2) / (s^2 + 2 zeta w_n s + w_n^2)``: zero steady error at constant
+    speed, ``a / w_n^2`` at constant acceleration ``a``; a speed step ``w0`` from rest gives
+    ``e(t) = w0 / w_d exp(-zeta w_n t) sin(w_d t)``, ``w_d = w_n sqrt(1 - zeta^2)``. The
+    speed output is the loop's integrator ``w_r`` (what the converter's velocity output
+    provides instead of a differentiated angle). ``sin`` of the error makes the loop track
+    through angle wrap-around. ``bits = 0`` tracks the exact angle; ``bits > 0`` the angle
+    quantized to ``2 pi / 2^bits`` (a staircase input: prefer sampled controllers then).
+    Outputs are states: no direct feedthrough.
+    """
+
+    category = "sensors"
+    parameters = {
+        "f_n": Param(500.0, "Hz", "natural frequency of the tracking loop", gt=0.0),
+        "zeta": Param(0.7, "1", "damping ratio of the tracking loop", gt=0.0),
+        "bits": Param(0, "1", "converter resolution in bits per revolution (0: exact)",
+                      kind="int", ge=0, le=40),
+        "theta0": Param(0.0, "rad", "initial tracked angle"),
+        "w0": Param(0.0, "rad/s", "initial tracked speed"),
+    }
+    inputs = {"theta": Port("rad", doc="resolver angle (true or measured)")}
+    outputs = {"theta_r": Port("rad", doc="tracked angle"),
+               "w_r": Port("rad/s", doc="tracked speed (velocity output)")}
+    states = {"theta_r": State("rad", initial="theta0", doc="tracked angle"),
+              "w_r": State("rad/s", initial="w0", doc="loop integrator: the speed")}
+
+    @staticmethod
+    def derivative(t, theta, theta_r, w_r, f_n, zeta, bits, der_theta_r, der_w_r):
+        wn = 2.0 * math.pi * f_n
+        e = math.sin(quantize_jit(theta[0], bits) - theta_r[0])
+        der_theta_r[0] = w_r[0] + 2.0 * zeta * wn * e
+        der_w_r[0] = wn * wn * e

@@ -118,6 +118,7 @@ EXAMPLES = {
                       dict(params={"friction": False}, lo=-1.0, hi=1.0),
                       dict(params={"friction_side": "load", "efficiency": 0.8}, lo=-1.0,
                            hi=1.0)],
+    "RDC": [dict(params={"f_n": 300.0, "zeta": 0.6}), dict(params={"bits": 10})],
     "Resolver": [dict(params={"bits": 12}, lo=-3.0, hi=3.0),
                  dict(params={"bits": 10, "Ts": 1e-3, "noise": 1e-3}, lo=-3.0, hi=3.0)],
     "TrapezoidalProfile": [dict(params={"q0": 0.1, "q1": 1.0, "v_max": 0.5, "a_max": 2.0})],
