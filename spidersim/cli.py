@@ -14,7 +14,7 @@ import time
 
 import yaml
 
-from .errors import DiagramError, SpidersimError
+from .errors import DiagramError, SpidersimError, printable
 
 
 class Progress:
@@ -64,6 +64,40 @@ def _parse_sets(items):
             val = v
         out[k.strip()] = val
     return out
+
+
+def _compile_with_progress(d, jit):
+    """Compile (or load) the diagram, saying what happens and for how long: generation,
+    numba compilation of a new structure with a heartbeat every 10 s, or a cache hit."""
+    import threading
+    from .solver.compiled import is_cached
+    head = f"spidersim: {printable(d.spec.name)}: {len(d.blocks)} blocks, {d.layout.n_x} states"
+    t0 = time.perf_counter()
+    if not jit:
+        print(f"{head}; interpreted mode (no numba) ...", file=sys.stderr)
+        d.compile(jit=False)
+        return
+    cached = is_cached(d.source(True))
+    print(f"{head}; " + ("loading compiled code from the cache ..." if cached else
+                         "new structure: compiling with numba (the first run of a "
+                         "structure takes seconds to a minute; later runs load it) ..."),
+          file=sys.stderr)
+    done = threading.Event()
+
+    def heartbeat():
+        while not done.wait(10.0):
+            print(f"  ... still compiling ({time.perf_counter() - t0:.0f} s)",
+                  file=sys.stderr)
+    beat = threading.Thread(target=heartbeat, daemon=True)
+    if not cached:
+        beat.start()
+    try:
+        d.compile(jit=True)
+    finally:
+        done.set()
+    dt = time.perf_counter() - t0
+    print(f"spidersim: {'loaded from the cache' if cached else 'compiled'} in {dt:.1f} s",
+          file=sys.stderr)
 
 
 def _raw_sets(items):
@@ -153,8 +187,7 @@ def cmd_run(args):
     validate_run(d, t_end, args.method)
     out = args.out or default_out(d)
     prepare_out(out)
-    print(f"spidersim: {d.spec.name}: {len(d.blocks)} blocks, {d.layout.n_x} states; "
-          f"compiling ({'numba' if not args.no_jit else 'interpreted'}) ...", file=sys.stderr)
+    _compile_with_progress(d, jit=not args.no_jit)
     prog = Progress(t_end)
     stop = StopRequest()
     try:
@@ -181,8 +214,7 @@ def cmd_run(args):
         return stop.exit_code
     s = r.stats
     print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
-          f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration + "
-          f"{s['compile_time']:.2f} s compile")
+          f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration")
     print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
     return 0

@@ -162,3 +162,20 @@ def test_subsystem_files_are_used_and_checked(path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "is a subsystem" in err and "parent" in err and "Traceback" not in err
     assert f"{name}:" in err
+
+
+def test_compile_progress_says_what_happens(tmp_path):
+    """A new structure says it compiles (and how long it took); the next run says it loaded
+    the compiled code from the cache (issue #16 item 4)."""
+    import subprocess
+    import sys
+    env = dict(os.environ, SPIDERSIM_CACHE=str(tmp_path / "cache"))
+    cmd = [sys.executable, "-m", "spidersim.cli", "run", os.path.join(ROOT, "diagrams",
+           "three_lags.yaml"), "--t-end", "0.01", "--no-plots", "--out", str(tmp_path / "o")]
+    first = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    second = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
+    assert "new structure: compiling with numba" in first.stderr
+    assert "compiled in" in first.stderr and "from the cache" not in first.stderr
+    assert "loading compiled code from the cache" in second.stderr
+    assert "loaded from the cache in" in second.stderr

@@ -171,6 +171,18 @@ def load_module(text: str, jit: bool):
     return mod, key, time.perf_counter() - t0
 
 
+def is_cached(text: str) -> bool:
+    """Whether the module ``text`` is already compiled in the cache (verified), i.e. the
+    next :func:`load_module` loads machine code instead of compiling."""
+    key = _sha(package_hash() + text)[:20]
+    name = f"{PREFIX}{key}"
+    if name in _LOADED:
+        return True
+    path = os.path.join(cache_dir(), name + ".py")
+    return os.path.exists(path) and _verified(path, text, key) and bool(
+        _numba_files(os.path.dirname(path), name))
+
+
 def _import(name, path):
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
