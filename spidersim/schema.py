@@ -21,7 +21,10 @@ from .plots import KINDS as PLOT_KINDS
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 NAME = r"^[A-Za-z_][A-Za-z0-9_]*$"
-_ADDR = r"[A-Za-z_][A-Za-z0-9_.]*\.[A-Za-z_][A-Za-z0-9_]*(\[\s*-?\d+\s*(:\s*-?\d+\s*)?\])?"
+_IDX = r"(-?\d+|\{i([+-]\d+)?\})"
+_ID = r"[A-Za-z_]([A-Za-z0-9_.]|\{i\})*"
+_ADDR = rf"{_ID}\.{_ID}(\[\s*{_IDX}\s*(:\s*{_IDX}\s*)?\])?"
+BLOCK_KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\[\d+\.\.\d+\])?$"
 CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
 SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF"]
 REDUCERS = ["max", "min", "absmax", "final", "initial", "mean", "rms", "integral"]
@@ -96,7 +99,13 @@ def block_schema(cls):
     from .blocks.base import REQUIRED
     first = (cls.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
     props = {"type": {"const": cls.type_name}}
-    props.update({n: _param_schema(n, d) for n, d in cls.parameters.items()})
+    for n, d in cls.parameters.items():
+        inner = _param_schema(n, d)
+        # in an array entry 'name[a..b]' a value may be {each: [one per instance]}
+        props[n] = {"description": inner.pop("description"),
+                    "anyOf": [inner, {"$ref": "#/$defs/each"}]}
+        if "default" in inner:
+            props[n]["default"] = inner.pop("default")
     required = ["type"] + [n for n, d in cls.parameters.items() if d.default is REQUIRED]
     return {"type": "object", "title": cls.type_name,
             "description": f"{first}\nInputs: {_port_text(cls, 'in')}.\n"
@@ -108,7 +117,10 @@ def block_schema(cls):
 def schema() -> dict:
     """The JSON Schema of a diagram file (a plain dict, ready for ``json.dump``)."""
     types = sorted(REGISTRY)
-    defs = {"value": _VALUE}
+    defs = {"value": _VALUE,
+            "each": {"type": "object", "required": ["each"], "additionalProperties": False,
+                     "properties": {"each": {"type": "array"}},
+                     "description": "one value per instance of a block array"}}
     defs.update({f"block_{t}": block_schema(REGISTRY[t]) for t in types})
     block = {
         "type": "object", "required": ["type"],
@@ -161,7 +173,7 @@ def schema() -> dict:
                                 "required": ["file"]}]},
                            "description": "type name: path/to/file.yaml (relative)"},
             "blocks": {"type": "object", "minProperties": 1,
-                       "propertyNames": {"pattern": NAME},
+                       "propertyNames": {"pattern": BLOCK_KEY},
                        "additionalProperties": {"$ref": "#/$defs/block"}},
             "connections": {"type": "array", "items": {
                 "type": "string", "pattern": CONNECTION,

@@ -5,9 +5,12 @@ A diagram file has these top-level sections (all optional but ``blocks``)::
     name, description      free text
     parameters             name: value or expression (in order; later ones may use earlier)
     subsystems             type_name: path/to/file.yaml  (relative to this file)
-    blocks                 name: {type: TypeName, param: value, ...}
+    blocks                 name: {type: TypeName, param: value, ...}; ``name[1..7]`` makes
+                           name1..name7 (``{each: [...]}`` per-instance values; see
+                           spidersim.diagram.arrays)
     connections            - "src.port -> dst.port"   (``src.port[i]``, ``src.port[i:j]``;
-                             several destinations separated by commas)
+                             several destinations separated by commas; ``{i}`` repeats
+                             the line over a block array: ``q.y{i} -> j{i}.u``)
     inputs                 (subsystem files) exposed input: internal "block.port" or a list
     outputs                (subsystem files) exposed output: internal "block.port[...]"
     simulation             t_end, method, rtol, atol, max_step, output_interval
@@ -30,6 +33,7 @@ from dataclasses import dataclass, field
 
 from ..errors import DiagramError, WiringError
 from ..text.yamlio import LineDict, load_text, read_file
+from .arrays import array_key, expand_block, expand_connection
 
 SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
             "inputs", "outputs", "simulation", "log", "plots", "analysis", "metrics",
@@ -183,8 +187,24 @@ def _parse_data(data, file: str) -> DiagramSpec:
 
     blocks_raw = _section(data, "blocks", LineDict, file)
     blocks = {}
+    arrays = {}
+    expanded = []
     for name, entry in blocks_raw.items():
         line = blocks_raw.line_of(name)
+        arr = array_key(name)
+        if arr is None:
+            expanded.append((name, entry, line))
+            continue
+        arrays[arr[0]] = arr[1]
+        for inst, e in expand_block(name, entry, file, line):
+            if inst in blocks_raw:
+                raise DiagramError(f"block array '{name}' makes '{inst}', which is also "
+                                   f"declared on its own", file=file, line=line)
+            expanded.append((inst, e, line))
+    for name, entry, line in expanded:
+        if name in blocks:
+            raise DiagramError(f"block '{name}' is declared twice (an array entry and another "
+                               f"entry make the same name)", file=file, line=line)
         if not isinstance(name, str) or not _NAME.match(name):
             raise DiagramError(f"block name '{name}' is not an identifier (letters, digits, "
                                f"_; no dots)", file=file, line=line)
@@ -203,8 +223,11 @@ def _parse_data(data, file: str) -> DiagramSpec:
 
     conns_raw = _section(data, "connections", list, file)
     conns = []
+    items = []
     for k, item in enumerate(conns_raw):
         line = conns_raw.lines[k] if hasattr(conns_raw, "lines") else None
+        items += [(x, line) for x in expand_connection(item, arrays, file, line)]
+    for item, line in items:
         if isinstance(item, (list, tuple)) and len(item) == 2:
             src_t, dsts = item[0], [item[1]]
         elif isinstance(item, str) and "->" in item:

@@ -1,0 +1,77 @@
+"""Arrays of instances in YAML (issue #16 item 9): ``name[a..b]`` entries with ``{each:}``
+values and ``{i}`` connection patterns make exactly the diagram written out by hand."""
+import os
+
+import pytest
+
+import spidersim
+from spidersim.errors import SpidersimError
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+BY_HAND = """\
+blocks:
+  src: {type: Constant, value: [1, 2, 3]}
+  split: {type: Demux, sizes: [1, 1, 1]}
+  g1: {type: Gain, k: 2}
+  g2: {type: Gain, k: 3}
+  g3: {type: Gain, k: 4}
+  out: {type: Mux, n: 3}
+connections:
+  - src.y -> split.u
+  - split.y1 -> g1.u
+  - split.y2 -> g2.u
+  - split.y3 -> g3.u
+  - g1.y -> out.u1
+  - g2.y -> out.u2
+  - g3.y -> out.u3
+"""
+
+ARRAY = """\
+blocks:
+  src: {type: Constant, value: [1, 2, 3]}
+  split: {type: Demux, sizes: [1, 1, 1]}
+  g[1..3]: {type: Gain, k: {each: [2, 3, 4]}}
+  out: {type: Mux, n: 3}
+connections:
+  - src.y -> split.u
+  - split.y{i} -> g{i}.u
+  - g{i}.y -> out.u{i}
+"""
+
+
+def test_array_equals_the_diagram_by_hand():
+    a, b = spidersim.loads(BY_HAND), spidersim.loads(ARRAY)
+    assert a.source(jit=False) == b.source(jit=False)
+    ra, rb = a.simulate(t_end=0.1, jit=False), b.simulate(t_end=0.1, jit=False)
+    assert list(rb["out.y"][-1]) == [2.0, 6.0, 12.0] == list(ra["out.y"][-1])
+
+
+def test_element_index_arithmetic():
+    text = ARRAY.replace("  - split.y{i} -> g{i}.u", "  - src.y[{i-1}] -> g{i}.u")
+    r = spidersim.loads(text).simulate(t_end=0.1, jit=False)
+    assert list(r["out.y"][-1]) == [2.0, 6.0, 12.0]
+
+
+def test_spider_yaml_uses_an_array_of_seven_joints():
+    d = spidersim.load(os.path.join(ROOT, "spider.yaml"))
+    for k, n in enumerate([160, 160, 160, 160, 100, 100, 100], start=1):
+        assert f"j{k}.motor" in d.blocks
+    with open(os.path.join(ROOT, "spider.yaml")) as fh:
+        text = fh.read()
+    assert "j[1..7]" in text and text.count("j{i}") == 5
+
+
+@pytest.mark.parametrize("change,words", [
+    (("k: {each: [2, 3, 4]}", "k: {each: [2, 3]}"), "needs a list of 3 values"),
+    (("  - g{i}.y -> out.u{i}", "  - h{i}.y -> out.u{i}"), "names no block array"),
+    (("g[1..3]", "g[1..5000]"), "1 to 1000 instances"),
+    (("g[1..3]", "g[3..1]"), "1 to 1000 instances"),
+    (("  out: {type: Mux, n: 3}", "  out: {type: Mux, n: 3}\n  g2: {type: Gain}"),
+     "also declared on its own"),
+    (("  - g{i}.y -> out.u{i}", "  - g{i}.y -> out.u{j}"), "braces"),
+])
+def test_array_errors(change, words):
+    with pytest.raises(SpidersimError, match=words) as exc:
+        spidersim.loads(ARRAY.replace(*change), file="arr.yaml")
+    assert exc.value.line is not None
