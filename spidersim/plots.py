@@ -32,6 +32,7 @@ import matplotlib.pyplot as plt  # the CLI selects Agg; notebooks keep their bac
 import numpy as np
 
 from .errors import DiagramError
+from .outputs import atomic_path
 
 KINDS = ("time", "spectrum", "animation")
 KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks",
@@ -39,7 +40,7 @@ KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max",
 
 
 def _slug(text):
-    return re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_").lower() or "plot"
+    return re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_").lower()[:80].strip("_") or "plot"
 
 
 _ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]\Z")
@@ -271,6 +272,9 @@ def make_plots(result, plots, folder):
         kind = spec.get("kind", "time")
         ext = ".gif" if kind == "animation" else ".png"
         name = spec.get("file") or _slug(spec.get("title", f"plot_{k + 1}")) + ext
+        # the CLI checked the entries already; checked again for direct callers: a name
+        # from a diagram never leaves ``folder``
+        check_plot_file(name, kind, f"plots[{k}]")
         while name in used:
             root, ext = os.path.splitext(name)
             name = f"{root}_{k + 1}{ext}"
@@ -281,13 +285,7 @@ def make_plots(result, plots, folder):
             draw = spectrum_plot if kind == "spectrum" else time_plot
         # drawn under a temporary name (same extension: it picks the format), then renamed
         final = os.path.join(folder, name)
-        tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
-        try:
+        with atomic_path(final) as tmp:
             draw(result, spec, tmp)
-            os.replace(tmp, final)
-        except OSError as exc:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            raise OSError(exc.errno, f"cannot write {final}: {exc.strerror or exc}") from None
         written.append(final)
     return written
