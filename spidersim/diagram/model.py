@@ -294,10 +294,14 @@ class Diagram:
         """Generate, import and warm up the compiled functions; return the system."""
         if jit not in self._modules:
             t0 = time.perf_counter()
-            mod, key, _ = load_module(self.source(jit), jit)
+            def warm_up(mod):
+                # numba compiles, or loads from its cache, on the first calls: inside
+                # load_module so that a corrupt numba cache is cleared and retried
+                self._modules[jit] = (mod, None)
+                self._system(jit).warm_up()
+
+            mod, key, _ = load_module(self.source(jit), jit, check=warm_up)
             self._modules[jit] = (mod, key)
-            system = self._system(jit)
-            system.warm_up()
             self._compile_time = time.perf_counter() - t0
         else:
             self._compile_time = 0.0
