@@ -454,8 +454,9 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
             cluster.close()
 
 
-def print_progress(row, done, total, stream=sys.stderr):
-    """Default progress line for the CLI."""
+def print_progress(row, done, total, stream=None):
+    """Default progress line for the CLI (on ``sys.stderr`` as it is at the call)."""
+    stream = stream or sys.stderr
     vals = " ".join(f"{k}={v:g}" for k, v in row.items()
                     if k not in ("run", "status", "message", "compiled", "worker", "wall_s",
                                  "t_reached") and isinstance(v, float))
