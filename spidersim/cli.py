@@ -393,18 +393,23 @@ def validate_run(d, t_end=None, method=None):
     from .plots import check_plot_specs
     from .solver.integrate import METHODS
     sim_line = d.spec.simulation_lines
+    # a value given on the command line is reported as such, without the file's line
+    m_where, m_line = (("--method", None) if method else
+                       ("simulation.method", sim_line.get("method")))
+    t_where, t_line = (("--t-end", None) if t_end is not None else
+                       ("simulation.t_end", sim_line.get("t_end")))
     method = method or d.simulation["method"]
     if method not in METHODS:
         import difflib
         near = difflib.get_close_matches(str(method), list(METHODS), n=1)
-        raise DiagramError(f"simulation.method: unknown method '{method}'"
+        raise DiagramError(f"{m_where}: unknown method '{method}'"
                            + (f" (did you mean '{near[0]}'?)" if near else "")
                            + f"; methods: {', '.join(METHODS)}", file=d.file,
-                           line=sim_line.get("method"))
+                           line=m_line)
     t_end = d.simulation["t_end"] if t_end is None else t_end
     if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
-        raise DiagramError(f"t_end must be a finite time > 0 s, got {t_end!r}", file=d.file,
-                           line=sim_line.get("t_end"))
+        raise DiagramError(f"{t_where}: t_end must be a finite time > 0 s, got {t_end!r}",
+                           file=d.file, line=t_line)
     oi = d.simulation.get("output_interval")
     if oi is not None and not oi <= t_end:
         raise DiagramError(f"simulation.output_interval ({oi:g} s) is longer than the run "
@@ -420,7 +425,9 @@ def validate_run(d, t_end=None, method=None):
         if v is not None and not math.isfinite(v):
             raise DiagramError(f"simulation.{k} must be finite, got {v!r}", file=d.file,
                                line=sim_line.get(k))
-    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file)
+    raw = d.spec.data.get("plots") if hasattr(d.spec.data, "get") else None
+    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file,
+                     lines=getattr(raw, "lines", None))
     from .sweep import parse_metrics
     parse_metrics(d)
     from .diagram.analysis import _signal_ref

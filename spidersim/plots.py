@@ -79,17 +79,27 @@ def check_plot_file(name, kind, what, file=None, line=None):
                            f"{', '.join(exts)}", file=file, line=line)
 
 
-def check_plot_specs(plots, signals, file=None):
+def _kind_of(v):
+    """``a mapping``, ``a list`` or the value itself, for messages."""
+    return ("a mapping" if isinstance(v, dict) else "a list" if isinstance(v, list)
+            else repr(v))
+
+
+def check_plot_specs(plots, signals, file=None, lines=None):
     """Validate plot entries against the logged ``signals``; raise DiagramError.
 
     ``signals`` holds the names of the logged signals, or maps them to their number of
     values (then an animation's signal is also checked against the arm's number of joints).
     """
+    # line of each entry: given, or from the YAML reader's LineList
+    entry_lines = lines if lines is not None else getattr(plots, "lines", None)
     for k, p in enumerate(plots):
         line = getattr(p, "line", None)
+        if line is None and entry_lines is not None and k < len(entry_lines):
+            line = entry_lines[k]
         if not isinstance(p, dict):
-            raise DiagramError(f"plots[{k}] must be a mapping with 'signals'", file=file,
-                               line=line)
+            raise DiagramError(f"plots[{k}] must be a mapping with 'signals', got "
+                               f"{_kind_of(p)}", file=file, line=line)
         for key in p:
             if key not in KEYS:
                 raise DiagramError(f"plots[{k}]: unknown key '{key}' (keys: {', '.join(KEYS)})",
@@ -118,7 +128,7 @@ def check_plot_specs(plots, signals, file=None):
         for key in ("title", "ylabel"):
             if key in p and not isinstance(p[key], (str, int, float)):
                 raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
-                                   f"{type(p[key]).__name__}", file=file, line=key_line(key))
+                                   f"{_kind_of(p[key])}", file=file, line=key_line(key))
         sigs = p.get("signals")
         if not isinstance(sigs, list) or not sigs:
             raise DiagramError(f"plots[{k}] needs a non-empty list 'signals'", file=file,
