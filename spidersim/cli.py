@@ -683,6 +683,10 @@ def build_parser():
     b.add_argument("type", nargs="?")
     b.set_defaults(fn=cmd_blocks)
 
+    sc = sub.add_parser("schema", help="JSON Schema of diagram files (editor completion)")
+    sc.add_argument("-o", "--output", help="file to write (default: standard output)")
+    sc.set_defaults(fn=cmd_schema)
+
     ca = sub.add_parser("cache", help="the compiled-code cache: info or clear")
     ca.add_argument("action", choices=("info", "clear"))
     ca.set_defaults(fn=cmd_cache)
@@ -696,6 +700,21 @@ def _version():
         return version("spidersim")
     except PackageNotFoundError:
         return "unknown (not installed)"
+
+
+def cmd_schema(args):
+    from .schema import dumps
+    text = dumps()
+    if not args.output:
+        sys.stdout.write(text)
+        return 0
+    from .solver.result import write_atomic
+    try:
+        write_atomic(args.output, lambda fh: fh.write(text))
+    except OSError as exc:
+        raise SpidersimError(str(exc.strerror or exc)) from None
+    print(f"spidersim: wrote {args.output}", file=sys.stderr)
+    return 0
 
 
 def cmd_cache(args):

@@ -23,6 +23,18 @@ Contract for block implementers
        time of the block's next *time event* (``inf`` for none): the integrator stops there.
    ``time_event(t, <states>, <inputs>, <params>, <modes>)``
        applied at that time; may change the block's own modes and states only.
+   ``guard(t, <states>, <inputs>, <params>, <modes>, zc)``
+       writes the zero-crossing functions of the block's ``events`` into ``zc`` (one after
+       the other, each of its declared size); an event fires when its guard crosses zero in
+       the declared ``direction``.
+   ``on_event(t, which, direction, <states>, <inputs>, <params>, <modes>)``
+       applies event ``which`` (index into ``zc``) found crossing in ``direction`` (+1/-1);
+       may change the block's own states and modes only.
+   ``initialize(t, <states>, <inputs>, <params>, <modes>)``
+       sets the modes consistent with the inputs, at the start and after every event.
+
+   Reserved argument names: ``t``, ``direction``, ``zc``, ``which`` and ``der_<state>``; a
+   declared name equal to one of them cannot be a kernel argument (it would be ambiguous).
 
    An output port with the same name and size as a state *is* that state: no kernel writes
    it and it has no feedthrough (``DCMotor.w``). Ports, states and modes arrive as 1-D float arrays of their declared size (a scalar port
@@ -31,7 +43,15 @@ Contract for block implementers
    functions must be numba-compilable, allocation-free (write loops, not array expressions)
    and must never clip a state or integrate by hand: discontinuities are events.
 5. ``scratch`` (name -> size) gives kernels workspace arrays by name, allocated once.
-6. Optional class methods: ``derive(params) -> dict`` for numeric parameters computed from the
+6. ``implicit`` (output name -> (residual port, initial-guess parameter)): outputs the
+   engine solves so that the residual is zero (an algebraic loop made on purpose, e.g. a
+   constraint force).
+7. The declarations are checked when the class is defined (``__init_subclass__``): every
+   kernel argument must be a declared name or a reserved one (names computed by ``derive``
+   are taken from a call with the default parameters), a name may not be declared twice in
+   different roles (an output may share its state's name), a ``derivative`` needs states, a
+   ``guard`` needs events; a :class:`BlockDefinitionError` names the class and the argument.
+8. Optional class methods: ``derive(params) -> dict`` for numeric parameters computed from the
    user's (e.g. a state-space realisation of a transfer function), ``check(params)`` for
    cross-parameter validation (raise ``ValueError`` with a message), and
    ``kernel_source(params, kernel) -> str`` for kernels whose argument list depends on a
@@ -54,6 +74,16 @@ REQUIRED = object()
 
 #: name -> Block subclass; filled by ``Block.__init_subclass__``.
 REGISTRY: dict[str, type["Block"]] = {}
+
+#: the kernels a block may define, and the argument names every kernel may use
+KERNELS = ("output", "derivative", "next_time", "time_event", "guard", "on_event",
+           "initialize")
+RESERVED = ("t", "direction", "zc", "which")
+
+
+class BlockDefinitionError(TypeError):
+    """A block class whose declarations break the contract (a programming error of the
+    block's author, raised when the class is defined)."""
 
 
 @dataclass(frozen=True)
@@ -192,6 +222,8 @@ class Block:
     #: name -> size of scratch memory a kernel may use freely (allocated once in the signal
     #: array, never logged): workspaces of compiled algorithms, so nothing is allocated
     scratch: dict = {}
+    #: output -> (residual port, initial-guess parameter): outputs the engine solves for
+    implicit: dict = {}
 
     def __init_subclass__(cls, abstract=False, **kw):
         super().__init_subclass__(**kw)
@@ -201,7 +233,69 @@ class Block:
         cls.type_name = name
         if name in REGISTRY and REGISTRY[name] is not cls:
             raise RuntimeError(f"block type {name!r} registered twice")
+        cls._check_contract()
         REGISTRY[name] = cls
+
+    @classmethod
+    def _check_contract(cls):
+        """Check the declarations against the kernels (see contract item 7)."""
+        def fail(msg):
+            raise BlockDefinitionError(f"block class {cls.__name__}: {msg}")
+        roles = {}
+        for role, names in (("parameter", cls.parameters), ("input", cls.inputs),
+                            ("output", cls.outputs), ("state", cls.states),
+                            ("mode", cls.modes), ("scratch", cls.scratch)):
+            for n in names:
+                if n.startswith("der_"):
+                    fail(f"{role} '{n}' uses the reserved prefix der_ (state derivatives)")
+                prev = roles.get(n)
+                if prev and {prev, role} != {"output", "state"}:
+                    fail(f"'{n}' is declared both as {prev} and as {role}")
+                roles.setdefault(n, role)
+        for o, (res, guess) in cls.implicit.items():
+            if o not in cls.outputs or guess not in cls.parameters or not (
+                    res in cls.outputs or res in cls.inputs):
+                fail(f"implicit output '{o}' needs output '{o}', a residual port '{res}' "
+                     f"(input or output) and a guess parameter '{guess}'")
+        if cls.has_kernel("derivative") and not cls.states:
+            fail("defines 'derivative' but declares no states")
+        if cls.has_kernel("guard") and not cls.events:
+            fail("defines 'guard' but declares no events")
+        if cls.events and not (cls.has_kernel("guard") and cls.has_kernel("on_event")):
+            fail("declares events but does not define both 'guard' and 'on_event'")
+        derived = set()
+        if "derive" in {k for c in cls.__mro__ for k in vars(c)} and \
+                cls.derive.__func__ is not Block.derive.__func__:
+            try:
+                params = {n: np.asarray(d.default, dtype=float) if d.kind == "real" and
+                          not isinstance(d.default, str) else d.default
+                          for n, d in cls.parameters.items()}
+                if any(v is REQUIRED for v in params.values()):
+                    derived = None
+                else:
+                    derived = set(cls.derive(params))
+            except Exception:              # noqa: BLE001 (defaults need not be derivable)
+                derived = None
+        known = set(roles) | set(RESERVED) | {f"der_{n}" for n in cls.states}
+        for kernel in KERNELS:
+            fn = cls.__dict__.get(kernel)
+            if fn is None:
+                continue
+            if not isinstance(fn, staticmethod):
+                fail(f"kernel '{kernel}' must be a @staticmethod")
+            if any(getattr(cls, m).__func__ is not getattr(Block, m).__func__
+                   for m in ("kernel_source", "input_names", "output_names")):
+                continue                  # names depend on structural parameters
+            for arg in inspect.signature(fn.__func__).parameters:
+                if arg in RESERVED and arg in roles:
+                    fail(f"kernel '{kernel}' argument '{arg}' is ambiguous: a reserved name "
+                         f"({', '.join(RESERVED)}) and a declared {roles[arg]}")
+                if arg in known or (derived is None) or arg in derived:
+                    continue
+                near = difflib.get_close_matches(arg, sorted(known | (derived or set())), n=2)
+                hint = f" (did you mean {', '.join(near)}?)" if near else ""
+                fail(f"kernel '{kernel}' argument '{arg}' is not a declared parameter, port, "
+                     f"state, mode, scratch or derived name, nor reserved{hint}")
 
     # ---------------------------------------------------------------- interface
     @classmethod

@@ -3,6 +3,8 @@
 Sign convention: ``x`` is the height above the stop's reference, positive up; gravity
 ``g`` acts along -x; ``f`` is an applied force along +x.
 """
+import math
+
 from .base import Block, Event, Mode, Param, Port, State
 
 
@@ -147,3 +149,61 @@ class PointMass(Block):
         if vn < 0.0:
             for k in range(3):
                 vel[k] -= vn * constraint[1 + k]
+
+
+class Brake(Block):
+    """Fail-safe friction brake on a shaft, engaged after a fault is detected::
+
+        fault rises through 0.5 at t_f  (event)  ->  engaged from t_f + t_detect + t_engage
+        tau = -engaged * T_hold * tanh(w / w_eps)                      [N.m]
+
+    ``t_detect`` is the fault detection (monitoring) delay and ``t_engage`` the mechanical
+    engagement time of the brake; from then on the brake applies up to its holding torque
+    ``T_hold`` against the speed ``w`` (regularized Coulomb friction: ``|tau| -> T_hold``
+    for ``|w| >> w_eps``; a shaft held against a torque below ``T_hold`` creeps at about
+    ``w_eps atanh(tau_ext / T_hold)``). Engagement is a time event; it latches until the
+    end of the run (the release command of the real brake is not modelled). Sign:
+    ``tau`` acts on the shaft whose speed is ``w``; wire it into the shaft's torque sum.
+    """
+
+    category = "mechanics"
+    parameters = {
+        "T_hold": Param(10.0, "N.m", "holding torque", gt=0.0),
+        "t_detect": Param(0.01, "s", "fault detection delay", ge=0.0),
+        "t_engage": Param(0.02, "s", "engagement time once commanded", ge=0.0),
+        "w_eps": Param(1e-3, "rad/s", "speed of the friction regularization", gt=0.0),
+    }
+    inputs = {"fault": Port("1", doc="fault flag (> 0.5: a fault is present)"),
+              "w": Port("rad/s", doc="shaft speed")}
+    outputs = {"tau": Port("N.m", feedthrough=("w",), doc="brake torque on the shaft"),
+               "engaged": Port("1", doc="1 once the brake holds, else 0")}
+    modes = {"t_on": Mode(initial=math.inf, doc="engagement time (inf: not commanded)"),
+             "on": Mode(doc="engaged (1) or not (0)")}
+    events = {"fault": Event(1, "fault flag rises through 0.5: engagement is commanded")}
+
+    @staticmethod
+    def output(t, w, T_hold, w_eps, on, tau, engaged):
+        tau[0] = -on[0] * T_hold * math.tanh(w[0] / w_eps)
+        engaged[0] = on[0]
+
+    @staticmethod
+    def initialize(t, fault, t_detect, t_engage, t_on):
+        if fault[0] > 0.5 and t_on[0] == math.inf:       # faulty from the start
+            t_on[0] = t + t_detect + t_engage
+
+    @staticmethod
+    def guard(t, fault, zc):
+        zc[0] = fault[0] - 0.5
+
+    @staticmethod
+    def on_event(t, which, direction, t_detect, t_engage, t_on):
+        if direction > 0 and t_on[0] == math.inf:
+            t_on[0] = t + t_detect + t_engage
+
+    @staticmethod
+    def next_time(t, t_on, on):
+        return t_on[0] if on[0] < 0.5 else math.inf
+
+    @staticmethod
+    def time_event(t, t_on, on):
+        on[0] = 1.0

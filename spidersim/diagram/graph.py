@@ -280,7 +280,7 @@ def build_layout(flat: Flat) -> Layout:
                 bl.feedthrough[o] = bl.cls.feedthrough_of(o, prm)
         for i in bl.inputs:
             g.add_node(("in", bl.path, i))
-        implicit = getattr(bl.cls, "implicit", {})
+        implicit = bl.cls.implicit
         for o, fts in bl.feedthrough.items():
             for i in fts:
                 # an output may depend directly on an implicit output of its own block
@@ -296,7 +296,7 @@ def build_layout(flat: Flat) -> Layout:
                    line=c.line, file=c.file)
 
     for bl in info.values():
-        for o, (i, _g) in getattr(bl.cls, "implicit", {}).items():
+        for o, (i, _g) in bl.cls.implicit.items():
             _check_constraint_closed(g, bl, o, i, flat.blocks[bl.path])
     comps = [c for c in nx.strongly_connected_components(g) if len(c) > 1]
     loops = [_make_loop(k, g, sorted(c), info, dst_seen) for k, c in enumerate(
@@ -474,7 +474,7 @@ def _mark_valid(bl, valid, dst_seen, info, known=()):
         if c is None or src in valid or src in known or \
                 c.src[1] in info[c.src[0]].state_outputs:
             ready.add(i)
-    for o in getattr(bl.cls, "implicit", {}):
+    for o in bl.cls.implicit:
         if ("out", path, o) in known or ("out", path, o) in valid:
             ready.add(o)                       # a solved (torn) unknown of the block
     for o in bl.outputs:

@@ -118,6 +118,7 @@ EXAMPLES = {
                       dict(params={"friction": False}, lo=-1.0, hi=1.0),
                       dict(params={"friction_side": "load", "efficiency": 0.8}, lo=-1.0,
                            hi=1.0)],
+    "Brake": [dict(params={"T_hold": 3.0, "t_detect": 0.1, "t_engage": 0.1})],
     "RDC": [dict(params={"f_n": 300.0, "zeta": 0.6}), dict(params={"bits": 10})],
     "Resolver": [dict(params={"bits": 12}, lo=-3.0, hi=3.0),
                  dict(params={"bits": 10, "Ts": 1e-3, "noise": 1e-3}, lo=-3.0, hi=3.0)],

@@ -54,8 +54,9 @@ connections:
 
 # ---------------------------------------------------------------------------- oscillator
 W = 2 * math.pi  # period 1 s; the horizon is two periods
-# x'' = -w^2 x exactly as asked: two Integrators and a Gain. See
-# test_oscillator_of_two_integrators_and_a_gain_loads: this does not load today.
+# x'' = -w^2 x exactly as asked: two Integrators and a Gain (a loop of size-inheriting
+# blocks whose size comes from the Integrators' x0; see
+# test_oscillator_of_two_integrators_and_a_gain_loads).
 OSC_MINIMAL = """
 name: osc
 parameters: {w: 6.283185307179586}
@@ -167,10 +168,10 @@ def test_bdf_oscillator_error_converges(osc):
 
 
 def test_oscillator_of_two_integrators_and_a_gain_loads():
-    """ENGINE BUG (size inference): a loop made only of size-inheriting blocks
-    (Integrator -> Gain -> Integrator -> Integrator) has no size source, and
-    ``graph.infer_sizes`` raises "cannot infer the size of output 'y'", although x0 gives
-    the Integrators' size (1 here). The most basic ODE diagram cannot be written."""
+    """Guards size inference through a loop made only of size-inheriting blocks
+    (Integrator -> Gain -> Integrator -> Integrator): the sizes come from the Integrators'
+    x0 (``Block.fallback_sizes``), so the most basic ODE diagram loads and follows
+    cos(w t). (It once failed with "cannot infer the size of output 'y'".)"""
     d = spidersim.loads(OSC_MINIMAL)
     rtol, atol = SMOOTH_TOL["RK45"]
     r = d.simulate(t_end=2.0, method="RK45", rtol=rtol, atol=atol, jit=False)
@@ -494,11 +495,10 @@ def test_output_interval_not_a_multiple():
 
 
 def test_output_interval_sample_at_an_event_time_is_post_event():
-    """ENGINE BUG (integrate.py, output_interval): a grid time that falls on a time event
-    is recorded at the end of the segment, *before* the event is applied, so a Step's
-    output there is ``before`` although the block defines y = after from t_step on. The
-    step-based output (whose last sample at that time is post-event) and the grid sample at
-    t = 0 (recorded after the t = 0 events) both follow the definition."""
+    """Guards the output grid at a time event: a grid time that falls on a time event is
+    recorded after the event is applied, so a Step's output there is ``after`` (the block
+    defines y = after from t_step on), like the step-based output (whose last sample at that
+    time is post-event) and the grid sample at t = 0. (It was once recorded before.)"""
     text = LAG.replace("t_step: 0.0", "t_step: 0.25")
     d = spidersim.loads(text)
     s = d.simulate(t_end=0.5, rtol=1e-8, atol=1e-10, jit=False)
