@@ -15,6 +15,7 @@ import time
 import yaml
 
 from .errors import DiagramError, SpidersimError, printable
+from .outputs import prepare_out, safe_stem
 
 
 class Progress:
@@ -187,31 +188,41 @@ def cmd_run(args):
     validate_run(d, t_end, args.method)
     out = args.out or default_out(d)
     prepare_out(out)
-    _compile_with_progress(d, jit=not args.no_jit)
-    prog = Progress(t_end)
     stop = StopRequest()
-    try:
-        with stop.installed():
+    # SIGINT/SIGTERM handled from here to the last file written: before the integration
+    # they end the command at once; during it they stop it at the current step; while the
+    # results are written the writing finishes first (a second signal ends it at once,
+    # leaving complete files only)
+    with stop.installed():
+        _compile_with_progress(d, jit=not args.no_jit)
+        prog = Progress(t_end)
+        try:
             r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit,
                            progress=prog, should_stop=stop)
-    except SpidersimError as exc:
+        except SpidersimError as exc:
+            prog.close()
+            if getattr(exc, "partial", None) is not None:
+                stop.writing()
+                exc.partial.provenance = provenance(args, d, _raw_sets(args.set))
+                _write_results(exc.partial, d, out, args.no_plots)
+                print(f"spidersim: partial data up to the failure (data and plots) written "
+                      f"to {out}/", file=sys.stderr)
+            raise
         prog.close()
-        if getattr(exc, "partial", None) is not None:
-            exc.partial.provenance = provenance(args, d, _raw_sets(args.set))
-            _write_results(exc.partial, d, out, args.no_plots)
-            print(f"spidersim: partial data up to the failure (data and plots) written to "
-                  f"{out}/", file=sys.stderr)
-        raise
-    prog.close()
-    r.provenance = provenance(args, d, _raw_sets(args.set))
-    pngs = _write_results(r, d, out, args.no_plots)
-    if getattr(args, "show", False) and r.status != "interrupted":
-        _show(r, d)
+        stop.writing()
+        r.provenance = provenance(args, d, _raw_sets(args.set))
+        pngs = _write_results(r, d, out, args.no_plots)
     if r.status == "interrupted":
         print(f"spidersim: {stop.name} at t = {r.stats['t_reached']:.6g} s: results up to "
               f"there written to {out}/ (report says 'status: interrupted')",
               file=sys.stderr)
         return stop.exit_code
+    if stop.requested:                    # the signal came while the results were written
+        print(f"spidersim: {stop.name} after the run had finished: the results in {out}/ "
+              f"are complete", file=sys.stderr)
+        return stop.exit_code
+    if getattr(args, "show", False):
+        _show(r, d)
     s = r.stats
     print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
           f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration")
@@ -241,20 +252,30 @@ def _show(r, d):
 
 
 class StopRequest:
-    """SIGINT/SIGTERM during a run: the first one asks the integration to stop at the current
-    step (the results up to there are written); before the integration starts, or a second
-    time, it interrupts at once. Callable: ``stop()`` is the integration's ``should_stop``."""
+    """SIGINT/SIGTERM during ``spidersim run``.
+
+    Before the integration starts (loading, compiling) a signal ends the command at once
+    (nothing computed yet). During the integration the first signal asks it to stop at the
+    current step: ``stop()`` is the integration's ``should_stop`` (a flag read after each
+    accepted step) and the results up to there are written. While the results are written a
+    signal lets the writing finish. A second signal always ends the command at once (every
+    file is still either complete or absent). Exit status 130 (SIGINT) or 143 (SIGTERM).
+    """
 
     CODES = {"SIGINT": 130, "SIGTERM": 143}
 
     def __init__(self):
         self.requested = False
         self.name = None
-        self.integrating = False
+        self.phase = "before"          # "before" -> "integrating" -> "writing"
 
     def __call__(self):
-        self.integrating = True
+        self.phase = "integrating"
         return self.requested
+
+    def writing(self):
+        """The integration is over; from now on a first signal lets the files be written."""
+        self.phase = "writing"
 
     @property
     def exit_code(self):
@@ -263,9 +284,14 @@ class StopRequest:
     def _handle(self, signum, frame):
         import signal
         name = signal.Signals(signum).name
-        if self.requested or not self.integrating:
+        if self.requested:
+            raise _Interrupted(name, f"interrupted again ({name}): stopped at once")
+        if self.phase == "before":
             raise _Interrupted(name)
         self.requested, self.name = True, name
+        if self.phase == "writing":
+            sys.stderr.write(f"spidersim: {name}: finishing writing the results "
+                             f"(send it again to stop at once)\n")
 
     def installed(self):
         import contextlib
@@ -286,11 +312,15 @@ class StopRequest:
         return ctx()
 
 
-class _Interrupted(SpidersimError):
-    """Interrupted before or outside the integration: nothing computed to keep."""
+class _Interrupted(KeyboardInterrupt):
+    """A signal that ends the command at once: before the integration (nothing computed to
+    keep) or a second signal. A KeyboardInterrupt, so that no ``except Exception`` on the
+    way (numba, the cache's retry) mistakes it for a failure; :func:`main` prints it."""
 
-    def __init__(self, name):
-        super().__init__(f"interrupted ({name}) before the integration produced data")
+    def __init__(self, name, message=None):
+        self.message = message or (f"interrupted ({name}) before the integration started: "
+                                   f"nothing computed to keep")
+        super().__init__(self.message)
         self.exit_code = StopRequest.CODES.get(name, 130)
 
 
@@ -337,27 +367,15 @@ def _microgravity_report(d, r, out, plots=True):
         return []
     a.axes = ["x", "y", "z"][:a.levels.shape[1]] if a.levels.shape[1] <= 3 else []
     print(a.table())
-    from .solver.result import write_atomic
+    from .outputs import atomic_path, write_atomic
     write_atomic(os.path.join(out, "microgravity.json"),
                  lambda fh: json.dump(a.as_dict(), fh, indent=1))
     if not plots:
         return []
     path = os.path.join(out, "microgravity.png")
-    tmp = os.path.join(out, f".tmp-{os.getpid()}-microgravity.png")
-    mg.plot(a, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        mg.plot(a, tmp)
     return [path]
-
-
-def safe_stem(*candidates):
-    """The first candidate reduced to letters, digits, ``-`` and ``_`` that is not empty:
-    a folder name that can never point outside ``results/``."""
-    import re
-    for text in candidates:
-        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", str(text)).strip("_-")[:80]
-        if stem:
-            return stem
-    return "diagram"
 
 
 def default_out(d, suffix=""):
@@ -365,22 +383,6 @@ def default_out(d, suffix=""):
     stem), so that a name can never choose a folder elsewhere."""
     return os.path.join("results", safe_stem(d.spec.name, os.path.splitext(
         os.path.basename(d.file))[0]) + suffix)
-
-
-def prepare_out(out):
-    """Create the output folder and check it can be written, before any compiling."""
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise SpidersimError(f"output folder {out} exists and is not a folder; choose "
-                             f"another --out")
-    try:
-        os.makedirs(out, exist_ok=True)
-        probe = os.path.join(out, f".spidersim-write-test-{os.getpid()}")
-        with open(probe, "w") as fh:
-            fh.write("ok")
-        os.remove(probe)
-    except OSError as exc:
-        raise SpidersimError(f"cannot write into the output folder {out}: "
-                             f"{exc.strerror or exc}; choose another --out") from None
 
 
 def validate_run(d, t_end=None, method=None):
@@ -391,29 +393,41 @@ def validate_run(d, t_end=None, method=None):
     from .plots import check_plot_specs
     from .solver.integrate import METHODS
     sim_line = d.spec.simulation_lines
+    # a value given on the command line is reported as such, without the file's line
+    m_where, m_line = (("--method", None) if method else
+                       ("simulation.method", sim_line.get("method")))
+    t_where, t_line = (("--t-end", None) if t_end is not None else
+                       ("simulation.t_end", sim_line.get("t_end")))
     method = method or d.simulation["method"]
     if method not in METHODS:
         import difflib
         near = difflib.get_close_matches(str(method), list(METHODS), n=1)
-        raise DiagramError(f"simulation.method: unknown method '{method}'"
+        raise DiagramError(f"{m_where}: unknown method '{method}'"
                            + (f" (did you mean '{near[0]}'?)" if near else "")
                            + f"; methods: {', '.join(METHODS)}", file=d.file,
-                           line=sim_line.get("method"))
+                           line=m_line)
     t_end = d.simulation["t_end"] if t_end is None else t_end
     if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
-        raise DiagramError(f"t_end must be a finite time > 0 s, got {t_end!r}", file=d.file,
-                           line=sim_line.get("t_end"))
+        raise DiagramError(f"{t_where}: t_end must be a finite time > 0 s, got {t_end!r}",
+                           file=d.file, line=t_line)
     oi = d.simulation.get("output_interval")
     if oi is not None and not oi <= t_end:
         raise DiagramError(f"simulation.output_interval ({oi:g} s) is longer than the run "
                            f"(t_end = {t_end:g} s); make it at most t_end", file=d.file,
                            line=sim_line.get("output_interval"))
+    fs = d.simulation.get("first_step")
+    if fs is not None and not fs < t_end:
+        raise DiagramError(f"simulation.first_step ({fs:g} s) must be shorter than the run "
+                           f"(t_end = {t_end:g} s)", file=d.file,
+                           line=sim_line.get("first_step"))
     for k in ("rtol", "atol", "max_step", "first_step"):
         v = d.simulation.get(k)
         if v is not None and not math.isfinite(v):
             raise DiagramError(f"simulation.{k} must be finite, got {v!r}", file=d.file,
                                line=sim_line.get(k))
-    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file)
+    raw = d.spec.data.get("plots") if hasattr(d.spec.data, "get") else None
+    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file,
+                     lines=getattr(raw, "lines", None))
     from .sweep import parse_metrics
     parse_metrics(d)
     from .diagram.analysis import _signal_ref
@@ -475,6 +489,7 @@ def cmd_linearize(args):
         names = list(d.spec.analysis)          # every analysis of the file
     else:
         names = [args.name]
+    outs = {name: prepare_out(_linearize_out(d, args, name)) for name in names}
     for name in names:
         if name is not None:
             inputs, outputs, opened, at, loop = analysis_request(d, name)
@@ -485,11 +500,20 @@ def cmd_linearize(args):
             at, loop = None, args.loop
         if args.at is not None:
             at = parse_at(args.at)
-        _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit)
+        _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, outs[name])
     return 0
 
 
-def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit):
+def _linearize_out(d, args, name):
+    """Folder of one analysis: ``--out`` (one sub-folder per analysis when several run),
+    else ``results/<stem>/linearize[_<analysis>]``, every part a safe stem."""
+    if args.out and name is not None and args.name is None:
+        return os.path.join(args.out, safe_stem(name))     # several analyses: one each
+    return args.out or os.path.join(default_out(d), "linearize" + (
+        f"_{safe_stem(name)}" if name else ""))
+
+
+def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, out):
     """One analysis: report on stdout, matrices and Bode plot in its folder."""
     from .linreport import bode_png, report, save_matrices
     title = name or (f"loop at {loop}" if loop else d.spec.name)
@@ -500,12 +524,12 @@ def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit):
             raise SpidersimError("give at least one --output signal", file=d.file)
         sys_ = d.linearize(inputs, outputs, at=at, open=opened, jit=jit)
     print(report(sys_, title, loop=bool(loop)))
-    out = args.out or os.path.join(default_out(d), "linearize" + (
-        f"_{safe_stem(name)}" if name else ""))
-    if args.out and name is not None and args.name is None:
-        out = os.path.join(args.out, safe_stem(name))     # several analyses: one folder each
-    save_matrices(sys_, out)
-    bode_png(sys_, os.path.join(out, "bode.png"), title)
+    try:
+        save_matrices(sys_, out)
+        bode_png(sys_, os.path.join(out, "bode.png"), title)
+    except OSError as exc:
+        raise SpidersimError(f"{exc.strerror or exc} (free some space or choose another "
+                             f"--out)") from None
     print(f"spidersim: wrote {out}/linearization.npz, linearization.json and bode.png")
 
 
@@ -520,6 +544,13 @@ def cmd_sweep(args):
     n = 1
     for _p, v in vary:
         n *= len(v)
+    if args.out:
+        out = args.out
+    else:
+        from .diagram.spec import parse_file
+        out = os.path.join("results", safe_stem(parse_file(args.file).name, os.path.splitext(
+            os.path.basename(args.file))[0]) + "_sweep")
+    prepare_out(out)                     # before any run: a bad --out is refused at once
     where = (f"Dask scheduler {args.scheduler}" if args.scheduler else
              "serial, this process" if workers == 0 else
              f"local Dask cluster, {workers} worker(s)")
@@ -527,11 +558,12 @@ def cmd_sweep(args):
           f"compiling once ...", file=sys.stderr)
     res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
                 set=_parse_sets(args.set), sim=sim, progress=print_progress)
-    out = args.out or os.path.join("results", safe_stem(
-        res.extra["name"], os.path.splitext(os.path.basename(args.file))[0]) + "_sweep")
-    os.makedirs(out, exist_ok=True)
-    res.write_csv(os.path.join(out, "sweep.csv"))
-    pngs = res.plot(out) if not args.no_plots else []
+    try:
+        res.write_csv(os.path.join(out, "sweep.csv"))
+        pngs = res.plot(out) if not args.no_plots else []
+    except OSError as exc:
+        raise SpidersimError(f"{exc.strerror or exc} (free some space or choose another "
+                             f"--out)") from None
     print(res.table())
     rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
     print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed, "
@@ -712,9 +744,9 @@ def main(argv=None):
         return exc.exit_code
     except BrokenPipeError:
         return 0
-    except KeyboardInterrupt:
-        print("spidersim: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"spidersim: {getattr(exc, 'message', 'interrupted')}", file=sys.stderr)
+        return getattr(exc, "exit_code", 130)
     except (RecursionError, MemoryError) as exc:
         print(f"spidersim: error: input too large or too deeply nested to process "
               f"({type(exc).__name__}); see 'Limits' in the README", file=sys.stderr)

@@ -8,6 +8,7 @@ import os
 import numpy as np
 
 from .errors import DiagramError
+from .outputs import atomic_path, write_atomic
 
 ANALYSIS_KEYS = ("inputs", "outputs", "open", "at", "loop")
 
@@ -113,8 +114,11 @@ def bode_png(sys, path, title=""):
     am.legend(fontsize="small")
     am.set_title(f"Bode: {title}" if title else "Bode")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -123,9 +127,10 @@ def save_matrices(sys, folder, stem="linearization"):
     os.makedirs(folder, exist_ok=True)
     names = {"states": list(sys.state_labels), "inputs": list(sys.input_labels),
              "outputs": list(sys.output_labels)}
-    np.savez(os.path.join(folder, stem + ".npz"), A=sys.A, B=sys.B, C=sys.C, D=sys.D,
-             **{k: np.array(v) for k, v in names.items()})
-    with open(os.path.join(folder, stem + ".json"), "w") as fh:
-        json.dump(dict(names, A=sys.A.tolist(), B=sys.B.tolist(), C=sys.C.tolist(),
-                       D=sys.D.tolist()), fh, indent=1)
+    write_atomic(os.path.join(folder, stem + ".npz"), lambda fh: np.savez(
+        fh, A=sys.A, B=sys.B, C=sys.C, D=sys.D, **{k: np.array(v) for k, v in names.items()}),
+        binary=True)
+    write_atomic(os.path.join(folder, stem + ".json"), lambda fh: json.dump(
+        dict(names, A=sys.A.tolist(), B=sys.B.tolist(), C=sys.C.tolist(),
+             D=sys.D.tolist()), fh, indent=1))
     return folder

@@ -32,6 +32,7 @@ import matplotlib.pyplot as plt  # the CLI selects Agg; notebooks keep their bac
 import numpy as np
 
 from .errors import DiagramError
+from .outputs import atomic_path
 
 KINDS = ("time", "spectrum", "animation")
 KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks",
@@ -39,7 +40,7 @@ KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max",
 
 
 def _slug(text):
-    return re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_").lower() or "plot"
+    return re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_").lower()[:80].strip("_") or "plot"
 
 
 _ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]\Z")
@@ -78,17 +79,27 @@ def check_plot_file(name, kind, what, file=None, line=None):
                            f"{', '.join(exts)}", file=file, line=line)
 
 
-def check_plot_specs(plots, signals, file=None):
+def _kind_of(v):
+    """``a mapping``, ``a list`` or the value itself, for messages."""
+    return ("a mapping" if isinstance(v, dict) else "a list" if isinstance(v, list)
+            else repr(v))
+
+
+def check_plot_specs(plots, signals, file=None, lines=None):
     """Validate plot entries against the logged ``signals``; raise DiagramError.
 
     ``signals`` holds the names of the logged signals, or maps them to their number of
     values (then an animation's signal is also checked against the arm's number of joints).
     """
+    # line of each entry: given, or from the YAML reader's LineList
+    entry_lines = lines if lines is not None else getattr(plots, "lines", None)
     for k, p in enumerate(plots):
         line = getattr(p, "line", None)
+        if line is None and entry_lines is not None and k < len(entry_lines):
+            line = entry_lines[k]
         if not isinstance(p, dict):
-            raise DiagramError(f"plots[{k}] must be a mapping with 'signals'", file=file,
-                               line=line)
+            raise DiagramError(f"plots[{k}] must be a mapping with 'signals', got "
+                               f"{_kind_of(p)}", file=file, line=line)
         for key in p:
             if key not in KEYS:
                 raise DiagramError(f"plots[{k}]: unknown key '{key}' (keys: {', '.join(KEYS)})",
@@ -117,7 +128,7 @@ def check_plot_specs(plots, signals, file=None):
         for key in ("title", "ylabel"):
             if key in p and not isinstance(p[key], (str, int, float)):
                 raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
-                                   f"{type(p[key]).__name__}", file=file, line=key_line(key))
+                                   f"{_kind_of(p[key])}", file=file, line=key_line(key))
         sigs = p.get("signals")
         if not isinstance(sigs, list) or not sigs:
             raise DiagramError(f"plots[{k}] needs a non-empty list 'signals'", file=file,
@@ -271,6 +282,9 @@ def make_plots(result, plots, folder):
         kind = spec.get("kind", "time")
         ext = ".gif" if kind == "animation" else ".png"
         name = spec.get("file") or _slug(spec.get("title", f"plot_{k + 1}")) + ext
+        # the CLI checked the entries already; checked again for direct callers: a name
+        # from a diagram never leaves ``folder``
+        check_plot_file(name, kind, f"plots[{k}]")
         while name in used:
             root, ext = os.path.splitext(name)
             name = f"{root}_{k + 1}{ext}"
@@ -281,13 +295,7 @@ def make_plots(result, plots, folder):
             draw = spectrum_plot if kind == "spectrum" else time_plot
         # drawn under a temporary name (same extension: it picks the format), then renamed
         final = os.path.join(folder, name)
-        tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
-        try:
+        with atomic_path(final) as tmp:
             draw(result, spec, tmp)
-            os.replace(tmp, final)
-        except OSError as exc:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            raise OSError(exc.errno, f"cannot write {final}: {exc.strerror or exc}") from None
         written.append(final)
     return written

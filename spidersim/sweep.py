@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import DiagramError, SpidersimError
+from .outputs import atomic_path, safe_stem, write_atomic
 from .plots import signal_values, split_signal
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
@@ -59,6 +60,9 @@ REDUCERS = {
         _trapz(y * y, t) / (t[-1] - t[0]))) if t[-1] > t[0] else float(abs(y[0]))),
     "integral": ("time integral", lambda t, y: float(_trapz(y, t))),
 }
+
+
+_METRIC_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}\Z")
 
 
 @dataclass
@@ -94,7 +98,10 @@ def parse_metrics(diagram) -> list[Metric]:
         line = raw.line_of(name) if hasattr(raw, "line_of") else None
 
         def fail(msg):
-            raise DiagramError(f"metric '{name}': {msg}", file=diagram.file, line=line)
+            raise DiagramError(f"metric {name!r}: {msg}", file=diagram.file, line=line)
+        if not isinstance(name, str) or not _METRIC_NAME.match(name):
+            fail("a metric name is an identifier (letters, digits, _; it names a column "
+                 "and a plot file), e.g. peak_force")
         if not isinstance(entry, dict):
             fail("expected a mapping {signal: block.port, reduce: max|min|...}, got "
                  f"{entry!r}")
@@ -225,11 +232,12 @@ class SweepResult:
 
     def write_csv(self, path):
         cols = self.columns()
-        with open(path, "w", newline="") as fh:
+        def rows(fh):
             w = csv.writer(fh)
             w.writerow(cols)
             for r in self.rows:
                 w.writerow([_fmt(r.get(c, "")) for c in cols])
+        write_atomic(path, rows)          # complete or absent, never truncated
         return path
 
     def table(self):
@@ -281,9 +289,12 @@ class SweepResult:
                     ax.legend()
                 fig.tight_layout()
                 tag = "".join(f"_{k}{v:g}" for k, v in fixed.items())
-                path = os.path.join(folder, f"sweep_{m.name}{tag}.png")
-                fig.savefig(path, dpi=110)
-                plt.close(fig)
+                path = os.path.join(folder, f"sweep_{safe_stem(m.name + tag)}.png")
+                try:
+                    with atomic_path(path) as tmp:
+                        fig.savefig(tmp, dpi=110)
+                finally:
+                    plt.close(fig)
                 files.append(path)
         return files
 
@@ -443,8 +454,9 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
             cluster.close()
 
 
-def print_progress(row, done, total, stream=sys.stderr):
-    """Default progress line for the CLI."""
+def print_progress(row, done, total, stream=None):
+    """Default progress line for the CLI (on ``sys.stderr`` as it is at the call)."""
+    stream = stream or sys.stderr
     vals = " ".join(f"{k}={v:g}" for k, v in row.items()
                     if k not in ("run", "status", "message", "compiled", "worker", "wall_s",
                                  "t_reached") and isinstance(v, float))

@@ -33,12 +33,29 @@ def _start(tmp_path):
     return proc, out
 
 
+def _wait_for_integration(proc, timeout=120):
+    """Read stderr up to the line announcing the (interpreted) set-up; return it. Loading
+    and imports take seconds on a busy machine: a fixed sleep would race with them."""
+    deadline = time.monotonic() + timeout
+    seen = []
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        seen.append(line)
+        if "interpreted mode" in line:
+            return "".join(seen)
+    raise AssertionError("the run did not start: " + "".join(seen))
+
+
 @pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_signal_keeps_the_results_up_to_the_interrupt(tmp_path, sig, code):
     proc, out = _start(tmp_path)
-    time.sleep(4.0)                  # compile (interpreted: quick) and integrate a while
+    head = _wait_for_integration(proc)
+    time.sleep(2.5)                  # integrate a while (the whole run takes far longer)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=120)
+    stderr = head + stderr
     assert proc.returncode == code, stderr
     assert "Traceback" not in stderr and "interrupted" in stderr
     report = (out / "report.txt").read_text()
@@ -75,3 +92,74 @@ def test_full_disk_leaves_no_truncated_file(tmp_path, monkeypatch):
                                              "result.npz"]
     assert (tmp_path / "result.csv").read_bytes() == before
     np.load(tmp_path / "result.npz")                 # the earlier complete file
+
+
+# ------------------------------------------------------------- the phases of a signal
+def test_stop_request_phases():
+    """Before the integration a signal ends the command at once; during it, it only asks
+    the integration to stop; while writing it lets the writing finish; a second signal
+    always ends the command at once."""
+    from spidersim.cli import StopRequest, _Interrupted
+    stop = StopRequest()
+    with pytest.raises(_Interrupted) as exc:
+        stop._handle(signal.SIGTERM, None)
+    assert exc.value.exit_code == 143 and "before the integration" in exc.value.message
+    assert not stop.requested
+    assert stop() is False                          # the integration polls: phase starts
+    stop._handle(signal.SIGINT, None)
+    assert stop() is True and stop.exit_code == 130
+    with pytest.raises(_Interrupted, match="again"):
+        stop._handle(signal.SIGINT, None)
+    late = StopRequest()
+    late()
+    late.writing()
+    late._handle(signal.SIGTERM, None)
+    assert late.requested and late.exit_code == 143
+
+
+def _slow_file(tmp_path):
+    path = tmp_path / "short.yaml"
+    path.write_text(SLOW.replace("t_end: 10, max_step: 2.0e-5", "t_end: 0.05"))
+    return path
+
+
+def test_signal_while_writing_lets_the_files_complete(tmp_path, monkeypatch, capsys):
+    """SIGINT after the integration, while the results are written: every file is written
+    completely (status ok: the run finished), then the command exits 130."""
+    from spidersim import cli
+    real = cli._write_results
+
+    def interrupted_write(*a, **kw):
+        os.kill(os.getpid(), signal.SIGINT)
+        return real(*a, **kw)
+    monkeypatch.setattr(cli, "_write_results", interrupted_write)
+    out = tmp_path / "out"
+    code = cli.main(["run", str(_slow_file(tmp_path)), "--no-jit", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert "finishing writing" in err and "are complete" in err
+    assert "status: ok" in (out / "report.txt").read_text()
+    t = np.load(out / "result.npz")["t"]
+    assert t[-1] == pytest.approx(0.05)
+    assert any(f.endswith(".png") for f in os.listdir(out))
+    assert not [f for f in os.listdir(out) if "tmp" in f]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler     # restored
+
+
+def test_second_signal_while_writing_stops_at_once(tmp_path, monkeypatch, capsys):
+    """A second signal in the middle of writing a file: the command ends at once, the
+    file being written is absent (its temporary removed), never truncated."""
+    from spidersim import cli
+    from spidersim.solver import result as result_mod
+    real_savez = np.savez
+
+    def savez_interrupted(fh, **arrays):
+        real_savez(fh, **arrays)
+        os.kill(os.getpid(), signal.SIGINT)        # the first: finish writing ...
+        os.kill(os.getpid(), signal.SIGINT)        # ... the second: stop now
+    monkeypatch.setattr(result_mod.np, "savez", savez_interrupted)
+    out = tmp_path / "out"
+    code = cli.main(["run", str(_slow_file(tmp_path)), "--no-jit", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 130 and "Traceback" not in err and "again" in err, err
+    assert os.listdir(out) == []                   # nothing half-written

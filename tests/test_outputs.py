@@ -52,3 +52,124 @@ def test_out_that_is_a_file_is_refused_before_compiling(tmp_path, capsys):
         assert main(["run", str(path), "--out", str(out), "--no-jit"]) == 2
         err = capsys.readouterr().err
         assert "output folder" in err and "Traceback" not in err and "compiling" not in err
+
+
+LIN = """\
+name: {name!r}
+blocks:
+  c: {{type: Step}}
+  g: {{type: TransferFunction, num: [1], den: [1, 1]}}
+connections:
+  - c.y -> g.u
+simulation: {{t_end: 0.5}}
+analysis:
+  {analysis}: {{inputs: [c.y], outputs: [g.y]}}
+metrics:
+  peak: {{signal: g.y, reduce: max}}
+"""
+
+
+def test_linearize_and_sweep_folders_are_sanitised(tmp_path, monkeypatch, capsys):
+    """Default folders of linearize and sweep come from the safe stem of ``name:`` and of
+    the analysis name: nothing is written outside ``results/``."""
+    work = tmp_path / "work"
+    work.mkdir()
+    path = work / "d.yaml"
+    path.write_text(LIN.format(name="../../../esc ape", analysis='"../../up"'))
+    monkeypatch.chdir(work)
+    assert main(["linearize", str(path), "--no-jit"]) == 0, capsys.readouterr().err
+    assert main(["sweep", str(path), "--vary", "c.after=1,2", "--workers", "0"]) == 0, \
+        capsys.readouterr().err
+    written = _files(tmp_path)
+    assert all(w.startswith(os.path.join("work", "results") + os.sep)
+               or w == os.path.join("work", "d.yaml") for w in written), written
+    assert os.path.join("work", "results", "esc_ape", "linearize_up", "bode.png") in written
+    assert os.path.join("work", "results", "esc_ape_sweep", "sweep_peak.png") in written
+
+
+@pytest.mark.parametrize("command", ["linearize", "sweep"])
+def test_unusable_out_is_refused_before_computing(tmp_path, capsys, command):
+    path = tmp_path / "d.yaml"
+    path.write_text(LIN.format(name="x", analysis="a"))
+    blocker = tmp_path / "blocker"
+    blocker.write_text("")
+    extra = ["--vary", "c.after=1,2", "--workers", "0"] if command == "sweep" else ["--no-jit"]
+    for out in (blocker, blocker / "sub"):
+        assert main([command, str(path), "--out", str(out)] + extra) == 2
+        cap = capsys.readouterr()
+        assert "output folder" in cap.err and "Traceback" not in cap.err
+        assert "sweep of" not in cap.err and cap.out == ""      # nothing computed
+
+
+def test_metric_name_is_an_identifier(tmp_path, capsys):
+    path = tmp_path / "d.yaml"
+    path.write_text(LIN.format(name="x", analysis="a").replace("  peak:", '  "../../p":'))
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}:11:" in err and "identifier" in err
+
+
+def test_make_plots_refuses_a_path_from_the_api(tmp_path):
+    """Direct callers of make_plots get the same confinement as the CLI."""
+    import spidersim
+    from spidersim.errors import DiagramError
+    from spidersim.plots import make_plots
+    r = spidersim.loads(DIAGRAM.format(name="x")).simulate(jit=False)
+    out = tmp_path / "out"
+    for bad in ("../x.png", "/tmp/x.png", "sub/x.png", "x.py"):
+        with pytest.raises(DiagramError, match="file"):
+            make_plots(r, [{"signals": ["g.y"], "file": bad}], str(out))
+    assert not (tmp_path / "x.png").exists() and not os.listdir(out)
+
+
+def test_full_disk_while_drawing_a_plot(tmp_path, monkeypatch, capsys):
+    """ENOSPC in the middle of a PNG: exit 2 naming the plot file, no half-written PNG and
+    no temporary left; the data files written before it are complete."""
+    import errno
+
+    import matplotlib.figure
+    import numpy as np
+    path = tmp_path / "d.yaml"
+    path.write_text(DIAGRAM.format(name="x").replace("  - signals: [g.y]",
+                                                     "  - signals: [g.y]\n    file: gain.png"))
+
+    def full(self, fname, *a, **kw):
+        with open(fname, "wb") as fh:
+            fh.write(b"\x89PNG partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--no-jit", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "gain.png" in err and "No space left" in err and "Traceback" not in err
+    files = sorted(os.listdir(out))
+    assert "gain.png" not in files and not [f for f in files if "tmp" in f], files
+    assert np.load(out / "result.npz")["g.y"][0] == 2.0
+
+
+def test_interrupt_while_writing_removes_the_temporary(tmp_path):
+    from spidersim.outputs import atomic_path, write_atomic
+    target = tmp_path / "a.csv"
+    target.write_text("old complete file")
+
+    def interrupted(fh):
+        fh.write("half")
+        raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        write_atomic(str(target), interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(str(tmp_path / "b.png")) as tmp:
+            open(tmp, "w").write("half")
+            raise KeyboardInterrupt
+    assert sorted(os.listdir(tmp_path)) == ["a.csv"]
+    assert target.read_text() == "old complete file"
+
+
+def test_safe_stem():
+    from spidersim.outputs import safe_stem
+    assert safe_stem("../../x") == "x"
+    assert safe_stem("/etc/passwd") == "etc_passwd"
+    assert safe_stem("..", "file stem") == "file_stem"
+    assert safe_stem("", None, "..") == "diagram"
+    assert safe_stem("a" * 500) == "a" * 80
+    assert safe_stem("süß\n\"x\"") == "s_x"

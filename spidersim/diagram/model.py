@@ -6,6 +6,7 @@ never recompile.
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 
@@ -77,15 +78,24 @@ class Diagram:
                                    file=self.file, line=line)
             return v
         from ..text.expr import ExprError, evaluate
+        if isinstance(v, bool):          # YAML true/false is not a time or a tolerance
+            raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be a number, got "
+                               f"the boolean {v!r}", file=self.file, line=line)
         try:
             val = evaluate(v, {}) if isinstance(v, str) else v
+            if isinstance(val, bool):
+                raise TypeError("boolean")
             val = float(val)
-        except (ExprError, TypeError, ValueError) as exc:
+        except (ExprError, TypeError, ValueError, OverflowError):
             raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be a number, got "
                                f"{v!r}", file=self.file, line=line) from None
         if not val > 0:
             raise DiagramError(f"simulation.{key} must be > 0, got {val:g}", file=self.file,
                                line=line)
+        if not math.isfinite(val):
+            raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be finite, got "
+                               f"{v!r} (a number beyond 1.8e308, such as 1e400, is infinite)",
+                               file=self.file, line=line)
         return val
 
     def _param_array(self):
@@ -181,6 +191,12 @@ class Diagram:
         out = []
         lines = getattr(log, "lines", [self.spec.log_line] * len(log))
         for k, name in enumerate(log):
+            if not isinstance(name, str):
+                found = ("a mapping" if isinstance(name, dict) else
+                         "a list" if isinstance(name, list) else repr(name))
+                raise DiagramError(f"log: entry {k} must be a signal name 'block.port', got "
+                                   f"{found}", file=self.file,
+                                   line=lines[k] if k < len(lines) else self.spec.log_line)
             if name not in table:
                 import difflib
                 near = difflib.get_close_matches(str(name), list(table), n=3)
@@ -278,10 +294,14 @@ class Diagram:
         """Generate, import and warm up the compiled functions; return the system."""
         if jit not in self._modules:
             t0 = time.perf_counter()
-            mod, key, _ = load_module(self.source(jit), jit)
+            def warm_up(mod):
+                # numba compiles, or loads from its cache, on the first calls: inside
+                # load_module so that a corrupt numba cache is cleared and retried
+                self._modules[jit] = (mod, None)
+                self._system(jit).warm_up()
+
+            mod, key, _ = load_module(self.source(jit), jit, check=warm_up)
             self._modules[jit] = (mod, key)
-            system = self._system(jit)
-            system.warm_up()
             self._compile_time = time.perf_counter() - t0
         else:
             self._compile_time = 0.0

@@ -123,13 +123,21 @@ def _verified(path, text, key) -> bool:
             and _sha(package_hash() + content)[:20] == key)
 
 
-def load_module(text: str, jit: bool):
+def load_module(text: str, jit: bool, check=None):
     """Import the generated module ``text``; return ``(module, key, seconds)``.
 
     The cache entry is verified before it is imported (see :func:`_verified`); an entry
     that fails is discarded with a one-line warning and written anew, so numba compiles it
     again. Module and hash are written to temporary names and renamed (atomic).
+
+    ``check(module)``, when given, is run right after the import (the warm-up: numba loads
+    or compiles the machine code when a function is first called). If the import or the
+    check fails on a verified module, numba's cache files of the entry are the suspects
+    (truncated, corrupt index): they are removed and the module imported and checked once
+    more, with a one-line warning. A :class:`~spidersim.errors.SpidersimError` from
+    ``check`` is the user's and is raised as it is.
     """
+    from ..errors import SpidersimError
     key = _sha(package_hash() + text)[:20]
     name = f"{PREFIX}{key}"
     if name in _LOADED:
@@ -141,10 +149,7 @@ def load_module(text: str, jit: bool):
         _warn(f"entry {key} does not match its hash (truncated, edited or replaced); "
               f"discarded and compiled again")
         for f in [path, path[:-3] + ".sha256"] + _numba_files(folder, name):
-            try:
-                os.remove(f)
-            except OSError:
-                pass
+            _remove(f)
     if not os.path.exists(path):
         _write_atomic(path[:-3] + ".sha256", _sha(text) + "\n")
         _write_atomic(path, text)
@@ -152,23 +157,37 @@ def load_module(text: str, jit: bool):
     COUNTS["imported"] += 1
     try:
         mod = _import(name, path)
+        if check is not None:
+            check(mod)
+    except SpidersimError:
+        raise
     except Exception as exc:  # a corrupt numba cache beside a verified module: once more
-        for f in _numba_files(folder, name):
-            try:
-                os.remove(f)
-            except OSError:
-                pass
-        _warn(f"entry {key} could not be loaded ({type(exc).__name__}); its compiled code "
-              f"was discarded, compiling again")
+        had = _numba_files(folder, name)
+        for f in had:
+            _remove(f)
+        if not had:              # nothing of numba's to blame: a genuine error
+            raise
+        _warn(f"entry {key}: its compiled machine code could not be loaded "
+              f"({type(exc).__name__}); discarded, compiling again")
         try:
             mod = _import(name, path)
+            if check is not None:
+                check(mod)
+        except SpidersimError:
+            raise
         except Exception as exc2:
-            from ..errors import SpidersimError
             raise SpidersimError(f"the compiled-code cache entry {key} in {folder} cannot be "
                                  f"loaded ({type(exc2).__name__}: {exc2}); run "
                                  f"'spidersim cache clear' and try again") from None
     _LOADED[name] = mod
     return mod, key, time.perf_counter() - t0
+
+
+def _remove(f):
+    try:
+        os.remove(f)
+    except OSError:
+        pass
 
 
 def is_cached(text: str) -> bool:

@@ -8,6 +8,8 @@ import os
 
 import numpy as np
 
+from ..outputs import write_atomic  # noqa: F401 (also imported from here)
+
 
 class Result:
     """Named time series of one run.
@@ -216,24 +218,3 @@ def _jsonable(v):
     if isinstance(v, np.ndarray):
         return v.tolist()
     return str(v)
-
-
-def write_atomic(path, write, binary=False):
-    """``write(fh)`` into a temporary file beside ``path``, then rename it to ``path``.
-
-    On failure (disk full, folder removed, ...) the temporary is removed and an
-    :class:`OSError` naming ``path`` is raised: no truncated file is ever left at ``path``.
-    """
-    tmp = f"{path}.tmp-{os.getpid()}"
-    try:
-        with open(tmp, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
-        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None

@@ -105,3 +105,144 @@ def test_cache_info_and_clear(tmp_path):
     assert clear.returncode == 0
     assert not glob.glob(os.path.join(cache, "spidersim_gen_*"))
     assert keep.exists()                      # only spidersim's own files are removed
+
+
+# ---------------------------------------------------------------- numba's own cache files
+TINY = """\
+blocks:
+  c: {type: Constant, value: 1}
+  g: {type: Gain, k: 2}
+connections:
+  - c.y -> g.u
+simulation: {t_end: 0.01}
+"""
+
+
+def _run_jit(cache, path, out):
+    env = dict(os.environ, SPIDERSIM_CACHE=str(cache))
+    return subprocess.run([sys.executable, "-m", "spidersim.cli", "run", str(path),
+                           "--no-plots", "--out", str(out)],
+                          capture_output=True, text=True, env=env, timeout=600)
+
+
+def _truncate_nbc(folder):
+    for f in glob.glob(os.path.join(folder, "__pycache__", "spidersim_gen_*.nbc")):
+        data = open(f, "rb").read()
+        open(f, "wb").write(data[:50])
+
+
+def _garbage_nbi(folder):
+    for f in glob.glob(os.path.join(folder, "__pycache__", "spidersim_gen_*.nbi")):
+        open(f, "w").write("garbage\n")
+
+
+@pytest.mark.parametrize("corrupt", [_truncate_nbc, _garbage_nbi],
+                         ids=lambda f: f.__name__.strip("_"))
+def test_corrupt_numba_cache_is_cleared_and_compiled_again(tmp_path, corrupt):
+    """The module is sound but numba's machine-code files beside it are not: a one-line
+    warning, numba compiles again, the result is the same; the next run is quiet."""
+    cache, path = tmp_path / "cache", tmp_path / "tiny.yaml"
+    path.write_text(TINY)
+    first = _run_jit(cache, path, tmp_path / "o1")
+    assert first.returncode == 0, first.stderr
+    assert glob.glob(os.path.join(cache, "__pycache__", "spidersim_gen_*.nbc"))
+    corrupt(cache)
+    second = _run_jit(cache, path, tmp_path / "o2")
+    assert second.returncode == 0, second.stderr
+    assert "Traceback" not in second.stderr
+    warnings = [ln for ln in second.stderr.splitlines() if "cache:" in ln]
+    assert len(warnings) == 1 and "compiling again" in warnings[0], second.stderr
+    import numpy as np
+    a, b = np.load(tmp_path / "o1" / "result.npz"), np.load(tmp_path / "o2" / "result.npz")
+    assert np.array_equal(a["g.y"], b["g.y"]) and a["g.y"][0] == 2.0
+    third = _run_jit(cache, path, tmp_path / "o3")
+    assert third.returncode == 0 and "cache:" not in third.stderr
+
+
+@pytest.fixture
+def own_cache(tmp_path, monkeypatch):
+    """A private cache folder and a clean per-process module table."""
+    from spidersim.solver import compiled
+    monkeypatch.setenv("SPIDERSIM_CACHE", str(tmp_path / "cache"))
+    saved = dict(compiled._LOADED)
+    compiled._LOADED.clear()
+    yield compiled, tmp_path / "cache"
+    compiled._LOADED.clear()
+    compiled._LOADED.update(saved)
+
+
+def _fake_numba_file(compiled, folder, text):
+    key = compiled._sha(compiled.package_hash() + text)[:20]
+    pyc = folder / "__pycache__"
+    pyc.mkdir(parents=True, exist_ok=True)
+    f = pyc / f"{compiled.PREFIX}{key}.rhs-1.py311.nbi"
+    f.write_text("stale")
+    return f
+
+
+def test_check_failing_twice_asks_for_cache_clear(own_cache, capsys, monkeypatch):
+    """A check that fails again after numba's files were cleared (here: the files cannot
+    be removed) is a clear error that says what to do, not a traceback."""
+    from spidersim.errors import SpidersimError
+    compiled, folder = own_cache
+    text = "X = 1\n"
+    folder.mkdir()
+    nbi = _fake_numba_file(compiled, folder, text)
+    monkeypatch.setattr(compiled, "_remove", lambda f: None)      # removal fails
+
+    def check(mod):
+        raise ValueError("corrupt index")
+    with pytest.raises(SpidersimError, match="spidersim cache clear"):
+        compiled.load_module(text, jit=True, check=check)
+    assert nbi.exists()
+    assert "could not be loaded" in capsys.readouterr().err
+
+
+def test_check_failing_once_is_retried(own_cache, capsys):
+    compiled, folder = own_cache
+    text = "X = 2\n"
+    folder.mkdir()
+    nbi = _fake_numba_file(compiled, folder, text)
+    calls = []
+
+    def check(mod):
+        calls.append(mod)
+        if len(calls) == 1:
+            raise EOFError("truncated")
+    mod, _key, _s = compiled.load_module(text, jit=True, check=check)
+    assert mod.X == 2 and len(calls) == 2 and calls[0] is not calls[1]   # imported anew
+    assert not nbi.exists()
+    err = capsys.readouterr().err
+    assert err.count("spidersim: cache:") == 1
+
+
+def test_error_without_numba_files_is_not_blamed_on_the_cache(own_cache, capsys):
+    """No numba file to blame: the error is raised as it is (a bug to report), and the
+    user's own errors (SpidersimError) always are."""
+    from spidersim.errors import SpidersimError
+    compiled, _folder = own_cache
+
+    def bug(mod):
+        raise ZeroDivisionError("a bug")
+    with pytest.raises(ZeroDivisionError):
+        compiled.load_module("X = 3\n", jit=True, check=bug)
+
+    def user(mod):
+        raise SpidersimError("user error")
+    with pytest.raises(SpidersimError, match="user error"):
+        compiled.load_module("X = 4\n", jit=True, check=user)
+    assert "cache:" not in capsys.readouterr().err
+
+
+def test_cache_info_lists_folder_entries_and_size(tmp_path):
+    cache = tmp_path / "cache"
+    env = dict(os.environ, SPIDERSIM_CACHE=str(cache))
+    cmd = [sys.executable, "-m", "spidersim.cli", "cache", "info"]
+    empty = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    assert empty.returncode == 0 and "entries: 0 " in empty.stdout and str(cache) in empty.stdout
+    assert _run(cache).returncode == 0
+    assert _run(cache, OTHER).returncode == 0
+    full = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    assert "entries: 2 " in full.stdout
+    size = sum(os.path.getsize(p) for p in glob.glob(os.path.join(cache, "spidersim_gen_*")))
+    assert f"{size / 1e6:.1f} MB" in full.stdout

@@ -1,0 +1,112 @@
+"""Where results go and how they are written: confined folders, complete files only.
+
+Rules (issue #12):
+
+- A folder chosen by spidersim (``results/<stem>``) takes its ``<stem>`` from
+  :func:`safe_stem`: letters, digits, ``-`` and ``_`` only, so that no text of a diagram
+  (``name: ../../x``, ``/abs/path``) can point anywhere else.
+- The output folder is created and probed for writing by :func:`prepare_out` before anything
+  is computed: a folder that is a file, read-only or cannot be created is a clear error at
+  once, not a traceback after the simulation.
+- Every file is written under a temporary name in its folder and renamed when complete
+  (:func:`write_atomic`, :func:`atomic_path`): a full disk, a crash or an interrupt leaves
+  the complete file or none, never a truncated one, and the error names the file.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+
+from .errors import SpidersimError
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9_-]+")
+
+
+def safe_stem(*candidates, limit=80):
+    """The first candidate reduced to letters, digits, ``-`` and ``_`` that is not empty
+    (runs of anything else become one ``_``; leading/trailing ``_``/``-`` dropped; at most
+    ``limit`` characters), else ``"diagram"``: a folder or file stem that can never hold a
+    separator, ``..`` or an absolute path."""
+    for text in candidates:
+        if text is None:
+            continue
+        stem = _UNSAFE.sub("_", str(text)).strip("_-")[:limit]
+        if stem:
+            return stem
+    return "diagram"
+
+
+def prepare_out(out, what="output folder"):
+    """Create ``out`` and check that a file can be written in it; raise SpidersimError.
+
+    Called before compiling or computing, so that an unusable ``--out`` (an existing file, a
+    path through a file, a read-only folder) is refused at once.
+    """
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise SpidersimError(f"{what} {out} exists and is not a folder; choose another --out")
+    try:
+        os.makedirs(out, exist_ok=True)
+        probe = os.path.join(out, f".spidersim-write-test-{os.getpid()}")
+        with open(probe, "w") as fh:
+            fh.write("ok")
+        os.remove(probe)
+    except OSError as exc:
+        raise SpidersimError(f"cannot write into the {what} {out}: {exc.strerror or exc}; "
+                             f"choose another --out") from None
+    return out
+
+
+def _remove(path):
+    try:
+        os.remove(path)
+    except OSError:
+        pass
+
+
+def _named(exc, path):
+    return OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}")
+
+
+def write_atomic(path, write, binary=False):
+    """``write(fh)`` into a temporary file beside ``path``, then rename it to ``path``.
+
+    On any failure (disk full, folder removed, an interrupt) the temporary is removed; an
+    :class:`OSError` is raised again naming ``path``. ``path`` itself is either the complete
+    new file or what it was before, never a truncated file.
+    """
+    tmp = f"{path}.tmp-{os.getpid()}"
+    try:
+        with open(tmp, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        _remove(tmp)
+        raise _named(exc, path) from None
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """A temporary path beside ``path`` with the same extension (matplotlib chooses the
+    format from it) for a writer that takes a file name; renamed to ``path`` when the block
+    ends without error, removed otherwise (an OSError names ``path``)::
+
+        with atomic_path(os.path.join(out, "bode.png")) as tmp:
+            fig.savefig(tmp)
+    """
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as exc:
+        _remove(tmp)
+        raise _named(exc, path) from None
+    except BaseException:
+        _remove(tmp)
+        raise
