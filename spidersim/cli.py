@@ -67,7 +67,7 @@ def _parse_sets(items):
     return out
 
 
-def _compile_with_progress(d, jit):
+def _compile_with_progress(d, jit, loop=False):
     """Compile (or load) the diagram, saying what happens and for how long: generation,
     numba compilation of a new structure with a heartbeat every 10 s, or a cache hit."""
     import threading
@@ -78,7 +78,7 @@ def _compile_with_progress(d, jit):
         print(f"{head}; interpreted mode (no numba) ...", file=sys.stderr)
         d.compile(jit=False)
         return
-    cached = is_cached(d.source(True))
+    cached = is_cached(d.source(True), loop=loop)
     print(f"{head}; " + ("loading compiled code from the cache ..." if cached else
                          "new structure: compiling with numba (the first run of a "
                          "structure takes seconds to a minute; later runs load it) ..."),
@@ -93,7 +93,7 @@ def _compile_with_progress(d, jit):
     if not cached:
         beat.start()
     try:
-        d.compile(jit=True)
+        d.compile(jit=True, loop=loop)
     finally:
         done.set()
     dt = time.perf_counter() - t0
@@ -194,7 +194,9 @@ def cmd_run(args):
     # results are written the writing finishes first (a second signal ends it at once,
     # leaving complete files only)
     with stop.installed():
-        _compile_with_progress(d, jit=not args.no_jit)
+        from .solver.integrate import COMPILED
+        _compile_with_progress(d, jit=not args.no_jit,
+                               loop=(args.method or d.simulation["method"]) in COMPILED)
         prog = Progress(t_end)
         try:
             r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit,

@@ -298,8 +298,20 @@ def record_guards(t, x, sig, p, modes, s_idx, x_idx, buf, row, g):
 def apply_event(t, x, sig, p, modes, k, direction):
     outputs(t, x, sig, p, modes)
 {body(ev_lines) or "    pass"}
+
 '''
-        return text
+        return text + "\n\n" + loop_body()
+
+
+def loop_body() -> str:
+    """The compiled integration loop's text (:mod:`spidersim.solver.loop_body`, from its
+    body marker on): a fixed text of spidersim's, appended to every generated module."""
+    import importlib.util
+    spec = importlib.util.find_spec("spidersim.solver.loop_body")
+    with open(spec.origin, encoding="utf-8") as fh:
+        text = fh.read()
+    marker = "# --- body (appended from here) ---\n"
+    return text[text.index(marker) + len(marker):]
 
 
 def generate(layout: Layout, jit: bool) -> str:

@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import DiagramError, ParameterError, SpidersimError
 from ..solver import CompiledSystem, integrate
 from ..solver.compiled import load_module
+from ..solver.integrate import COMPILED
 from .codegen import event_tables, generate
 from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
@@ -290,8 +291,19 @@ class Diagram:
         """The generated module text."""
         return generate(self.layout, jit)
 
-    def compile(self, jit=True):
-        """Generate, import and warm up the compiled functions; return the system."""
+    def compile(self, jit=True, loop=False):
+        """Generate, import and warm up the compiled functions; return the system.
+
+        With ``loop``, the compiled integration loop (method ``DP54``) is compiled too (or
+        loaded from the cache); otherwise it is compiled on its first use.
+        """
+        if loop and jit:
+            system = self.compile(jit)
+            if not system.loop_ready():
+                t0 = time.perf_counter()
+                system.warm_up_loop()
+                self._compile_time += time.perf_counter() - t0
+            return system
         if jit not in self._modules:
             t0 = time.perf_counter()
             def warm_up(mod):
@@ -347,7 +359,7 @@ class Diagram:
                 cfg[k] = v
         if cfg["max_step"] is None:
             cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
-        system = self.compile(jit)
+        system = self.compile(jit, loop=cfg["method"] in COMPILED)
         a, r = self.layout.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * cfg["atol"]
         system.p[r] = LOOP_TOL_FACTOR * cfg["rtol"]

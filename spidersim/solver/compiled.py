@@ -190,16 +190,22 @@ def _remove(f):
         pass
 
 
-def is_cached(text: str) -> bool:
+def is_cached(text: str, loop: bool = False) -> bool:
     """Whether the module ``text`` is already compiled in the cache (verified), i.e. the
-    next :func:`load_module` loads machine code instead of compiling."""
+    next :func:`load_module` loads machine code instead of compiling; with ``loop``, its
+    compiled integration loop too."""
     key = _sha(package_hash() + text)[:20]
     name = f"{PREFIX}{key}"
-    if name in _LOADED:
-        return True
     path = os.path.join(cache_dir(), name + ".py")
-    return os.path.exists(path) and _verified(path, text, key) and bool(
-        _numba_files(os.path.dirname(path), name))
+    if name in _LOADED:
+        if not loop:
+            return True
+        e = getattr(_LOADED[name], "run_dp54", None)
+        if e is not None and getattr(e, "overloads", None):
+            return True
+    files = [os.path.basename(f) for f in _numba_files(os.path.dirname(path), name)]
+    return os.path.exists(path) and _verified(path, text, key) and bool(files) and (
+        not loop or any(f.startswith(name + ".run_dp54-") for f in files))
 
 
 def _import(name, path):

@@ -20,10 +20,15 @@ from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 from scipy.sparse import csr_matrix
 
 from ..errors import AlgebraicLoopError, IntegrationError, SpidersimError
+from .events import crossed, crossings, locate  # noqa: F401 (part of this module's API)
 from .result import Result
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
-           "BDF": BDF}
+           "BDF": BDF, "DP54": RK45}
+#: methods integrated by the compiled loop (:mod:`spidersim.solver.loop`) when the system
+#: has one (numba-compiled diagrams); interpreted diagrams run them through the SciPy
+#: stepper of the same tableau and controller
+COMPILED = ("DP54",)
 IMPLICIT = ("Radau", "BDF")
 MAX_EVENTS_AT_ONE_TIME = 1000
 #: a run stalls when this many consecutive accepted steps are each shorter than
@@ -73,57 +78,7 @@ class _Clock:
         return self._s.diagnose(t, x[:0])
 
 
-def _crossings(g_old, g_new, direction, armed, out):
-    """Indices of the guards that crossed into ``out``; returns how many."""
-    k = 0
-    for i in range(g_old.size):
-        a, b, d = g_old[i], g_new[i], direction[i]
-        up = (a < 0.0 and b >= 0.0) or (a == 0.0 and armed[i] and b > 0.0)
-        down = (a > 0.0 and b <= 0.0) or (a == 0.0 and armed[i] and b < 0.0)
-        if (d >= 0.0 and up) or (d <= 0.0 and down):
-            out[k] = i
-            k += 1
-    return k
-
-
-try:   # a per-step test on a few floats: numpy's per-call overhead would dominate
-    import numba
-    _crossings = numba.njit(cache=True)(_crossings)
-except ImportError:  # pragma: no cover - numba is a dependency
-    pass
-
-
-def crossed(g_old, g_new, direction, armed=None):
-    """Which guards crossed zero in the allowed direction over a step.
-
-    A guard that starts the step exactly at zero crosses when it leaves zero in the allowed
-    direction, unless it is not ``armed``: a guard zeroed by its own block's event has to
-    leave zero before it can fire again.
-    """
-    if armed is None:
-        armed = np.zeros(len(g_old), dtype=np.bool_)
-    out = np.empty(len(g_old), dtype=np.int64)
-    return out[:_crossings(g_old, g_new, direction, armed, out)]
-
-
-def locate(gfun, t_a, t_b, g_a, xtol):
-    """Time of the zero crossing of ``gfun`` in ``(t_a, t_b]``, on the far side.
-
-    ``brentq`` brackets the root to ``xtol``; the returned time is the first bracket point
-    where the guard has left the side it started on, so that the event is applied after
-    the crossing and cannot fire twice.
-    """
-    from scipy.optimize import brentq
-    g_b = gfun(t_b)
-    if g_b == 0.0 or np.sign(g_b) == np.sign(g_a):
-        return t_b
-    r = brentq(gfun, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
-    for _ in range(8):
-        g = gfun(r)
-        if g == 0.0 or np.sign(g) != np.sign(g_a) or r >= t_b:
-            return r
-        r = min(t_b, r + xtol)
-    return t_b
+_crossings = crossings      # the compiled helper under its historical name
 
 
 class _Recorder:
@@ -176,7 +131,9 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     system : CompiledSystem
         See :mod:`spidersim.solver.system` for the contract.
     method : str
-        ``LSODA`` (default), ``RK45``, ``RK23``, ``DOP853``, ``Radau`` or ``BDF``.
+        ``LSODA`` (default), ``RK45``, ``RK23``, ``DOP853``, ``Radau`` or ``BDF`` (SciPy's
+        steppers driven by this loop), or ``DP54``: Dormand-Prince 5(4) in the compiled loop
+        of :mod:`spidersim.solver.loop` (stepping, events and recording in machine code).
     rtol, atol, max_step, first_step : float
         Passed to the SciPy solver.
     output_interval : float, optional
@@ -204,6 +161,13 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if output_interval is not None and not (0 < output_interval <= t_end - t0):
         raise SpidersimError(f"output_interval must be in (0, {t_end - t0}], "
                              f"got {output_interval}")
+    entry = getattr(system, "compiled_entry", None)
+    if method in COMPILED and entry is not None:
+        from .loop import integrate_dp54
+        return integrate_dp54(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
+                              max_step=max_step, first_step=first_step,
+                              output_interval=output_interval, progress=progress,
+                              stats=stats, should_stop=should_stop)
     wall0 = time.perf_counter()
     if system.n_x == 0:
         system = _Clock(system)

@@ -96,6 +96,9 @@ class CompiledSystem:
         self._record = m.record
         self._guards = m.guards
         self._record_guards = m.record_guards
+        #: the compiled integration loop bound to this module (numba-compiled modules only)
+        self.compiled_entry = m.run_dp54 if getattr(m, "JIT", False) and hasattr(
+            m, "run_dp54") else None
 
     def outputs(self, t, x):
         self._outputs(t, x, self.sig, self.p, self.modes)
@@ -148,6 +151,24 @@ class CompiledSystem:
         self.initialize(0.0, x)
         self.module.apply_event(0.0, x, self.sig, self.p, self.modes, -1, 1.0)
         self.modes[:] = modes
+
+    def loop_ready(self) -> bool:
+        """Whether the compiled integration loop has machine code (compiled or loaded)."""
+        e = self.compiled_entry
+        return e is not None and (not hasattr(e, "overloads") or len(e.overloads) > 0)
+
+    def warm_up_loop(self):
+        """Compile the integration loop for this system's argument types (or load it from
+        numba's cache) without running it; then call its machine code directly."""
+        e = self.compiled_entry
+        if e is None or not hasattr(e, "overloads"):
+            return
+        if not e.overloads:
+            import numba
+            from .loop import CompiledLoop
+            args = CompiledLoop(e, self, 0.0, 1.0, 1e-6, 1e-8, np.inf, None, None,
+                                capacity=1).arguments(1)
+            e.compile(tuple(numba.typeof(a) for a in args))
 
     def _bind_entry_points(self):
         """Once compiled for these argument types, call the machine code directly: numba's

@@ -13,6 +13,15 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 BALL = os.path.join(ROOT, "diagrams", "bouncing_ball.yaml")
 
 
+@pytest.fixture(params=["scipy-loop", "compiled-loop"])
+def engine(request):
+    """Each event test runs on both loops: SciPy's steppers driven from Python
+    (interpreted diagram, the file's method) and the compiled Dormand-Prince loop."""
+    if request.param == "scipy-loop":
+        return {"jit": False}
+    return {"jit": True, "method": "DP54"}
+
+
 def _impact_times(h0=10.0, e=0.8, g=9.81, n=10):
     t1 = np.sqrt(2 * h0 / g)
     v1 = g * t1
@@ -33,10 +42,10 @@ def test_bouncing_ball_impact_times_and_rest(jit):
     assert r.stats["events"] == len(r.events)
 
 
-def test_bouncing_ball_zeno_is_reported_as_chattering():
+def test_bouncing_ball_zeno_is_reported_as_chattering(engine):
     d = spidersim.load(BALL, set={"ball.v_rest": 0})
     with pytest.raises(IntegrationError) as ei:
-        d.simulate(jit=False)
+        d.simulate(**engine)
     err = ei.value
     assert "chattering" in str(err) and err.block == "ball" and "'impact'" in str(err)
     t_zeno = np.sqrt(2 * 10 / 9.81) * (1 + 2 * 0.8 / 0.2)
@@ -44,7 +53,7 @@ def test_bouncing_ball_zeno_is_reported_as_chattering():
     assert err.partial.status == "failed"
 
 
-def test_guard_must_leave_zero_before_firing_again():
+def test_guard_must_leave_zero_before_firing_again(engine):
     """A Switch whose control input touches the threshold and stays there fires once."""
     text = """
 blocks:
@@ -57,25 +66,25 @@ connections:
   - c.y -> sw.u2
   - b.y -> sw.u3
 """
-    r = spidersim.loads(text).simulate(t_end=4, jit=False)
+    r = spidersim.loads(text).simulate(t_end=4, **engine)
     sw = [e for e in r.events if e[1] == "sw"]
     assert len(sw) <= 1
     assert r["sw.y"][r.t > 3.01].min() == 1.0 and r["sw.y"][r.t < 0.99].max() == -1.0
 
 
-def test_simultaneous_events_are_all_applied():
+def test_simultaneous_events_are_all_applied(engine):
     text = """
 blocks:
   a: {type: MassOnStop, x0: 5, e: 0.5}
   b: {type: MassOnStop, x0: 5, e: 0.5}
 """
-    r = spidersim.loads(text).simulate(t_end=1.5, rtol=1e-10, atol=1e-12, jit=False)
+    r = spidersim.loads(text).simulate(t_end=1.5, rtol=1e-10, atol=1e-12, **engine)
     first = [e for e in r.events if e[2] == "impact"][:2]
     assert {e[1] for e in first} == {"a", "b"} and first[0][0] == first[1][0]
     assert np.array_equal(r["a.x"], r["b.x"])
 
 
-def test_event_saturation_switches_exactly_at_the_corner():
+def test_event_saturation_switches_exactly_at_the_corner(engine):
     text = """
 blocks:
   u:   {type: Sine, amplitude: 2, f: 1}
@@ -86,7 +95,7 @@ connections:
   - sat.y -> x.u
 simulation: {rtol: 1e-10, atol: 1e-12}
 """
-    r = spidersim.loads(text).simulate(t_end=1.0, jit=False)
+    r = spidersim.loads(text).simulate(t_end=1.0, **engine)
     times = sorted(t for t, blk, ev in r.events if blk == "sat")
     # 2 sin(2 pi t) = +-1 at t = 1/12, 5/12, 7/12, 11/12
     assert np.allclose(times, [1 / 12, 5 / 12, 7 / 12, 11 / 12], atol=1e-9)
@@ -94,7 +103,7 @@ simulation: {rtol: 1e-10, atol: 1e-12}
     assert abs(r["x.y"][-1]) < 1e-8
 
 
-def test_limited_integrator_holds_without_clipping():
+def test_limited_integrator_holds_without_clipping(engine):
     text = """
 blocks:
   u:  {type: Sine, amplitude: 1, f: 0.5}
@@ -103,7 +112,7 @@ connections:
   - u.y -> li.u
 simulation: {rtol: 1e-10, atol: 1e-12}
 """
-    r = spidersim.loads(text).simulate(t_end=4.0, jit=False)
+    r = spidersim.loads(text).simulate(t_end=4.0, **engine)
     y = r["li.y"]
     assert y.max() <= 0.2 + 1e-12 and y.min() >= -0.2 - 1e-12
     # reaches the upper limit when (1 - cos(pi t)) / pi = 0.2, leaves when u turns at t = 1
@@ -113,7 +122,7 @@ simulation: {rtol: 1e-10, atol: 1e-12}
     assert abs(ev[1][0] - 1.0) < 1e-9 and ev[1][1] == "leave"
 
 
-def test_relay_hysteresis():
+def test_relay_hysteresis(engine):
     text = """
 blocks:
   u: {type: Sine, amplitude: 1, f: 1}
@@ -121,13 +130,13 @@ blocks:
 connections:
   - u.y -> r.u
 """
-    r = spidersim.loads(text).simulate(t_end=1.0, jit=False)
+    r = spidersim.loads(text).simulate(t_end=1.0, **engine)
     ev = [t for t, blk, e in r.events if blk == "r"]
     # on at sin = 0.5 (t = 1/12), off at sin = -0.5 (t = 7/12)
     assert np.allclose(ev, [1 / 12, 7 / 12], atol=1e-9)
 
 
-def test_sampled_pi_equals_python_control_discrete_simulation():
+def test_sampled_pi_equals_python_control_discrete_simulation(engine):
     tau, kp, ki, Ts = 0.05, 2.0, 30.0, 1e-3
     d = spidersim.loads(f"""
 blocks:
@@ -142,7 +151,7 @@ connections:
   - pi.y -> plant.u
 simulation: {{t_end: 0.3, rtol: 1e-10, atol: 1e-12}}
 """)
-    r = d.simulate(jit=False)
+    r = d.simulate(**engine)
     G = ct.c2d(ct.tf([1], [tau, 1]), Ts, "zoh")
     C = ct.tf([kp, ki * Ts - kp], [1, -1], Ts)       # kp + ki Ts / (z - 1)
     n = 300
@@ -156,7 +165,7 @@ simulation: {{t_end: 0.3, rtol: 1e-10, atol: 1e-12}}
     assert sum(1 for e in r.events if e[1] == "pi") == n + 1
 
 
-def test_zoh_and_unit_delay_chain_updates_in_order():
+def test_zoh_and_unit_delay_chain_updates_in_order(engine):
     text = """
 blocks:
   u:   {type: Ramp, slope: 1}
@@ -166,7 +175,7 @@ connections:
   - u.y -> zoh.u
   - zoh.y -> del.u
 """
-    r = spidersim.loads(text).simulate(t_end=1.0, output_interval=0.05, jit=False)
+    r = spidersim.loads(text).simulate(t_end=1.0, output_interval=0.05, **engine)
     t = r.t
     k = np.floor(t / 0.1 + 1e-9)
     assert np.allclose(r["zoh.y"], 0.1 * k, atol=1e-12)
@@ -174,7 +183,7 @@ connections:
     assert np.allclose(r["del.y"], 0.1 * np.maximum(k - 1, 0), atol=1e-12)
 
 
-def test_discrete_transfer_function_matches_control():
+def test_discrete_transfer_function_matches_control(engine):
     Ts = 0.01
     num, den = [0.2, 0.1], [1, -1.2, 0.5]
     r = spidersim.loads(f"""
@@ -183,7 +192,7 @@ blocks:
   h: {{type: DiscreteTransferFunction, num: {num}, den: {den}, Ts: {Ts}}}
 connections:
   - u.y -> h.u
-""").simulate(t_end=0.5, output_interval=Ts, jit=False)
+""").simulate(t_end=0.5, output_interval=Ts, **engine)
     ref = ct.forced_response(ct.tf(num, den, Ts), np.arange(51) * Ts, np.ones(51)).outputs
     # spidersim holds y_k from t_k on; sample just after each instant
     assert np.max(np.abs(r["h.y"][:51] - ref)) < 1e-12
@@ -226,7 +235,7 @@ connections: [u.y -> b.u]
 
 
 # ---------------------------------------------------------------- review regressions
-def test_time_event_at_the_instant_of_a_state_event_still_fires():
+def test_time_event_at_the_instant_of_a_state_event_still_fires(engine):
     r = spidersim.loads("""
 blocks:
   r:   {type: Ramp, slope: 1}
@@ -235,12 +244,12 @@ blocks:
   i:   {type: Integrator}
 connections: [r.y -> rel.u, s.y -> i.u]
 simulation: {t_end: 1, rtol: 1e-10, atol: 1e-12}
-""").simulate(jit=False)
+""").simulate(**engine)
     assert abs(r["i.y"][-1] - 0.5) < 1e-9
     assert (0.5, "s", "time") in r.events
 
 
-def test_guard_starting_exactly_at_zero_fires_when_it_leaves():
+def test_guard_starting_exactly_at_zero_fires_when_it_leaves(engine):
     r = spidersim.loads("""
 blocks:
   s:   {type: Sine, amplitude: -1}
@@ -248,15 +257,15 @@ blocks:
   i:   {type: Integrator}
 connections: [s.y -> sat.u, sat.y -> i.u]
 simulation: {t_end: 1, rtol: 1e-9, atol: 1e-12}
-""").simulate(jit=False)
+""").simulate(**engine)
     assert r["sat.y"].min() >= 0.0
     assert abs(r["i.y"][-1] - 1 / np.pi) < 1e-8
     rm = spidersim.loads("blocks:\n  m: {type: MassOnStop, x0: 0}\n").simulate(t_end=1,
-                                                                             jit=False)
+                                                                             **engine)
     assert rm["m.x"][-1] == 0.0                 # starts on the stop and stays there
 
 
-def test_vector_saturation_has_one_guard_per_element():
+def test_vector_saturation_has_one_guard_per_element(engine):
     r = spidersim.loads("""
 blocks:
   r:   {type: Ramp, slope: 1}
@@ -265,7 +274,7 @@ blocks:
   sat: {type: Saturation, lower: -1, upper: 1}
 connections: [r.y -> mx.u1, c.y -> mx.u2, mx.y -> sat.u]
 simulation: {t_end: 3}
-""").simulate(jit=False)
+""").simulate(**engine)
     assert np.array_equal(r["sat.y"][-1], [1.0, 1.0])
     assert [e for e in r.events if e[1] == "sat"] == [(1.0, "sat", "upper[0]")] or \
         abs([e for e in r.events if e[1] == "sat"][0][0] - 1.0) < 1e-9

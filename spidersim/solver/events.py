@@ -1,0 +1,111 @@
+"""Zero crossings: which guards crossed over a step, and where (pure helpers).
+
+A guard ``g_i(t, x)`` is a block's zero-crossing function; its event fires when ``g_i``
+crosses zero in the block's direction (``+1`` rising, ``-1`` falling, ``0`` either). These
+helpers are shared by the SciPy-stepper loop (:mod:`spidersim.solver.integrate`) and the
+compiled loop (:mod:`spidersim.solver.loop`) and are tested on plain arrays and functions.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ._jit import njit
+
+#: iterations of the bracketing root finder: the bracket at least halves every third one
+LOCATE_MAX_ITER = 200
+
+
+@njit
+def crossings(g_old, g_new, direction, armed, out):
+    """Indices of the guards that crossed into ``out`` (ascending); returns how many.
+
+    A guard that starts the step exactly at zero crosses when it leaves zero in the allowed
+    direction, unless it is not ``armed`` (nonzero): a guard zeroed by its own block's event
+    has to leave zero before it can fire again.
+    """
+    k = 0
+    for i in range(g_old.size):
+        a, b, d = g_old[i], g_new[i], direction[i]
+        up = (a < 0.0 and b >= 0.0) or (a == 0.0 and armed[i] and b > 0.0)
+        down = (a > 0.0 and b <= 0.0) or (a == 0.0 and armed[i] and b < 0.0)
+        if (d >= 0.0 and up) or (d <= 0.0 and down):
+            out[k] = i
+            k += 1
+    return k
+
+
+def crossed(g_old, g_new, direction, armed=None):
+    """Array of the guards that crossed zero in the allowed direction over a step (see
+    :func:`crossings`); ``armed`` defaults to none armed."""
+    if armed is None:
+        armed = np.zeros(len(g_old), dtype=np.bool_)
+    out = np.empty(len(g_old), dtype=np.int64)
+    return out[:crossings(np.asarray(g_old, float), np.asarray(g_new, float),
+                          np.asarray(direction, float), armed, out)]
+
+
+def locate(gfun, t_a, t_b, g_a, xtol):
+    """Time of the zero crossing of ``gfun`` in ``(t_a, t_b]``, on the far side.
+
+    ``brentq`` brackets the root to ``xtol``; the returned time is the first bracket point
+    where the guard has left the side it started on, so that the event is applied after
+    the crossing and cannot fire twice.
+    """
+    from scipy.optimize import brentq
+    g_b = gfun(t_b)
+    if g_b == 0.0 or np.sign(g_b) == np.sign(g_a):
+        return t_b
+    r = brentq(gfun, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
+    for _ in range(8):
+        g = gfun(r)
+        if g == 0.0 or np.sign(g) != np.sign(g_a) or r >= t_b:
+            return r
+        r = min(t_b, r + xtol)
+    return t_b
+
+
+@njit
+def bracket_trial(a, b, fa, fb, it, xtol):
+    """Next trial time inside the bracket ``[a, b]`` (``fa``, ``fb`` of opposite signs):
+    regula falsi on Illinois-weighted values, a bisection every third iteration (the
+    bracket at least halves every three), kept ``xtol/2`` away from the ends."""
+    if it % 3 == 2 or fb == fa:
+        s = 0.5 * (a + b)
+    else:
+        s = b - fb * (b - a) / (fb - fa)
+    lo = a + 0.5 * xtol
+    hi = b - 0.5 * xtol
+    if not (s > lo):
+        s = lo
+    if not (s < hi):
+        s = hi
+    return s
+
+
+@njit
+def bracket_done(a, b, xtol):
+    """The bracket is as narrow as asked, or as floating point allows."""
+    return b - a <= xtol or b - a <= 4e-16 * max(abs(a), abs(b))
+
+
+def locate_on(gfun, a, b, fa, fb, xtol):
+    """Crossing of ``gfun`` in ``(a, b]`` by the bracketing of :func:`bracket_trial`
+    (reference implementation in Python of the compiled loop's location): returns the first
+    point found on the far side, within ``xtol`` of the crossing."""
+    side = 0
+    for it in range(LOCATE_MAX_ITER):
+        if bracket_done(a, b, xtol):
+            break
+        s = bracket_trial(a, b, fa, fb, it, xtol)
+        fs = gfun(s)
+        if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
+            b, fb = s, fs
+            if side == -1:
+                fa *= 0.5
+            side = -1
+        else:
+            a, fa = s, fs
+            if side == 1:
+                fb *= 0.5
+            side = 1
+    return b

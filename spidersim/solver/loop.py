@@ -1,0 +1,287 @@
+"""The compiled integration loop: Dormand-Prince 5(4) steps, events and recording in numba.
+
+Python enters only to start the run, when a buffer is full (it grows the buffer and calls
+again), every ``pause_steps`` steps (progress and Ctrl-C) and at the end: stepping, dense
+output, guard evaluation, crossing location, event application, time events and recording
+into preallocated buffers all run in machine code.
+
+The loop is made of named parts, each a small compiled function:
+
+=================  ===========================================================================
+part               what it does
+=================  ===========================================================================
+``advance``        one accepted step: trial steps of :mod:`.dp54` until the error norm is
+                   <= 1, never past the end of the segment (the next time event or ``t_end``)
+``detect``         guards at the step end, crossings against the step start
+                   (:func:`.events.crossings`)
+``state_events``   locate every crossing on the dense output (:func:`.events.locate_dense`),
+                   keep the earliest, apply its events, watch for chattering
+``fire_due``       apply the time events due now (sources switching, sampled blocks)
+``settle``         fire the crossings caused by a jump at an event instant
+``record_grid``    rows on the uniform output grid from the dense output
+=================  ===========================================================================
+
+The state of the run lives in arrays (``ist`` integers, ``fst`` floats, ``x``, ``K``, ``G``,
+the buffers), so that the loop can return to Python and resume exactly where it stopped.
+Its contract with the generated module is the one of :mod:`spidersim.solver.system`
+(``derivatives``, ``outputs``, ``guards``, ``record``, ``record_guards``, ``next_time``,
+``time_events``, ``initialize``, ``apply_event``); :func:`run_dp54` takes them as arguments,
+so it is tested on hand-written functions as well as on generated modules.
+
+Semantics are those of the SciPy-stepper loop (:mod:`spidersim.solver.integrate`): the same
+event rules (direction, re-arming, settling, chattering, at most ``MAX_EVENTS_AT_ONE_TIME``
+rounds at one instant), the same recording (every accepted step, pre- and post-event rows at
+events, or a uniform grid) and the same failure reports.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import dp54
+
+# return codes of run_dp54
+DONE, ROWS_FULL, EVENTS_FULL, PAUSE = 0, 1, 2, 3
+FAIL_NONFINITE, FAIL_STALL, FAIL_SMALL_STEP, FAIL_CHATTER = 10, 11, 12, 13
+FAIL_TIME_EVENTS, FAIL_SETTLE, FAIL_START = 14, 15, 16
+
+# integer state ``ist``
+I_ROWS, I_EVENTS, I_GRID, I_TINY, I_STEPS, I_NFEV, I_STARTED, I_REJECTED = range(8)
+I_SEGMENTS, I_TIMED, I_BLOCK, I_FRESH, I_NG, I_OVERFLOW, I_NEW_STEPS = range(8, 15)
+N_IST = 16
+# float state ``fst``
+F_T, F_H, F_TEND, F_RTOL, F_ATOL, F_MAXSTEP, F_FIRST, F_DT, F_T0, F_CHATTER_WINDOW = range(10)
+F_TFAIL = 10
+N_FST = 12
+# rows of the guard work array ``G``
+G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE = range(7)
+N_G_ROWS = 7
+# columns of the event log ``ev_i``: guard or timed-block index, kind, direction
+KIND_STATE, KIND_TIME = 0, 1
+
+MAX_EVENTS_AT_ONE_TIME = 1000
+STALL_COUNT = 500
+STALL_STEP = 1e-10
+CHATTER_COUNT = 50
+#: rows kept free in the record buffer at the start of every step (pre/post event rows)
+ROW_RESERVE = 4
+
+
+# ---------------------------------------------------------------------------------------
+# Python side: buffers, resumption, the Result
+# ---------------------------------------------------------------------------------------
+
+#: accepted steps between two returns to Python (progress, Ctrl-C)
+PAUSE_STEPS = 2000
+
+_FAILURES = {
+    FAIL_NONFINITE: "non-finite value",
+    FAIL_STALL: (f"the integration stalls: {STALL_COUNT} consecutive steps shorter than "
+                 f"{STALL_STEP:g} s (a singularity, e.g. a division by a signal crossing "
+                 f"zero, or a discontinuity without an event)"),
+    FAIL_SMALL_STEP: "required step size is less than spacing between numbers",
+    FAIL_START: "non-finite value at the start",
+}
+
+
+class CompiledLoop:
+    """The arrays of one run of :func:`run_dp54` and the calls that resume it.
+
+    Parameters
+    ----------
+    entry : callable
+        ``entry(ist, fst, x, K, x1, xs, G, g_dir, g_block, timed_block, fired, bmask, hit,
+        chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes, pause_steps) -> code``:
+        :func:`run_dp54` bound to a system's functions (the generated module's ``run_dp54``).
+    system : CompiledSystem or compatible
+        Supplies ``x0``, ``sig``, ``p``, ``modes``, ``event_table``, ``timed``,
+        ``record_size`` and the record index arrays ``_s_idx``, ``_x_idx``.
+    """
+
+    def __init__(self, entry, system, t0, t_end, rtol, atol, max_step, first_step,
+                 output_interval, capacity=1024):
+        s = system
+        self.entry, self.system = entry, s
+        n = s.n_x
+        self.x = np.array(s.x0, dtype=float)
+        self.K = dp54.work_array(n)
+        self.x1 = np.zeros(n)
+        self.xs = np.zeros(n)
+        ng = s.n_g
+        names = sorted({blk for blk, _e, _d in s.event_table} | set(s.timed))
+        bid = {b: k for k, b in enumerate(names)}
+        self.G = np.zeros((N_G_ROWS, max(1, ng)))
+        self.G[G_ARMED] = 1.0
+        self.g_dir = np.array([d for _b, _e, d in s.event_table], dtype=float)
+        self.g_block = np.array([bid[b] for b, _e, _d in s.event_table], dtype=np.int64)
+        self.timed_block = np.array([bid[b] for b in s.timed], dtype=np.int64)
+        self.fired = np.zeros(max(1, len(s.timed)), dtype=np.int64)
+        self.bmask = np.zeros(max(1, len(names)), dtype=np.int64)
+        self.hit = np.zeros(max(1, ng), dtype=np.int64)
+        self.chat = np.zeros((max(1, len(names)), CHATTER_COUNT + 1))
+        self.tbuf = np.zeros(capacity)
+        self.buf = np.zeros((capacity, s.record_size))
+        self.ev_t = np.zeros(capacity)
+        self.ev_i = np.zeros((capacity, 3), dtype=np.int64)
+        self.ist = np.zeros(N_IST, dtype=np.int64)
+        self.ist[I_NG] = ng
+        self.fst = np.zeros(N_FST)
+        f = self.fst
+        f[F_T], f[F_T0], f[F_TEND] = t0, t0, t_end
+        f[F_RTOL], f[F_ATOL], f[F_MAXSTEP] = rtol, atol, max_step
+        f[F_FIRST] = first_step or 0.0
+        f[F_DT] = output_interval or 0.0
+        f[F_CHATTER_WINDOW] = max(1e-9, 1e-6 * (t_end - t0))
+
+    def arguments(self, pause_steps=PAUSE_STEPS):
+        """The entry's arguments, in order."""
+        s = self.system
+        return (self.ist, self.fst, self.x, self.K, self.x1, self.xs, self.G, self.g_dir,
+                self.g_block, self.timed_block, self.fired, self.bmask, self.hit, self.chat,
+                self.tbuf, self.buf, self.ev_t, self.ev_i, s._s_idx, s._x_idx, s.sig, s.p,
+                s.modes, pause_steps)
+
+    def call(self, pause_steps=PAUSE_STEPS):
+        return int(self.entry(*self.arguments(pause_steps)))
+
+    def grow_rows(self):
+        self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
+        self.buf = np.concatenate((self.buf, np.zeros_like(self.buf)))
+
+    def grow_events(self):
+        self.ev_t = np.concatenate((self.ev_t, np.zeros_like(self.ev_t)))
+        self.ev_i = np.concatenate((self.ev_i, np.zeros_like(self.ev_i)))
+
+    @property
+    def t(self):
+        return float(self.fst[F_T])
+
+    def events(self):
+        """The event log as ``(t, block, event)`` tuples."""
+        s = self.system
+        out = []
+        for k in range(int(self.ist[I_EVENTS])):
+            i, kind = int(self.ev_i[k, 0]), int(self.ev_i[k, 1])
+            if kind == KIND_TIME:
+                out.append((float(self.ev_t[k]), s.timed[i], "time"))
+            else:
+                out.append((float(self.ev_t[k]), s.event_table[i][0], s.event_table[i][1]))
+        return out
+
+    def add_row(self, t, x):
+        """One more row at ``(t, x)`` from Python (the end of an interrupted grid run)."""
+        n = int(self.ist[I_ROWS])
+        if n == len(self.tbuf):
+            self.grow_rows()
+        self.system.record_row(t, x, self.buf, n)
+        self.tbuf[n] = t
+        self.ist[I_ROWS] = n + 1
+
+    def result(self, stats, status="ok", message=""):
+        from .result import Result
+        s = self.system
+        n = int(self.ist[I_ROWS])
+        return Result(self.tbuf[:n].copy(), self.buf[:n].copy(), s.record_slices, s.units,
+                      self.events(), stats, status, message)
+
+    def stats(self):
+        i = self.ist
+        return dict(steps=int(i[I_STEPS]), rhs_calls=int(i[I_NFEV]), jacobian_calls=0,
+                    lu_decompositions=0, segments=int(i[I_SEGMENTS]),
+                    time_events=int(i[I_TIMED]), rejected_steps=int(i[I_REJECTED]))
+
+
+def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=math.inf,
+                   first_step=None, output_interval=None, progress=None, stats=None,
+                   should_stop=None):
+    """Integrate ``system`` with the compiled Dormand-Prince loop; return a ``Result``.
+
+    Arguments as :func:`spidersim.solver.integrate.integrate` (already validated there);
+    ``entry`` is :func:`run_dp54` bound to the system's functions. Failures raise
+    :class:`~spidersim.errors.IntegrationError` (or ``AlgebraicLoopError``) with the partial
+    result, exactly as the SciPy-stepper loop does.
+    """
+    import time
+    from ..errors import IntegrationError
+    wall0 = time.perf_counter()
+    if system.n_x == 0 and max_step == math.inf:
+        max_step = (t_end - t0) / 200
+    run = CompiledLoop(entry, system, t0, t_end, rtol, atol, max_step, first_step,
+                       output_interval)
+    st = dict(stats or {})
+    st.update(method="DP54", rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
+    status, message = "ok", ""
+    while True:
+        code = run.call()
+        if code == ROWS_FULL:
+            run.grow_rows()
+        elif code == EVENTS_FULL:
+            run.grow_events()
+        elif code == PAUSE or code == DONE:
+            if progress is not None:
+                progress(run.t)
+            if code == DONE:
+                break
+            if should_stop is not None and should_stop():
+                status, message = "interrupted", f"interrupted at t = {run.t:.9g} s"
+                if output_interval is not None and (
+                        not run.ist[I_ROWS] or run.tbuf[run.ist[I_ROWS] - 1] < run.t):
+                    run.add_row(run.t, run.x)
+                break
+        else:
+            st.update(run.stats())
+            _fail(system, run, code, st, wall0, IntegrationError)
+        if run.ist[I_OVERFLOW]:
+            st.update(run.stats())
+            raise IntegrationError(f"events keep firing at t = {run.t:.9g} s",
+                                   partial=run.result(st, "failed"))
+    st.update(run.stats())
+    st["t_reached"] = run.t
+    st["events"] = int(run.ist[I_EVENTS])
+    st["newton_iterations"] = system.newton_iterations()
+    st["samples"] = int(run.ist[I_ROWS])
+    st["wall_time"] = time.perf_counter() - wall0
+    result = run.result(st, status, message)
+    result.final = (run.t, run.x.copy(), system.modes.copy())
+    return result
+
+
+def _fail(system, run, code, st, wall0, IntegrationError):
+    """Raise the error of failure ``code`` (messages as the SciPy-stepper loop's)."""
+    import time
+    from ..errors import AlgebraicLoopError
+    t = run.t
+    st["t_reached"] = t
+    st["wall_time"] = time.perf_counter() - wall0
+    st["events"] = int(run.ist[I_EVENTS])
+    st["newton_iterations"] = system.newton_iterations()
+    if code == FAIL_CHATTER:
+        i = int(run.ist[I_BLOCK])
+        block, name, _d = system.event_table[i]
+        span = float(run.fst[F_TFAIL])
+        msg = (f"chattering: block '{block}' fired {CHATTER_COUNT} events ('{name}') "
+               f"within {span:.3g} s up to t = {t:.9g} s (Zeno behaviour); give the block a "
+               f"rest mode or threshold, or stop the run earlier")
+        raise IntegrationError(msg, partial=run.result(st, "failed", msg), block=block)
+    if code == FAIL_TIME_EVENTS:
+        msg = f"time events keep firing at t = {t:.9g} s without time advancing"
+        raise IntegrationError(msg, partial=run.result(st, "failed", msg))
+    if code == FAIL_SETTLE:
+        msg = f"events keep firing at t = {t:.9g} s"
+        raise IntegrationError(msg, partial=run.result(st, "failed", msg))
+    loop, lp = system.loop_failure()
+    if loop:
+        err = AlgebraicLoopError(loop, file=lp.get("file"), line=lp.get("line"),
+                                 block=lp.get("block"))
+        err.partial = run.result(st, "failed", loop)
+        raise err
+    why = _failure_detail(system, t, run.xs)
+    full = (f"integration failed at t = {t:.9g} s: {_FAILURES.get(code, 'solver failure')}"
+            + (f"; {why}" if why else ""))
+    raise IntegrationError(full, partial=run.result(st, "failed", full))
+
+
+def _failure_detail(system, t, x):
+    diagnose = getattr(system, "diagnose", None)
+    return diagnose(t, x) if diagnose is not None else ""

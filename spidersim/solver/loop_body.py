@@ -1,0 +1,449 @@
+"""The compiled integration loop's body: appended to every generated diagram module.
+
+This file is not imported. :func:`spidersim.diagram.codegen.generate` appends its text (a
+fixed text of spidersim's, never built from a diagram) to each generated module, after the
+module's own functions ``derivatives``, ``outputs``, ``guards``, ``record``,
+``record_guards``, ``next_time``, ``time_events``, ``initialize`` and ``apply_event``, which
+the parts below call by name. Each part is then compiled and cached with its module, and
+calls the system's functions directly: numba can cache a function that hands a compiled
+function to a helper, not one that hands it on through a second level, so the helpers of
+:mod:`.dp54` and :mod:`.events` receive them from here and call them themselves.
+
+The parts, their order and their state arrays are described in :mod:`spidersim.solver.loop`.
+"""
+# --- body (appended from here) ---
+from spidersim.solver import dp54 as _dp54
+from spidersim.solver import events as _events
+from spidersim.solver.loop import (  # noqa: F401
+    CHATTER_COUNT, DONE, EVENTS_FULL, FAIL_CHATTER, FAIL_NONFINITE, FAIL_SETTLE,
+    FAIL_SMALL_STEP, FAIL_STALL, FAIL_START, FAIL_TIME_EVENTS, F_ATOL, F_CHATTER_WINDOW,
+    F_DT, F_FIRST, F_H, F_MAXSTEP, F_RTOL, F_T, F_T0, F_TEND, F_TFAIL, G_ARMED, G_BEFORE,
+    G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
+    I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
+    I_TINY, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE, ROW_RESERVE, ROWS_FULL,
+    STALL_COUNT, STALL_STEP)
+
+
+@_jit
+def _step(t, x, h, K, x1, rtol, atol, sig, p, modes):
+    """One Dormand-Prince trial step (see :mod:`spidersim.solver.dp54`); returns the error
+    norm."""
+    y = K[_dp54.ROW_TRIAL]
+    for s in range(1, 6):
+        _dp54.stage_state(s, x, K, h, y)
+        derivatives(t + _dp54.c_of(s) * h, y, sig, p, modes, K[s])
+    _dp54.stage_state(6, x, K, h, x1)
+    derivatives(t + h, x1, sig, p, modes, K[6])
+    return _dp54.error_norm(x, x1, K, h, rtol, atol)
+
+
+@_jit
+def _first_step(t, x, f0, span, rtol, atol, K, sig, p, modes):
+    """Initial step size at a segment start (see :func:`spidersim.solver.dp54.initial_h0`)."""
+    y = K[_dp54.ROW_TRIAL]
+    f1 = K[_dp54.ROW_SCRATCH]
+    h0 = _dp54.initial_h0(x, f0, rtol, atol, span, y)
+    if x.size == 0:
+        return h0
+    derivatives(t + h0, y, sig, p, modes, f1)
+    return _dp54.initial_step(x, f0, f1, h0, rtol, atol, span)
+
+
+@_jit
+def _locate(i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
+    """Crossing time of guard ``i`` in ``(t, t + h]`` on the step's dense output, on the far
+    side (see :func:`spidersim.solver.events.bracket_trial`)."""
+    a = t
+    b = t + h
+    fa = g_a
+    fb = g_b
+    side = 0
+    for it in range(_events.LOCATE_MAX_ITER):
+        if _events.bracket_done(a, b, xtol):
+            break
+        s = _events.bracket_trial(a, b, fa, fb, it, xtol)
+        _dp54.dense(t, h, x, x1, K, s, xs)
+        guards(s, xs, sig, p, modes, g)
+        fs = g[i]
+        if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
+            b = s
+            fb = fs
+            if side == -1:
+                fa *= 0.5
+            side = -1
+        else:
+            a = s
+            fa = fs
+            if side == 1:
+                fb *= 0.5
+            side = 1
+    return b
+
+
+@_jit
+def _tol(t):
+    return 1e-12 * max(1.0, abs(t))
+
+
+@_jit
+def _log(ev_t, ev_i, ist, t, index, kind, direction):
+    n = ist[I_EVENTS]
+    if n < ev_t.size:
+        ev_t[n] = t
+        ev_i[n, 0] = index
+        ev_i[n, 1] = kind
+        ev_i[n, 2] = direction
+        ist[I_EVENTS] = n + 1
+    else:
+        ist[I_OVERFLOW] += 1
+
+
+@_jit
+def _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+    """Record the outputs at (t, x) as the next row; False if something is not finite."""
+    r = ist[I_ROWS]
+    ok = record(t, x, sig, p, modes, s_idx, x_idx, buf, r)
+    tbuf[r] = t
+    ist[I_ROWS] = r + 1
+    return ok
+
+
+@_jit
+def _record_grid(t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
+                sig, p, modes):
+    """Rows at the grid times in ``[t_a, t_b)`` of the step ``(t, x) -> (t + h, x1)``; a
+    grid point at an event time is recorded after the event (signals are right-continuous)."""
+    dt = fst[F_DT]
+    t0 = fst[F_T0]
+    k = ist[I_GRID]
+    tk = t0 + k * dt
+    while tk < t_b - _tol(t_b) and ist[I_ROWS] < tbuf.size:
+        _dp54.dense(t, h, x, x1, K, tk, xs)
+        _row(tk, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+        k += 1
+        tk = t0 + k * dt
+    ist[I_GRID] = k
+
+
+@_jit
+def _settle(t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
+           hit, sig, p, modes):
+    """Fire the crossings caused by a jump at an event instant.
+
+    ``G[G_BEFORE]`` holds the guards just before the instant; a guard of a block not in
+    ``bmask`` (blocks whose own event changed their mode, and so their guard functions) that
+    is on the other side now fires. Repeats until nothing more fires; returns 0 or
+    ``FAIL_SETTLE``.
+    """
+    ng = ist[I_NG]
+    if ng == 0:
+        return 0
+    for _ in range(MAX_EVENTS_AT_ONE_TIME):
+        guards(t, x, sig, p, modes, G[G_TMP])
+        nh = _events.crossings(G[G_BEFORE, :ng], G[G_TMP, :ng], g_dir, G[G_NONE, :ng], hit)
+        m = 0
+        for j in range(nh):
+            if bmask[g_block[hit[j]]] == 0:
+                hit[m] = hit[j]
+                m += 1
+        if m == 0:
+            return 0
+        for j in range(m):
+            i = hit[j]
+            d = math.copysign(1.0, G[G_TMP, i] - G[G_BEFORE, i]) \
+                if G[G_TMP, i] != G[G_BEFORE, i] else 1.0
+            apply_event(t, x, sig, p, modes, i, d)
+            _log(ev_t, ev_i, ist, t, i, KIND_STATE, int(d))
+        for j in range(m):
+            bmask[g_block[hit[j]]] = 1
+        initialize(t, x, sig, p, modes)
+        guards(t, x, sig, p, modes, G[G_BEFORE])
+    return FAIL_SETTLE
+
+
+@_jit
+def _fire_due(t, x, G,
+             g_dir, g_block, timed_block, fired, bmask, ev_t, ev_i, ist, hit, sig, p, modes):
+    """Apply every time event due at ``t`` (then settle); returns 0 or a failure code."""
+    ng = ist[I_NG]
+    tol = _tol(t)
+    if ng:
+        guards(t, x, sig, p, modes, G[G_BEFORE])
+    bmask[:] = 0
+    rounds = 0
+    while next_time(t, p, modes) <= t + tol:
+        fired[:] = 0
+        outputs(t, x, sig, p, modes)
+        time_events(t, x, sig, p, modes, tol, fired)
+        n = 0
+        for k in range(timed_block.size):
+            if fired[k]:
+                _log(ev_t, ev_i, ist, t, k, KIND_TIME, 0)
+                bmask[timed_block[k]] = 1
+                n += 1
+        ist[I_TIMED] += n
+        initialize(t, x, sig, p, modes)
+        rounds += 1
+        if rounds > MAX_EVENTS_AT_ONE_TIME or n == 0:
+            return FAIL_TIME_EVENTS
+    if rounds:
+        return _settle(t, x, G, g_dir, g_block, bmask, ev_t,
+                      ev_i, ist, hit, sig, p, modes)
+    return 0
+
+
+@_jit
+def _advance(t, t_seg, x, K, x1, ist, fst, sig, p, modes):
+    """One accepted step from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg``.
+
+    Returns ``(h, factor)``: the step taken (``x1``, ``K`` hold its end state and stages)
+    and the factor for the next one; ``h = 0`` when the step size fell below the spacing of
+    floating-point numbers at ``t`` (``FAIL_SMALL_STEP``).
+    """
+    rtol = fst[F_RTOL]
+    atol = fst[F_ATOL]
+    h_min = 10.0 * (np.nextafter(t, math.inf) - t)
+    h = min(fst[F_H], fst[F_MAXSTEP])
+    if h < h_min:
+        h = h_min
+    rejected = False
+    while True:
+        if h < h_min:
+            return 0.0, 1.0
+        if t + h > t_seg:              # never past the segment end (as SciPy's t_bound)
+            h = t_seg - t
+        err = _step(t, x, h, K, x1, rtol, atol, sig, p, modes)
+        ist[I_NFEV] += 6
+        if err <= 1.0:
+            return h, _dp54.factor(err, rejected)
+        h *= _dp54.factor(err, rejected)
+        rejected = True
+        ist[I_REJECTED] += 1
+
+
+@_jit
+def _state_events(t, h, x, x1, K, xs, G, g_dir,
+                 g_block, bmask, chat, hit, nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx,
+                 x_idx, sig, p, modes):
+    """Locate the crossings ``hit[:nh]`` of the step ``(t, x) -> (t + h, x1)``, apply the
+    earliest ones at ``t_ev`` (state into ``xs``); returns ``(t_ev, code)``."""
+    ng = ist[I_NG]
+    t_end_step = t + h
+    xtol = 1e-13 * max(1.0, abs(t_end_step))
+    t_ev = t_end_step
+    for j in range(nh):
+        i = hit[j]
+        if G[G_OLD, i] == 0.0:           # left zero at the start of the step
+            ti = t
+        else:
+            ti = _locate(i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, xs,
+                              G[G_TMP], xtol, sig, p, modes)
+        G[G_TIMES, j] = ti
+        t_ev = min(t_ev, ti)
+    if t_ev < t_end_step:
+        _dp54.dense(t, h, x, x1, K, t_ev, xs)
+    else:
+        xs[:] = x1
+    if fst[F_DT] > 0.0:
+        _grid_to(t, t_ev, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig,
+                 p, modes)
+    else:
+        _row(t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+    guards(t_ev, xs, sig, p, modes, G[G_BEFORE])
+    bmask[:] = 0
+    window = fst[F_CHATTER_WINDOW]
+    for j in range(nh):
+        if G[G_TIMES, j] > t_ev + 2 * xtol:
+            continue
+        i = hit[j]
+        d = math.copysign(1.0, G[G_NEW, i] - G[G_OLD, i]) \
+            if G[G_NEW, i] != G[G_OLD, i] else 1.0
+        apply_event(t_ev, xs, sig, p, modes, i, d)
+        _log(ev_t, ev_i, ist, t_ev, i, KIND_STATE, int(d))
+        b = g_block[i]
+        c = int(chat[b, CHATTER_COUNT])
+        if c >= CHATTER_COUNT - 1:      # the 50th most recent event of this block
+            oldest = chat[b, (c + 1) % CHATTER_COUNT]
+            if t_ev - oldest <= window:
+                ist[I_BLOCK] = i
+                fst[F_TFAIL] = t_ev - oldest
+                _row(t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+                return t_ev, FAIL_CHATTER
+        chat[b, c % CHATTER_COUNT] = t_ev
+        chat[b, CHATTER_COUNT] = c + 1
+    for j in range(nh):
+        if G[G_TIMES, j] <= t_ev + 2 * xtol:
+            bmask[g_block[hit[j]]] = 1
+    initialize(t_ev, xs, sig, p, modes)
+    code = _settle(t_ev, xs, G, g_dir, g_block, bmask, ev_t,
+                  ev_i, ist, hit, sig, p, modes)
+    for i in range(ng):                  # blocks that fired: their guards must leave zero
+        if bmask[g_block[i]]:
+            G[G_ARMED, i] = 0.0
+    return t_ev, code
+
+
+@_jit
+def _grid_to(t_a, t_b, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
+             modes):
+    xs = K[_dp54.ROW_SCRATCH]
+    _record_grid(t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
+                sig, p, modes)
+
+
+@_jit
+def run_dp54(ist, fst, x, K, x1, xs, G, g_dir, g_block, timed_block,
+             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
+             pause_steps):
+    """Integrate from ``fst[F_T]`` to ``fst[F_TEND]``; return a code (module constants).
+
+    Resumable: on ``ROWS_FULL``, ``EVENTS_FULL`` and ``PAUSE`` every quantity needed to go
+    on is in the arrays, and the caller calls again (with grown buffers). On a failure,
+    ``fst[F_T]`` is the time reached and ``xs`` the offending state.
+    """
+    ng = ist[I_NG]
+    t = fst[F_T]
+    t_end = fst[F_TEND]
+    grid = fst[F_DT] > 0.0
+    ev_reserve = 4 * (ng + timed_block.size) + 64
+    if ist[I_STARTED] == 0:
+        initialize(t, x, sig, p, modes)
+        if next_time(t, p, modes) <= t + _tol(t):
+            code = _fire_due(t, x, G, g_dir, g_block, timed_block, fired, bmask,
+                            ev_t, ev_i, ist, hit, sig, p, modes)
+            if code:
+                return code
+        if not _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+            xs[:] = x
+            return FAIL_START
+        ist[I_GRID] = 1
+        derivatives(t, x, sig, p, modes, K[0])
+        ist[I_NFEV] += 1
+        if ng:
+            guards(t, x, sig, p, modes, G[G_OLD])
+        ist[I_STARTED] = 1
+        ist[I_FRESH] = 1
+    ist[I_NEW_STEPS] = 0
+    while True:
+        tol = _tol(t)
+        t_next = next_time(t, p, modes)
+        if t >= t_end and t_next > t + tol:
+            break
+        if ist[I_ROWS] + ROW_RESERVE > tbuf.size:
+            fst[F_T] = t
+            return ROWS_FULL
+        if ist[I_EVENTS] + ev_reserve > ev_t.size:
+            fst[F_T] = t
+            return EVENTS_FULL
+        if ist[I_NEW_STEPS] >= pause_steps:
+            fst[F_T] = t
+            return PAUSE
+        if t_next <= t + tol:            # time events due now
+            code = _fire_due(t, x, G, g_dir, g_block, timed_block, fired, bmask,
+                            ev_t, ev_i, ist, hit, sig, p, modes)
+            if code:
+                fst[F_T] = t
+                xs[:] = x
+                return code
+            if grid:
+                if abs(fst[F_T0] + ist[I_GRID] * fst[F_DT] - t) <= tol:
+                    _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+                    ist[I_GRID] += 1
+            else:
+                _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+            derivatives(t, x, sig, p, modes, K[0])
+            ist[I_NFEV] += 1
+            if ng:
+                guards(t, x, sig, p, modes, G[G_OLD])
+            ist[I_FRESH] = 1
+            continue
+        t_seg = min(t_next, t_end)
+        if ist[I_FRESH]:
+            ist[I_SEGMENTS] += 1
+            if fst[F_FIRST] > 0.0:
+                fst[F_H] = min(fst[F_FIRST], t_seg - t)
+            else:
+                fst[F_H] = _first_step(t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
+                                           fst[F_RTOL], fst[F_ATOL], K, sig, p, modes)
+                ist[I_NFEV] += 1
+            ist[I_FRESH] = 0
+        if grid:                          # the rows of one step must fit in the buffer
+            room = tbuf.size - ist[I_ROWS] - ROW_RESERVE
+            fst[F_H] = min(fst[F_H], max(room, 1) * fst[F_DT])
+        h, fac = _advance(t, t_seg, x, K, x1, ist, fst, sig, p, modes)
+        if h == 0.0:
+            fst[F_T] = t
+            xs[:] = x
+            return FAIL_SMALL_STEP
+        ist[I_STEPS] += 1
+        ist[I_NEW_STEPS] += 1
+        t_new = t_seg if t + h >= t_seg else t + h
+        if h < STALL_STEP * max(1.0, abs(t_new)):
+            ist[I_TINY] += 1
+            if ist[I_TINY] >= STALL_COUNT:
+                fst[F_T] = t_new
+                xs[:] = x1
+                return FAIL_STALL
+        else:
+            ist[I_TINY] = 0
+        ok = True
+        row0 = ist[I_ROWS]
+        if ng:
+            if grid:
+                guards(t_new, x1, sig, p, modes, G[G_NEW])
+            else:
+                ok = record_guards(t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
+                                   G[G_NEW])
+                tbuf[row0] = t_new
+                ist[I_ROWS] = row0 + 1
+            nh = _events.crossings(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng], hit)
+            if nh:
+                ist[I_ROWS] = row0           # the step's end lies beyond the event
+                t_ev, code = _state_events(t, h, x,
+                                          x1, K, xs, G, g_dir, g_block, bmask, chat, hit,
+                                          nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx,
+                                          sig, p, modes)
+                if code:
+                    fst[F_T] = t_ev
+                    return code
+                t = t_ev
+                x[:] = xs
+                if not grid:
+                    if not _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p,
+                                modes):
+                        fst[F_T] = t
+                        return FAIL_NONFINITE
+                derivatives(t, x, sig, p, modes, K[0])
+                ist[I_NFEV] += 1
+                guards(t, x, sig, p, modes, G[G_OLD])
+                ist[I_FRESH] = 1
+                fst[F_T] = t
+                continue
+            for i in range(ng):
+                G[G_OLD, i] = G[G_NEW, i]
+                if G[G_NEW, i] != 0.0:
+                    G[G_ARMED, i] = 1.0      # re-armed once it has left zero
+        elif not grid:
+            ok = _row(t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+        if grid:
+            for i in range(x1.size):
+                if not math.isfinite(x1[i]):
+                    ok = False
+            if ok:
+                _grid_to(t, t_new, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx,
+                         x_idx, sig, p, modes)
+        if not ok:
+            fst[F_T] = t_new
+            xs[:] = x1
+            return FAIL_NONFINITE
+        fst[F_H] = h * fac if t_new < t_seg else max(fst[F_H], h * fac)
+        t = t_new
+        x[:] = x1
+        K[0, :] = K[6]
+        fst[F_T] = t
+    if grid and (ist[I_ROWS] == 0 or tbuf[ist[I_ROWS] - 1] < t_end * (1 - 1e-12)):
+        _row(t_end, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+    fst[F_T] = t
+    return DONE
+
+

@@ -1,0 +1,357 @@
+"""The compiled integration loop (method DP54) against hand-written baselines, one run.
+
+    python tools/bench_loop.py [servo|ball|loop]
+
+For each problem, interleaved in one process (best of 7):
+
+* **spidersim DP54**: the diagram run with ``method: DP54`` (compiled loop, events inside);
+* **hand DP54**: a fully compiled Dormand-Prince 5(4) integrator written by hand in this file
+  for exactly these equations (its own tableau, the same step-size controller, initial step
+  rule and tolerances; events located by bisection on the dense output to 1e-13 s);
+* **numba RHS + LSODA**: the same equations as one numba function driven by SciPy's LSODA
+  step by step (events located with brentq on its dense output), the usual Python way;
+* **spidersim LSODA**: the diagram with SciPy's LSODA in spidersim's Python loop.
+
+The ratio printed is spidersim DP54 / hand DP54 (target <= 1.3) and LSODA / spidersim DP54.
+Steps and RHS calls are printed: the hand-written servo clips its voltage with min/max, while
+spidersim locates the saturation corners as events, so their step counts differ.
+"""
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+from numba import njit
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# Dormand-Prince 5(4), written out again for the baseline
+c = np.array([0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1, 1])
+a = np.zeros((7, 7))
+a[1, 0] = 1 / 5
+a[2, :2] = [3 / 40, 9 / 40]
+a[3, :3] = [44 / 45, -56 / 15, 32 / 9]
+a[4, :4] = [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729]
+a[5, :5] = [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656]
+a[6, :6] = [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84]
+e = np.array([71 / 57600, 0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
+dd = np.array([-12715105075 / 11282082432, 0, 87487479700 / 32700410799,
+               -10690763975 / 1880347072, 701980252875 / 199316789632,
+               -1453857185 / 822651844, 69997945 / 29380423])
+
+
+def make_dp54(f, guard, jump):
+    """A fully compiled DP54 for ``f(t, y, out)`` with one state event ``guard(t, y)``
+    (falling through zero; ``jump(y)`` applies it) and time events at ``tev``."""
+
+    @njit
+    def norm_err(y, y1, K, h, rtol, atol):
+        s = 0.0
+        for i in range(y.size):
+            er = 0.0
+            for j in range(7):
+                er += e[j] * K[j, i]
+            sc = atol + rtol * max(abs(y[i]), abs(y1[i]))
+            s += (h * er / sc) ** 2
+        return math.sqrt(s / y.size)
+
+    @njit
+    def dense(t, h, y, y1, K, s, out):
+        th = (s - t) / h
+        for i in range(y.size):
+            r2 = y1[i] - y[i]
+            r3 = h * K[0, i] - r2
+            r4 = r2 - h * K[6, i] - r3
+            r5 = 0.0
+            for j in range(7):
+                r5 += dd[j] * K[j, i]
+            out[i] = y[i] + th * (r2 + (1 - th) * (r3 + th * (r4 + (1 - th) * h * r5)))
+
+    @njit
+    def solve(y0, tev, t_end, rtol, atol, tout, yout):
+        n = y0.size
+        y = y0.copy()
+        y1 = np.empty(n)
+        yt = np.empty(n)
+        K = np.empty((7, n))
+        t = 0.0
+        rows = 0
+        steps = 0
+        nfev = 0
+        nev = 0
+        k_ev = 0
+        tout[rows] = t
+        yout[rows] = y
+        rows += 1
+        h = 0.0
+        while t < t_end:
+            t_seg = t_end
+            if k_ev < tev.size:
+                t_seg = min(tev[k_ev], t_end)
+            f(t, y, K[0])
+            nfev += 1
+            # initial step (Hairer)
+            d0 = 0.0
+            d1 = 0.0
+            for i in range(n):
+                sc = atol + abs(y[i]) * rtol
+                d0 += (y[i] / sc) ** 2
+                d1 += (K[0, i] / sc) ** 2
+            d0 = math.sqrt(d0 / n)
+            d1 = math.sqrt(d1 / n)
+            h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+            h0 = min(h0, t_seg - t)
+            for i in range(n):
+                yt[i] = y[i] + h0 * K[0, i]
+            f(t + h0, yt, K[1])
+            nfev += 1
+            d2 = 0.0
+            for i in range(n):
+                sc = atol + abs(y[i]) * rtol
+                d2 += ((K[1, i] - K[0, i]) / sc) ** 2
+            d2 = math.sqrt(d2 / n) / h0
+            h1 = max(1e-6, h0 * 1e-3) if max(d1, d2) <= 1e-15 else \
+                (0.01 / max(d1, d2)) ** 0.2
+            h = min(100 * h0, h1, t_seg - t)
+            g_old = guard(t, y)
+            while t < t_seg:
+                rejected = False
+                while True:
+                    if t + h > t_seg:
+                        h = t_seg - t
+                    for s in range(1, 7):
+                        for i in range(n):
+                            acc = 0.0
+                            for j in range(s):
+                                acc += a[s, j] * K[j, i]
+                            yt[i] = y[i] + h * acc
+                        f(t + c[s] * h, yt, K[s])
+                    for i in range(n):
+                        y1[i] = yt[i]
+                    f(t + h, y1, K[6])
+                    nfev += 6
+                    err = norm_err(y, y1, K, h, rtol, atol)
+                    if err <= 1.0:
+                        fac = 10.0 if err == 0 else min(10.0, 0.9 * err ** -0.2)
+                        if rejected:
+                            fac = min(1.0, fac)
+                        break
+                    h *= max(0.2, 0.9 * err ** -0.2)
+                    rejected = True
+                steps += 1
+                t_new = t_seg if t + h >= t_seg else t + h
+                g_new = guard(t_new, y1)
+                if g_old > 0.0 and g_new <= 0.0:          # locate by bisection
+                    lo, hi = t, t_new
+                    while hi - lo > 1e-13 * max(1.0, abs(hi)):
+                        mid = 0.5 * (lo + hi)
+                        dense(t, h, y, y1, K, mid, yt)
+                        if guard(mid, yt) > 0.0:
+                            lo = mid
+                        else:
+                            hi = mid
+                    dense(t, h, y, y1, K, hi, yt)
+                    jump(yt)
+                    nev += 1
+                    t = hi
+                    y[:] = yt
+                    tout[rows] = t
+                    yout[rows] = y
+                    rows += 1
+                    if rows >= tout.size:
+                        return rows, steps, nfev, nev
+                    break                     # restart: new initial step after the event
+                g_old = g_new
+                t = t_new
+                y[:] = y1
+                K[0] = K[6]
+                tout[rows] = t
+                yout[rows] = y
+                rows += 1
+                if rows >= tout.size:
+                    return rows, steps, nfev, nev
+                h = h * fac
+            if k_ev < tev.size and t >= tev[k_ev] and t >= t_seg:
+                k_ev += 1
+                nev += 1
+        return rows, steps, nfev, nev
+
+    return solve
+
+
+def _best(fn, repeat=7):
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), statistics.median(times), out
+
+
+def _lsoda_hand(f, guard, jump, y0, tev, t_end, rtol, atol):
+    """numba RHS + SciPy LSODA stepped from Python, events by brentq on dense output."""
+    from scipy.integrate import LSODA
+    from scipy.optimize import brentq
+
+    def rhs(t, y):
+        out = np.empty(y.size)
+        f(t, y, out)
+        return out
+
+    def run():
+        y, t, steps, rows = np.array(y0, float), 0.0, 0, [0.0]
+        bounds = [x for x in tev if x < t_end] + [t_end]
+        for t_seg in bounds:
+            while t < t_seg:
+                s = LSODA(rhs, t, y, t_seg, rtol=rtol, atol=atol)
+                g_old = guard(t, y)
+                hit = False
+                while s.status == "running":
+                    t_prev = s.t
+                    s.step()
+                    steps += 1
+                    g_new = guard(s.t, s.y)
+                    if g_old > 0.0 and g_new <= 0.0:
+                        dn = s.dense_output()
+                        tc = brentq(lambda q: guard(q, dn(q)), t_prev, s.t, xtol=1e-13)
+                        y = dn(tc)
+                        jump(y)
+                        t = tc
+                        hit = True
+                        break
+                    g_old = g_new
+                    rows.append(s.t)
+                if not hit:
+                    t, y = s.t, s.y.copy()
+        return len(rows), steps
+    return run
+
+
+# --- the problems -----------------------------------------------------------------------
+
+@njit
+def servo_f(t, y, out):
+    i, w, th, I_s, I_c = y[0], y[1], y[2], y[3], y[4]
+    ref = 1.0 if t >= 0.01 else 0.0
+    w_ref = 20.0 * (ref - th)
+    e_w = w_ref - w
+    i_ref = 0.05 * e_w + I_s
+    e_i = i_ref - i
+    v = min(max(5.0 * e_i + I_c, -24.0), 24.0)
+    out[0] = (v - 1.0 * i - 0.05 * w) / 1e-3
+    out[1] = (0.05 * i - 1e-5 * w) / 1e-4
+    out[2] = w
+    out[3] = 1.0 * e_w
+    out[4] = 5000.0 * e_i
+
+
+@njit
+def no_guard(t, y):
+    return 1.0
+
+
+@njit
+def no_jump(y):
+    pass
+
+
+@njit
+def ball_f(t, y, out):
+    out[0] = y[1]
+    out[1] = -9.81
+
+
+@njit
+def ball_guard(t, y):
+    return y[0]
+
+
+@njit
+def ball_jump(y):
+    y[0] = 0.0
+    y[1] = -0.95 * y[1]
+
+
+@njit
+def loop_f(t, y, out):
+    out[0] = math.sin(2 * math.pi * t) / 4.0     # y = u - 3 y solved by hand: y = u / 4
+
+
+def _report(title, rows):
+    print(f"== {title} ==")
+    print(f"{'variant':28s} {'best [ms]':>10s} {'median [ms]':>12s} {'steps':>7s} "
+          f"{'events':>7s}")
+    for name, b, m, steps, nev in rows:
+        print(f"{name:28s} {1e3 * b:10.3f} {1e3 * m:12.3f} {steps:7d} {nev:7d}")
+    sp, hand, lsoda = rows[0][1], rows[1][1], rows[2][1]
+    print(f"spidersim DP54 / hand DP54: {sp / hand:.2f}x (target <= 1.3); numba RHS + LSODA / "
+          f"spidersim DP54: {lsoda / sp:.1f}x")
+    print()
+
+
+def _problem(title, path, sets, f, guard, jump, y0, tev, t_end, rtol, atol, n_out):
+    import spidersim
+    d = spidersim.load(os.path.join(ROOT, path), set=sets)
+    kw = dict(t_end=t_end, rtol=rtol, atol=atol, max_step=math.inf)
+    d.simulate(method="DP54", **kw)
+    solve = make_dp54(f, guard, jump)
+    tout, yout = np.empty(n_out), np.empty((n_out, len(y0)))
+    y0 = np.array(y0, float)
+    tev = np.array(tev, float)
+    solve(y0, tev, t_end, rtol, atol, tout, yout)
+    lsoda = _lsoda_hand(f, guard, jump, y0, tev, t_end, rtol, atol)
+    res = {}
+    for _ in range(1):
+        res["sp"] = _best(lambda: d.simulate(method="DP54", **kw))
+        res["hand"] = _best(lambda: solve(y0, tev, t_end, rtol, atol, tout, yout))
+        res["lsoda"] = _best(lsoda, repeat=5)
+        res["sp_lsoda"] = _best(lambda: d.simulate(method="LSODA", **kw), repeat=5)
+    r = res["sp"][2]
+    h = res["hand"][2]
+    rows = [("spidersim DP54 (compiled)", res["sp"][0], res["sp"][1], r.stats["steps"],
+             len(r.events)),
+            ("hand DP54 (fully compiled)", res["hand"][0], res["hand"][1], h[1], h[3]),
+            ("numba RHS + SciPy LSODA", res["lsoda"][0], res["lsoda"][1], res["lsoda"][2][1],
+             0),
+            ("spidersim LSODA", res["sp_lsoda"][0], res["sp_lsoda"][1],
+             res["sp_lsoda"][2].stats["steps"], len(res["sp_lsoda"][2].events))]
+    _report(title, rows)
+
+
+def bench_servo():
+    _problem("servo: diagrams/servo.yaml, 1 s, 1e-6/1e-8", "diagrams/servo.yaml", {},
+             servo_f, no_guard, no_jump, [0, 0, 0, 0, 0], [0.01], 1.0, 1e-6, 1e-8, 100000)
+
+
+def bench_ball():
+    e_, g, h0 = 0.95, 9.81, 10.0
+    t1 = math.sqrt(2 * h0 / g)
+    t100 = t1 + sum(2 * e_ ** k * g * t1 / g for k in range(1, 100))
+    t_end = t100 + 0.5 * 2 * e_ ** 100 * t1
+    _problem("ball: bouncing_ball.yaml, e = 0.95, 100 impacts, 1e-10/1e-12",
+             "diagrams/bouncing_ball.yaml", {"ball.e": e_, "ball.v_rest": 0}, ball_f,
+             ball_guard, ball_jump, [h0, 0.0], [], t_end, 1e-10, 1e-12, 200000)
+
+
+def bench_loop():
+    _problem("loop: algebraic_loop.yaml (y = u - 3y by Newton) vs y = u/4 by hand, "
+             "1e-9/1e-12", "diagrams/algebraic_loop.yaml", {}, loop_f, no_guard, no_jump,
+             [0.0], [], 2.0, 1e-9, 1e-12, 100000)
+
+
+BENCHES = {"servo": bench_servo, "ball": bench_ball, "loop": bench_loop}
+
+
+def main(argv):
+    for n in argv or list(BENCHES):
+        if n not in BENCHES:
+            sys.exit(f"unknown benchmark '{n}'; choose from {', '.join(BENCHES)}")
+        BENCHES[n]()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
