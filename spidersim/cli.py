@@ -227,7 +227,9 @@ def cmd_run(args):
         _show(r, d)
     s = r.stats
     print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
-          f"{s['rhs_calls']} RHS calls, {s['wall_time']:.3f} s integration")
+          f"{s['rhs_calls']} RHS calls, "
+          + (f"{s['wall_time']:.3f} s" if s['wall_time'] >= 0.1 else
+             f"{1e3 * s['wall_time']:.2f} ms") + " integration")
     print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
     return 0

@@ -242,3 +242,16 @@ def test_sampled_integrator_fires_at_every_sample(tmp_path):
     # no step straddles a sample: every sample time is a row
     for t in times:
         assert np.min(np.abs(r.t - t)) < 1e-12
+
+
+def test_stop_request_ends_the_run_with_what_was_computed(tmp_path):
+    mod = build("hand_sampled_stop", SAMPLED, tmp_path)
+    s = HandSystem(mod, [0.0], [1e-3], [0.0, 0.0], timed=["zoh"])
+    seen = []
+    r = run(s, 1000.0, rtol=1e-8, atol=1e-10, progress=seen.append,
+            should_stop=lambda: len(seen) >= 2)
+    assert r.status == "interrupted" and 0 < r.t[-1] < 1000.0
+    assert r.t[-1] == pytest.approx(seen[-1])
+    # what was recorded is consistent: x = t and one sample per millisecond so far
+    assert np.allclose(r["x0"], r.t, atol=1e-9)
+    assert len(r.events) == pytest.approx(r.t[-1] / 1e-3 + 1, abs=1.5)
