@@ -63,6 +63,8 @@ import difflib
 import importlib
 import inspect
 import math
+import re
+import sys
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -536,9 +538,16 @@ class Block:
     @classmethod
     def describe(cls) -> str:
         """Documentation generated from the declarations (``spidersim blocks TYPE``)."""
+        from ..text.plain import plain
         lines = [f"{cls.type_name}  ({cls.category})", ""]
         doc = inspect.cleandoc(cls.__doc__ or "")
-        lines += ["  " + ln for ln in doc.splitlines()] + [""]
+        if "module docstring" in doc:
+            # the equations are shared by the module's blocks: print them here
+            mod_doc = inspect.cleandoc(sys.modules[cls.__module__].__doc__ or "")
+            doc = re.sub(r"\s*\(?see the module docstring[^.)]*\)?", "", doc)
+            doc += "\n\nEquations and conventions (shared by the blocks of this module):\n\n" \
+                + mod_doc
+        lines += ["  " + ln for ln in plain(doc).splitlines()] + [""]
 
         def size_text(s):
             if isinstance(s, (Dim, FromInputs)):
@@ -560,7 +569,8 @@ class Block:
                 extra = f", {' and '.join(bnds)}" if bnds else ""
                 ch = f", one of {'|'.join(p.choices)}" if p.choices else ""
                 kind = "" if p.kind == "real" else f" {p.kind}"
-                lines.append(f"    {n} [{p.unit}]{kind} ({dflt}{shape}{extra}{ch}): {p.doc}")
+                lines.append(f"    {n} [{p.unit}]{kind} ({dflt}{shape}{extra}{ch}): "
+                             f"{plain(p.doc)}")
         for title, ports in (("Inputs", cls.inputs), ("Outputs", cls.outputs)):
             if ports:
                 lines.append(f"  {title}:")
@@ -574,7 +584,7 @@ class Block:
                     opt = (", optional: zero when unconnected" if p.optional is True else
                            ", optional for some parameters" if p.optional else "")
                     lines.append(f"    {n} [{p.unit}] (size {size_text(p.size)}{opt}{ft}): "
-                                 f"{p.doc}")
+                                 f"{plain(p.doc)}")
         if cls.states:
             lines.append("  States:")
             for n, s in cls.states.items():
