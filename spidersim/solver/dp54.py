@@ -168,20 +168,24 @@ def dense(t, h, x, x1, K, s, out):
 
 
 @njit
+def scaled_rms(v, x, rtol, atol):
+    """RMS of ``v`` scaled by ``atol + rtol |x|`` (the sizes of the initial-step rule)."""
+    n = x.size
+    acc = 0.0
+    for i in range(n):
+        acc += (v[i] / (atol + abs(x[i]) * rtol)) ** 2
+    return math.sqrt(acc / n)
+
+
+@njit
 def initial_h0(x, f0, rtol, atol, span, y):
     """First guess of the initial step (Hairer, Norsett & Wanner, II.4) from the sizes of
     ``x`` and ``f0``; fills ``y = x + h0 f0`` for the Euler trial."""
     n = x.size
     if n == 0:
         return span
-    d0 = 0.0
-    d1 = 0.0
-    for i in range(n):
-        sc = atol + abs(x[i]) * rtol
-        d0 += (x[i] / sc) ** 2
-        d1 += (f0[i] / sc) ** 2
-    d0 = math.sqrt(d0 / n)
-    d1 = math.sqrt(d1 / n)
+    d0 = scaled_rms(x, x, rtol, atol)
+    d1 = scaled_rms(f0, x, rtol, atol)
     if d0 < 1e-5 or d1 < 1e-5:
         h0 = 1e-6
     else:
@@ -194,19 +198,15 @@ def initial_h0(x, f0, rtol, atol, span, y):
 
 @njit
 def initial_step(x, f0, f1, h0, rtol, atol, span):
-    """The initial step from the guess ``h0`` and ``f1 = f(t + h0, x + h0 f0)``: the
-    second derivative estimate bounds it; never longer than ``span``."""
+    """The initial step from the guess ``h0`` and ``f1 = f(t + h0, x + h0 f0)`` (``f1`` is
+    overwritten): the second derivative estimate bounds it; never longer than ``span``."""
     n = x.size
     if n == 0:
         return span
-    d1 = 0.0
-    d2 = 0.0
+    d1 = scaled_rms(f0, x, rtol, atol)
     for i in range(n):
-        sc = atol + abs(x[i]) * rtol
-        d1 += (f0[i] / sc) ** 2
-        d2 += ((f1[i] - f0[i]) / sc) ** 2
-    d1 = math.sqrt(d1 / n)
-    d2 = math.sqrt(d2 / n) / h0
+        f1[i] -= f0[i]                 # f1 is scratch: the change of f over h0
+    d2 = scaled_rms(f1, x, rtol, atol) / h0
     if d1 <= 1e-15 and d2 <= 1e-15:
         h1 = max(1e-6, h0 * 1e-3)
     else:
