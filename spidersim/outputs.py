@@ -75,19 +75,11 @@ def write_atomic(path, write, binary=False):
     :class:`OSError` is raised again naming ``path``. ``path`` itself is either the complete
     new file or what it was before, never a truncated file.
     """
-    tmp = f"{path}.tmp-{os.getpid()}"
-    try:
+    with atomic_path(path) as tmp:
         with open(tmp, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        _remove(tmp)
-        raise _named(exc, path) from None
-    except BaseException:
-        _remove(tmp)
-        raise
 
 
 @contextlib.contextmanager

@@ -155,10 +155,14 @@ def load_module(text: str, jit: bool, check=None):
         _write_atomic(path, text)
         COUNTS["written"] += 1
     COUNTS["imported"] += 1
-    try:
+
+    def attempt():
         mod = _import(name, path)
         if check is not None:
             check(mod)
+        return mod
+    try:
+        mod = attempt()
     except SpidersimError:
         raise
     except Exception as exc:  # a corrupt numba cache beside a verified module: once more
@@ -170,9 +174,7 @@ def load_module(text: str, jit: bool, check=None):
         _warn(f"entry {key}: its compiled machine code could not be loaded "
               f"({type(exc).__name__}); discarded, compiling again")
         try:
-            mod = _import(name, path)
-            if check is not None:
-                check(mod)
+            mod = attempt()
         except SpidersimError:
             raise
         except Exception as exc2:
