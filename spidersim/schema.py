@@ -29,9 +29,16 @@ CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
 SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54"]
 REDUCERS = ["max", "min", "absmax", "final", "initial", "mean", "rms", "integral"]
 
-_NUMBER_OR_EXPR = {"anyOf": [{"type": "number"}, {"type": "string", "minLength": 1}]}
+#: ``{value: 2.5, unit: mm}``: a value with its unit, converted to the declared one
+_QUANTITY = {"type": "object", "required": ["value", "unit"], "additionalProperties": False,
+             "properties": {"value": {"$ref": "#/$defs/value"},
+                            "unit": {"type": "string", "minLength": 1,
+                                     "description": "unit in Modelica notation: N.m, rad/s, "
+                                                    "mm, deg, kg.m2"}}}
+_NUMBER_OR_EXPR = {"anyOf": [{"type": "number"}, {"type": "string", "minLength": 1},
+                             _QUANTITY]}
 _VALUE = {"anyOf": [{"type": "number"}, {"type": "string", "minLength": 1},
-                    {"type": "array", "items": {"$ref": "#/$defs/value"}}]}
+                    {"type": "array", "items": {"$ref": "#/$defs/value"}}, _QUANTITY]}
 
 
 def _bounds(decl):
@@ -53,11 +60,12 @@ def _default(decl):
     return d
 
 
-def _param_schema(name, decl):
+def _param_schema(cls, name, decl):
     from .blocks.base import REQUIRED
     desc = decl.doc or name
-    if decl.unit and decl.unit != "1":
-        desc += f" [{decl.unit}]"
+    unit = cls.unit_of(decl)
+    if unit and unit != "1":
+        desc += f" [{unit}]"
     b = _bounds(decl)
     if b:
         desc += f"; {b}"
@@ -90,7 +98,7 @@ def _port_text(cls, kind):
     ports = cls.inputs if kind == "in" else cls.outputs
     if not ports:
         return "none"
-    return ", ".join(f"{n} [{p.unit}]" + (" (optional)" if p.optional is True else "")
+    return ", ".join(f"{n} [{cls.unit_of(p)}]" + (" (optional)" if p.optional is True else "")
                      for n, p in ports.items())
 
 
@@ -100,7 +108,7 @@ def block_schema(cls):
     first = (cls.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
     props = {"type": {"const": cls.type_name}}
     for n, d in cls.parameters.items():
-        inner = _param_schema(n, d)
+        inner = _param_schema(cls, n, d)
         # in an array entry 'name[a..b]' a value may be {each: [one per instance]}
         props[n] = {"description": inner.pop("description"),
                     "anyOf": [inner, {"$ref": "#/$defs/each"}]}

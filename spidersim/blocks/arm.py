@@ -89,10 +89,10 @@ class Arm(Block):
         "latched": Param(False, kind="bool", doc="payload attached from the start"),
     }
     inputs = {"tau": Port("N.m", size=_N, doc="joint torques (from the gearboxes)"),
-              "f_ext": Port("1", size=6, optional=True,
+              "f_ext": Port("*", size=6, optional=True,
                             doc="external wrench on the flange: force [N], moment [N.m]"),
               "latch": Port("1", optional=True, doc="rising through 0.5: capture the payload"),
-              "constraint": Port("1", size=4, optional=True,
+              "constraint": Port("*", size=4, optional=True,
                                  doc="[engaged, n] from a RigidContact on the flange: "
                                      "plastic impact when it engages")}
     outputs = {
@@ -101,7 +101,7 @@ class Arm(Block):
         "qdd": Port("rad/s2", size=_N, feedthrough=("tau", "f_ext"), doc="joint accelerations"),
         "flange_pos": Port("m", size=3, doc="flange origin, base frame"),
         "flange_rot": Port("1", size=9, doc="flange rotation matrix, row-major"),
-        "flange_twist": Port("1", size=6, doc="flange linear [m/s] and angular [rad/s] velocity"),
+        "flange_twist": Port("*", size=6, doc="flange linear [m/s] and angular [rad/s] velocity"),
         "flange_acc": Port("m/s2", size=3, feedthrough=("tau", "f_ext"),
                            doc="flange origin acceleration, J qdd + Jdot qd"),
         "base_force": Port("N", size=3, feedthrough=("tau", "f_ext"),

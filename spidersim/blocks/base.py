@@ -320,6 +320,30 @@ class Block:
         return cls.outputs[name]
 
     @classmethod
+    def unit_of(cls, decl, params=None) -> str:
+        """The unit text of a parameter, port or state declaration: a unit (``"N.m"``),
+        ``"*"`` (inherited) or a rule (``"@k*@u"``); a unit that depends on parameters
+        (a Product's output) is evaluated with ``params`` (default: the defaults)."""
+        u = decl.unit
+        if callable(u):
+            if params is None:
+                params = {n: p.default for n, p in cls.parameters.items()}
+            try:
+                u = u(params)
+            except Exception:   # defaults that cannot decide it (a required parameter)
+                u = "*"
+        return u if isinstance(u, str) else "*"
+
+    @classmethod
+    def unit_relations(cls, params) -> list:
+        """Directed unit relations beyond the declared unit rules, for blocks whose ports
+        may carry vectors of mixed units: ``("common", out, [inputs])`` (``out`` takes the
+        inputs' unit when they all agree: a Mux) or ``("copy", out, [input])`` (``out``
+        takes ``input``'s unit when it has one: a Demux). See :mod:`spidersim.diagram.units`.
+        """
+        return []
+
+    @classmethod
     def fallback_sizes(cls, params) -> dict:
         """Input sizes to assume when wiring alone cannot decide them (a loop of blocks
         that all inherit their size): input name -> size. Used only after propagation
@@ -389,7 +413,7 @@ class Block:
                 f, l = where(None)
                 raise ParameterError(
                     f"missing parameter '{name}' of type {cls.type_name} "
-                    f"[{decl.unit}]: {decl.doc}", file=f, line=l)
+                    f"[{cls.unit_of(decl)}]: {decl.doc}", file=f, line=l)
             else:
                 value = decl.default
             out[name] = cls._normalise(name, decl, value, out, where)
@@ -569,7 +593,7 @@ class Block:
                 extra = f", {' and '.join(bnds)}" if bnds else ""
                 ch = f", one of {'|'.join(p.choices)}" if p.choices else ""
                 kind = "" if p.kind == "real" else f" {p.kind}"
-                lines.append(f"    {n} [{p.unit}]{kind} ({dflt}{shape}{extra}{ch}): "
+                lines.append(f"    {n} [{cls.unit_of(p)}]{kind} ({dflt}{shape}{extra}{ch}): "
                              f"{plain(p.doc)}")
         for title, ports in (("Inputs", cls.inputs), ("Outputs", cls.outputs)):
             if ports:
@@ -583,12 +607,12 @@ class Block:
                               f"; direct feedthrough from {', '.join(f)}" if f else "")
                     opt = (", optional: zero when unconnected" if p.optional is True else
                            ", optional for some parameters" if p.optional else "")
-                    lines.append(f"    {n} [{p.unit}] (size {size_text(p.size)}{opt}{ft}): "
+                    lines.append(f"    {n} [{cls.unit_of(p)}] (size {size_text(p.size)}{opt}{ft}): "
                                  f"{plain(p.doc)}")
         if cls.states:
             lines.append("  States:")
             for n, s in cls.states.items():
-                lines.append(f"    {n} [{s.unit}] (size {size_text(s.size)}, initial "
+                lines.append(f"    {n} [{cls.unit_of(s)}] (size {size_text(s.size)}, initial "
                              f"{s.initial if not callable(s.initial) else 'computed'}): {s.doc}")
         if cls.modes:
             lines.append("  Modes:")

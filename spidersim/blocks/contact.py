@@ -82,7 +82,7 @@ class ElasticContact(_Plane):
     outputs = {
         "force": Port("N", size=3, feedthrough=("pos", "vel"),
                       doc="force of the surface on the body"),
-        "wrench": Port("1", size=6, feedthrough=("pos", "vel"),
+        "wrench": Port("*", size=6, feedthrough=("pos", "vel"),
                        doc="force [N] and moment [N.m] (zero) on the body, for Arm.f_ext"),
         "fn": Port("N", feedthrough=("pos", "vel"), doc="normal force (>= 0)"),
         "delta": Port("m", feedthrough=("pos",), doc="penetration (negative: the gap)"),
@@ -214,10 +214,10 @@ class RigidContact(_Plane):
         "residual": Port("m/s2", feedthrough=("pos", "vel", "acc", "lam"),
                          doc="constraint residual at acceleration level"),
         "force": Port("N", size=3, feedthrough=("lam",), doc="force on the body, lam n"),
-        "wrench": Port("1", size=6, feedthrough=("lam",),
+        "wrench": Port("*", size=6, feedthrough=("lam",),
                        doc="force [N] and moment [N.m] (zero) on the body, for Arm.f_ext"),
         "gap": Port("m", feedthrough=("pos",), doc="signed distance to the surface"),
-        "constraint": Port("1", size=4, doc="[engaged, n_x, n_y, n_z] for the body's impact"),
+        "constraint": Port("*", size=4, doc="[engaged, n_x, n_y, n_z] for the body's impact"),
     }
     modes = {"active": Mode(initial=lambda p: 1.0 if p["engaged"] else 0.0,
                             doc="1 while the constraint is engaged"),

@@ -8,10 +8,11 @@ class Integrator(Block):
     """``dx/dt = u``, ``y = x`` with initial value ``x0`` (scalar or one per element)."""
 
     category = "continuous"
-    parameters = {"x0": Param(0.0, doc="initial value (scalar or one per element)", shape="*")}
-    inputs = {"u": Port(size=None, doc="rate")}
-    outputs = {"y": Port(size="@u", doc="integral of u")}
-    states = {"y": State(size="@u", initial="x0", doc="integral of u")}
+    parameters = {"x0": Param(0.0, "@y", "initial value (scalar or one per element)",
+                              shape="*")}
+    inputs = {"u": Port("*", size=None, doc="rate")}
+    outputs = {"y": Port("@u*s", size="@u", doc="integral of u")}
+    states = {"y": State("@u*s", size="@u", initial="x0", doc="integral of u")}
 
     @classmethod
     def fallback_sizes(cls, params):
@@ -38,11 +39,12 @@ class LimitedIntegrator(Block):
     """
 
     category = "continuous"
-    parameters = {"x0": Param(0.0, doc="initial value"),
-                  "lower": Param(-1.0, doc="lower limit"), "upper": Param(1.0, doc="upper limit")}
-    inputs = {"u": Port(doc="rate")}
-    outputs = {"y": Port(doc="limited integral")}
-    states = {"y": State(initial="x0", doc="limited integral")}
+    parameters = {"x0": Param(0.0, "@y", "initial value"),
+                  "lower": Param(-1.0, "@y", "lower limit"),
+                  "upper": Param(1.0, "@y", "upper limit")}
+    inputs = {"u": Port("*", doc="rate")}
+    outputs = {"y": Port("@u*s", doc="limited integral")}
+    states = {"y": State("@u*s", initial="x0", doc="limited integral")}
     modes = {"m": Mode(doc="-1 held at lower, 0 free, +1 held at upper")}
     events = {"upper": Event(1, "y reaches the upper limit"),
               "lower": Event(-1, "y reaches the lower limit"),
@@ -115,18 +117,18 @@ class StateSpace(Block):
 
     category = "continuous"
     parameters = {
-        "A": Param(doc="state matrix (n x n)", shape=("*", "*")),
-        "B": Param(doc="input matrix (n x m)", shape=("*", "*")),
-        "C": Param(doc="output matrix (p x n)", shape=("*", "*")),
-        "D": Param(0.0, doc="feedthrough matrix (p x m); 0 for none", shape=("*", "*"),
+        "A": Param(unit="*", doc="state matrix (n x n)", shape=("*", "*")),
+        "B": Param(unit="*", doc="input matrix (n x m)", shape=("*", "*")),
+        "C": Param(unit="*", doc="output matrix (p x n)", shape=("*", "*")),
+        "D": Param(0.0, "*", doc="feedthrough matrix (p x m); 0 for none", shape=("*", "*"),
                    structural=True),
-        "x0": Param(0.0, doc="initial state (scalar or n values)", shape="*"),
+        "x0": Param(0.0, "*", doc="initial state (scalar or n values)", shape="*"),
     }
-    inputs = {"u": Port(size=Dim("columns of B", lambda p: p["B"].shape[1]), doc="input")}
-    outputs = {"y": Port(size=Dim("rows of C", lambda p: p["C"].shape[0]),
+    inputs = {"u": Port("*", size=Dim("columns of B", lambda p: p["B"].shape[1]), doc="input")}
+    outputs = {"y": Port("*", size=Dim("rows of C", lambda p: p["C"].shape[0]),
                          feedthrough=lambda p: ("u",) if np.any(p["D"] != 0) else (),
                          doc="output")}
-    states = {"x": State(size=Dim("rows of A", lambda p: p["A"].shape[0]), initial="x0",
+    states = {"x": State("*", size=Dim("rows of A", lambda p: p["A"].shape[0]), initial="x0",
                          doc="state vector")}
 
     @classmethod
@@ -160,13 +162,13 @@ class TransferFunction(Block):
 
     category = "continuous"
     parameters = {
-        "num": Param(doc="numerator coefficients, highest power first", shape="*"),
-        "den": Param(doc="denominator coefficients, highest power first", shape="*"),
+        "num": Param(unit="*", doc="numerator coefficients, highest power first", shape="*"),
+        "den": Param(unit="*", doc="denominator coefficients, highest power first", shape="*"),
     }
-    inputs = {"u": Port(doc="input")}
-    outputs = {"y": Port(feedthrough=lambda p: ("u",) if len(p["num"]) == len(p["den"])
+    inputs = {"u": Port("*", doc="input")}
+    outputs = {"y": Port("*", feedthrough=lambda p: ("u",) if len(p["num"]) == len(p["den"])
                          else (), doc="output")}
-    states = {"x": State(size=Dim("len(den) - 1", lambda p: len(p["den"]) - 1),
+    states = {"x": State("*", size=Dim("len(den) - 1", lambda p: len(p["den"]) - 1),
                          doc="controllable canonical state")}
 
     @classmethod

@@ -118,14 +118,14 @@ def _aw_params(params):
 
 
 _COMMON = {
-    "kp": Param(1.0, doc="proportional gain [output/input]"),
-    "ki": Param(0.0, doc="integral gain [output/(input s)]"),
-    "y_min": Param(-math.inf, doc="lower output limit", allow_inf=True),
-    "y_max": Param(math.inf, doc="upper output limit", allow_inf=True),
+    "kp": Param(1.0, "@y/@e", "proportional gain [output/input]"),
+    "ki": Param(0.0, "@y/@e/s", "integral gain [output/(input s)]"),
+    "y_min": Param(-math.inf, "@y", "lower output limit", allow_inf=True),
+    "y_max": Param(math.inf, "@y", "upper output limit", allow_inf=True),
     "antiwindup": Param("clamping", kind="str", choices=_AW,
                         doc="anti-windup scheme while the output is limited"),
     "kb": Param(0.0, "1/s", "back-calculation tracking gain", ge=0.0),
-    "I0": Param(0.0, doc="initial integral term (output units)"),
+    "I0": Param(0.0, "@y", "initial integral term (output units)"),
 }
 _MODES = {"clamp": Mode(doc="clamping mode: 0 free, +-1 integral held, +-2 sliding"),
           "armed": Mode(doc="+-1 after leaving a limit before the error reversed")}
@@ -143,9 +143,9 @@ class PI(Block):
 
     category = "control"
     parameters = dict(_COMMON)
-    inputs = {"e": Port(doc="control error")}
-    outputs = {"y": Port(feedthrough=("e",), doc="limited command")}
-    states = {"I": State(initial="I0", doc="integral term (output units)")}
+    inputs = {"e": Port("*", doc="control error")}
+    outputs = {"y": Port("*", feedthrough=("e",), doc="limited command")}
+    states = {"I": State("@y", initial="I0", doc="integral term (output units)")}
     modes = _MODES
     events = _EVENTS
 
@@ -183,12 +183,12 @@ class PID(Block):
     """PID controller with a first-order derivative filter (see module doc)."""
 
     category = "control"
-    parameters = dict(_COMMON, kd=Param(0.0, doc="derivative gain [output s/input]"),
+    parameters = dict(_COMMON, kd=Param(0.0, "@y*s/@e", "derivative gain [output s/input]"),
                       N=Param(100.0, "rad/s", "derivative filter bandwidth", gt=0.0))
-    inputs = {"e": Port(doc="control error")}
-    outputs = {"y": Port(feedthrough=("e",), doc="limited command")}
-    states = {"I": State(initial="I0", doc="integral term (output units)"),
-              "f": State(doc="filtered error for the derivative term")}
+    inputs = {"e": Port("*", doc="control error")}
+    outputs = {"y": Port("*", feedthrough=("e",), doc="limited command")}
+    states = {"I": State("@y", initial="I0", doc="integral term (output units)"),
+              "f": State("@e", doc="filtered error for the derivative term")}
     modes = _MODES
     events = _EVENTS
 

@@ -37,8 +37,8 @@ class ZeroOrderHold(_Sampled):
 
     category = "discrete"
     parameters = {"Ts": _TS, "offset": _OFF}
-    inputs = {"u": Port(size=None, doc="sampled input")}
-    outputs = {"y": Port(size="@u", doc="held sample")}
+    inputs = {"u": Port("*", size=None, doc="sampled input")}
+    outputs = {"y": Port("@u", size="@u", doc="held sample")}
     modes = {"held": Mode(size="@u", doc="last sample"), "k": _K}
 
     @staticmethod
@@ -53,9 +53,10 @@ class UnitDelay(_Sampled):
 
     category = "discrete"
     parameters = {"Ts": _TS, "offset": _OFF,
-                  "x0": Param(0.0, doc="initial output (scalar or per element)", shape="*")}
-    inputs = {"u": Port(size=None, doc="sampled input")}
-    outputs = {"y": Port(size="@u", doc="delayed sample")}
+                  "x0": Param(0.0, "@y", "initial output (scalar or per element)",
+                              shape="*")}
+    inputs = {"u": Port("*", size=None, doc="sampled input")}
+    outputs = {"y": Port("@u", size="@u", doc="delayed sample")}
     modes = {"held": Mode(size="@u", initial="x0", doc="output value"),
              "last": Mode(size="@u", initial="x0", doc="sample to output next"), "k": _K}
 
@@ -72,11 +73,12 @@ class DiscreteTransferFunction(_Sampled):
     ``control.tf(num, den, Ts)``), direct form II transposed, output held between samples."""
 
     category = "discrete"
-    parameters = {"num": Param(doc="numerator, highest power of z first", shape="*"),
-                  "den": Param(doc="denominator, highest power of z first", shape="*"),
+    parameters = {"num": Param(unit="*", doc="numerator, highest power of z first", shape="*"),
+                  "den": Param(unit="*", doc="denominator, highest power of z first",
+                               shape="*"),
                   "Ts": _TS, "offset": _OFF}
-    inputs = {"u": Port(doc="sampled input")}
-    outputs = {"y": Port(doc="held output")}
+    inputs = {"u": Port("*", doc="sampled input")}
+    outputs = {"y": Port("*", doc="held output")}
     modes = {"s": Mode(size=Dim("len(den) - 1", lambda p: len(p["den"]) - 1),
                        doc="direct-form-II-transposed states"),
              "held": Mode(doc="last output"), "k": _K}
@@ -106,9 +108,9 @@ class DiscreteTransferFunction(_Sampled):
         k[0] += 1.0
 
 
-_LIM = {"y_min": Param(-math.inf, doc="lower output limit", allow_inf=True),
-        "y_max": Param(math.inf, doc="upper output limit", allow_inf=True),
-        "I0": Param(0.0, doc="initial integral term (output units)")}
+_LIM = {"y_min": Param(-math.inf, "@y", "lower output limit", allow_inf=True),
+        "y_max": Param(math.inf, "@y", "upper output limit", allow_inf=True),
+        "I0": Param(0.0, "@y", "initial integral term (output units)")}
 
 
 class DiscretePI(_Sampled):
@@ -118,11 +120,11 @@ class DiscretePI(_Sampled):
     except while the output is limited and ``e_k`` drives it further (clamping)."""
 
     category = "discrete"
-    parameters = dict({"kp": Param(1.0, doc="proportional gain"),
-                       "ki": Param(0.0, doc="integral gain [1/s]"), "Ts": _TS,
+    parameters = dict({"kp": Param(1.0, "@y/@e", "proportional gain"),
+                       "ki": Param(0.0, "@y/@e/s", "integral gain"), "Ts": _TS,
                        "offset": _OFF}, **_LIM)
-    inputs = {"e": Port(doc="control error")}
-    outputs = {"y": Port(doc="held command")}
+    inputs = {"e": Port("*", doc="control error")}
+    outputs = {"y": Port("*", doc="held command")}
     modes = {"I": Mode(initial="I0", doc="integral term"), "held": Mode(doc="last output"),
              "k": _K}
 
@@ -140,12 +142,12 @@ class DiscretePID(_Sampled):
     DiscretePI (clamping)."""
 
     category = "discrete"
-    parameters = dict({"kp": Param(1.0, doc="proportional gain"),
-                       "ki": Param(0.0, doc="integral gain [1/s]"),
-                       "kd": Param(0.0, doc="derivative gain [s]"), "Ts": _TS,
+    parameters = dict({"kp": Param(1.0, "@y/@e", "proportional gain"),
+                       "ki": Param(0.0, "@y/@e/s", "integral gain"),
+                       "kd": Param(0.0, "@y*s/@e", "derivative gain"), "Ts": _TS,
                        "offset": _OFF}, **_LIM)
-    inputs = {"e": Port(doc="control error")}
-    outputs = {"y": Port(doc="held command")}
+    inputs = {"e": Port("*", doc="control error")}
+    outputs = {"y": Port("*", doc="held command")}
     modes = {"I": Mode(initial="I0", doc="integral term"), "e_prev": Mode(doc="last error"),
              "held": Mode(doc="last output"), "k": _K}
 

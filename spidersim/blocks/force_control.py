@@ -57,7 +57,7 @@ class HybridForceController(Block):
               "qd": Port("rad/s", size=_N, doc="joint speeds"),
               "p_ref": Port("m", size=3, doc="flange position reference (base frame)"),
               "F_ref": Port("N", size=3, doc="force set point on the environment"),
-              "F_meas": Port("1", size=6, doc="measured wrench on the environment")}
+              "F_meas": Port("*", size=6, doc="measured wrench on the environment")}
     outputs = {"tau": Port("N.m", size=_N, feedthrough=("q", "qd", "p_ref", "F_ref",
                                                          "F_meas"),
                            doc="joint torques"),

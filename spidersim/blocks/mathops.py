@@ -9,9 +9,11 @@ class Gain(Block):
     """``y = k * u`` element-wise; ``k`` a scalar or one value per element."""
 
     category = "math"
-    parameters = {"k": Param(1.0, doc="gain (scalar or one per element)", shape="*")}
-    inputs = {"u": Port(size=None, doc="input")}
-    outputs = {"y": Port(size="@u", feedthrough=("u",), doc="k * u")}
+    parameters = {"k": Param(1.0, "*", "gain (scalar or one per element); its unit is "
+                                   "unit(y)/unit(u), inferred or given as {value:, unit:}",
+                                   shape="*")}
+    inputs = {"u": Port("*", size=None, doc="input")}
+    outputs = {"y": Port("@k*@u", size="@u", feedthrough=("u",), doc="k * u")}
 
     @classmethod
     def check_sizes(cls, params, sizes):
@@ -84,8 +86,8 @@ class Sum(_Nary):
     category = "math"
     key, symbols = "signs", "+-"
     parameters = {"signs": Param("++", kind="str", doc="one sign per input, e.g. '+-+'")}
-    inputs = {"u1": Port(size=None, doc="inputs u1 .. uN, one per sign")}
-    outputs = {"y": Port(size="@u1", feedthrough="all", doc="signed sum")}
+    inputs = {"u1": Port("@y", size=None, doc="inputs u1 .. uN, one per sign (one unit)")}
+    outputs = {"y": Port("*", size="@u1", feedthrough="all", doc="signed sum")}
 
     @staticmethod
     def expression(signs, names):
@@ -99,6 +101,12 @@ class Sum(_Nary):
             y[i] = u1[i] + u2[i]
 
 
+def _product_unit(ops):
+    """Unit rule of a Product: ``"**/"`` -> ``"@u1*@u2/@u3"`` (``"/*"`` -> ``"1/@u1*@u2"``)."""
+    rule = "".join(("/" if op == "/" else "*") + f"@u{k + 1}" for k, op in enumerate(ops))
+    return rule[1:] if rule[0] == "*" else "1" + rule
+
+
 class Product(_Nary):
     """``y = u1 * u2 / u3 ...`` element-wise, operators given as a string such as ``"**/"``.
 
@@ -108,8 +116,9 @@ class Product(_Nary):
     category = "math"
     key, symbols = "ops", "*/"
     parameters = {"ops": Param("**", kind="str", doc="one operator per input, e.g. '**/'")}
-    inputs = {"u1": Port(size=None, doc="inputs u1 .. uN, one per operator")}
-    outputs = {"y": Port(size="@u1", feedthrough="all", doc="product")}
+    inputs = {"u1": Port("*", size=None, doc="inputs u1 .. uN, one per operator")}
+    outputs = {"y": Port(lambda p: _product_unit(p["ops"]), size="@u1", feedthrough="all",
+                         doc="product; its unit is the product (quotient) of the input units")}
 
     @staticmethod
     def expression(ops, names):
@@ -129,15 +138,17 @@ class AlgebraicConstraint(Block):
     """
 
     category = "math"
-    parameters = {"z0": Param(0.0, doc="initial guess (scalar or one per element)", shape="*")}
-    inputs = {"f": Port(size=Dim("len(z0)", lambda p: len(p["z0"])),
+    parameters = {"z0": Param(0.0, "@z", "initial guess (scalar or one per element)",
+                                    shape="*")}
+    inputs = {"f": Port("*", size=Dim("len(z0)", lambda p: len(p["z0"])),
                         doc="residual to drive to zero")}
-    outputs = {"z": Port(size=Dim("len(z0)", lambda p: len(p["z0"])),
+    outputs = {"z": Port("*", size=Dim("len(z0)", lambda p: len(p["z0"])),
                          doc="solution of f(z) = 0")}
     #: output -> (residual input, initial-guess parameter)
     implicit = {"z": ("f", "z0")}
 
 
+_FUNC_UNITS = {"abs": "@u", "square": "@u*@u"}
 _FUNCS = ("sin", "cos", "tan", "tanh", "atan", "exp", "log", "sqrt", "abs", "square")
 
 
@@ -148,8 +159,10 @@ class Function(Block):
 
     category = "math"
     parameters = {"fn": Param("tanh", kind="str", choices=_FUNCS, doc="the function")}
-    inputs = {"u": Port(size=None, doc="argument")}
-    outputs = {"y": Port(size="@u", feedthrough=("u",), doc="fn(u)")}
+    inputs = {"u": Port("*", size=None, doc="argument")}
+    outputs = {"y": Port(lambda p: _FUNC_UNITS.get(p["fn"], "*"), size="@u",
+                         feedthrough=("u",), doc="fn(u); unit: that of u for abs, its square "
+                         "for square, else inherited")}
 
     @classmethod
     def derive(cls, params):

@@ -117,7 +117,7 @@ class PointMass(Block):
                   "p0": Param([0.0, 0.0, 0.0], "m", "initial position", shape=3),
                   "v0": Param([0.0, 0.0, 0.0], "m/s", "initial velocity", shape=3)}
     inputs = {"f": Port("N", size=3, optional=True, doc="applied force"),
-              "constraint": Port("1", size=4, optional=True,
+              "constraint": Port("*", size=4, optional=True,
                                  doc="[engaged, n] from a RigidContact: impact on engagement")}
     outputs = {"pos": Port("m", size=3, doc="position"),
                "vel": Port("m/s", size=3, doc="velocity"),

@@ -63,11 +63,11 @@ class Saturation(_Corners):
     (at lower / linear / at upper)."""
 
     category = "nonlinear"
-    parameters = {"lower": Param(-1.0, doc="lower limit", allow_inf=True),
-                  "upper": Param(1.0, doc="upper limit", allow_inf=True),
+    parameters = {"lower": Param(-1.0, "@u", "lower limit", allow_inf=True),
+                  "upper": Param(1.0, "@u", "upper limit", allow_inf=True),
                   "zero_crossing": _ZC}
-    inputs = {"u": Port(size=None, doc="input")}
-    outputs = {"y": Port(size="@u", feedthrough=("u",), doc="limited input")}
+    inputs = {"u": Port("*", size=None, doc="input")}
+    outputs = {"y": Port("@u", size="@u", feedthrough=("u",), doc="limited input")}
     modes = {"m": Mode(size="@u", doc="-1 at lower, 0 linear, +1 at upper")}
     events = {"upper": Event(0, "u crosses the upper limit (one guard per element)", "@u",
                              when="zero_crossing"),
@@ -103,10 +103,10 @@ class DeadZone(_Corners):
     Mode per element -1 / 0 / +1 (below / inside / above)."""
 
     category = "nonlinear"
-    parameters = {"start": Param(-0.5, doc="lower edge of the zone"),
-                  "end": Param(0.5, doc="upper edge of the zone"), "zero_crossing": _ZC}
-    inputs = {"u": Port(size=None, doc="input")}
-    outputs = {"y": Port(size="@u", feedthrough=("u",), doc="output")}
+    parameters = {"start": Param(-0.5, "@u", "lower edge of the zone"),
+                  "end": Param(0.5, "@u", "upper edge of the zone"), "zero_crossing": _ZC}
+    inputs = {"u": Port("*", size=None, doc="input")}
+    outputs = {"y": Port("@u", size="@u", feedthrough=("u",), doc="output")}
     modes = {"m": Mode(size="@u", doc="-1 below, 0 inside, +1 above the zone")}
     events = {"end": Event(0, "u crosses the upper edge (one guard per element)", "@u",
                            when="zero_crossing"),
@@ -142,14 +142,14 @@ class Relay(Block):
     ``off_value``."""
 
     category = "nonlinear"
-    parameters = {"on_point": Param(0.5, doc="switch-on threshold"),
-                  "off_point": Param(-0.5, doc="switch-off threshold"),
-                  "on_value": Param(1.0, doc="output when on"),
-                  "off_value": Param(0.0, doc="output when off"),
+    parameters = {"on_point": Param(0.5, "@u", "switch-on threshold"),
+                  "off_point": Param(-0.5, "@u", "switch-off threshold"),
+                  "on_value": Param(1.0, "@y", "output when on"),
+                  "off_value": Param(0.0, "@y", "output when off"),
                   "initially_on": Param(False, kind="bool", doc="state at the start between "
                                                                  "the thresholds")}
-    inputs = {"u": Port(doc="input")}
-    outputs = {"y": Port(doc="relay output")}
+    inputs = {"u": Port("*", doc="input")}
+    outputs = {"y": Port("*", doc="relay output")}
     modes = {"on": Mode(initial=lambda p: 1.0 if p["initially_on"] else 0.0,
                         doc="1 when on")}
     events = {"switch": Event(0, "u crosses the active threshold")}
@@ -188,11 +188,11 @@ class Switch(Block):
     input's crossings are events."""
 
     category = "nonlinear"
-    parameters = {"threshold": Param(0.0, doc="threshold on the control input u2")}
-    inputs = {"u1": Port(size=None, doc="passed while u2 >= threshold"),
-              "u2": Port(doc="control input"),
-              "u3": Port(size=None, doc="passed while u2 < threshold")}
-    outputs = {"y": Port(size="@u1", feedthrough=("u1", "u2", "u3"), doc="selected input")}
+    parameters = {"threshold": Param(0.0, "@u2", "threshold on the control input u2")}
+    inputs = {"u1": Port("@y", size=None, doc="passed while u2 >= threshold"),
+              "u2": Port("*", doc="control input"),
+              "u3": Port("@y", size=None, doc="passed while u2 < threshold")}
+    outputs = {"y": Port("*", size="@u1", feedthrough=("u1", "u2", "u3"), doc="selected input")}
     modes = {"first": Mode(doc="1 while u1 is passed")}
     events = {"switch": Event(0, "u2 crosses the threshold")}
 

@@ -9,14 +9,19 @@ class Mux(Block):
 
     category = "routing"
     parameters = {"n": Param(2, kind="int", ge=1, le=1000, doc="number of inputs")}
-    inputs = {"u1": Port(size=None, doc="inputs u1 .. un")}
-    outputs = {"y": Port(size=FromInputs("sum of input sizes",
-                                         lambda p, s: sum(s.values())),
-                         feedthrough="all", doc="concatenation")}
+    inputs = {"u1": Port("*", size=None, doc="inputs u1 .. un")}
+    outputs = {"y": Port("*", size=FromInputs("sum of input sizes",
+                                              lambda p, s: sum(s.values())),
+                         feedthrough="all", doc="concatenation; unit: the inputs' unit when "
+                         "they all have the same one (else a vector of mixed units)")}
 
     @classmethod
     def input_names(cls, params):
         return [f"u{i + 1}" for i in range(params["n"])]
+
+    @classmethod
+    def unit_relations(cls, params):
+        return [("common", "y", cls.input_names(params))]
 
     @classmethod
     def input_decl(cls, name):
@@ -47,8 +52,8 @@ class Demux(Block):
     category = "routing"
     parameters = {"sizes": Param(doc="size of each output", shape="*", ge=1, le=1e6,
                                  structural=True)}
-    inputs = {"u": Port(size=None, doc="vector to split")}
-    outputs = {"y1": Port(size=None, feedthrough=("u",), doc="outputs y1 .. yk")}
+    inputs = {"u": Port("*", size=None, doc="vector to split")}
+    outputs = {"y1": Port("*", size=None, feedthrough=("u",), doc="outputs y1 .. yk")}
 
     @classmethod
     def check(cls, params):
@@ -67,9 +72,13 @@ class Demux(Block):
         return [f"y{i + 1}" for i in range(len(params["sizes"]))]
 
     @classmethod
+    def unit_relations(cls, params):
+        return [("copy", y, ["u"]) for y in cls.output_names(params)]
+
+    @classmethod
     def output_decl(cls, name):
         k = int(name[1:]) - 1
-        return Port(size=Dim_k(k), feedthrough=("u",), doc=f"element group {k + 1}")
+        return Port("*", size=Dim_k(k), feedthrough=("u",), doc=f"element group {k + 1}")
 
     @classmethod
     def kernel_source(cls, params, kernel):
@@ -99,9 +108,13 @@ class Selector(Block):
     category = "routing"
     parameters = {"index": Param(doc="0-based indices of the elements to pick", shape="*",
                                  ge=0, structural=True)}
-    inputs = {"u": Port(size=None, doc="input vector")}
-    outputs = {"y": Port(size=FromInputs("len(index)", lambda p, s: len(p["index"])),
-                         feedthrough=("u",), doc="selected elements")}
+    inputs = {"u": Port("*", size=None, doc="input vector")}
+    outputs = {"y": Port("*", size=FromInputs("len(index)", lambda p, s: len(p["index"])),
+                         feedthrough=("u",), doc="selected elements (the unit of u)")}
+
+    @classmethod
+    def unit_relations(cls, params):
+        return [("copy", "y", ["u"])]
 
     @classmethod
     def check_sizes(cls, params, sizes):
@@ -114,3 +127,32 @@ class Selector(Block):
     def output(t, index, u, y):
         for j in range(y.size):
             y[j] = u[int(index[j])]
+
+
+class UnitCast(Block):
+    """``y = u``, the numbers unchanged, read in the unit ``unit``: a deliberate
+    reinterpretation that unit checking would otherwise refuse (a dimensionless command
+    taken as a current set point, a normalised force fed to a torque input).
+
+    No scaling is applied: ``unit: mm`` on a signal in ``m`` relabels it, it does not multiply
+    by 1000. The input takes any unit.
+    """
+
+    category = "routing"
+    parameters = {"unit": Param(kind="str", doc="unit of the output, e.g. 'A' or 'N.m'")}
+    inputs = {"u": Port("*", size=None, doc="input, any unit")}
+    outputs = {"y": Port(lambda p: p["unit"], size="@u", feedthrough=("u",),
+                         doc="the input in the unit 'unit'")}
+
+    @classmethod
+    def check(cls, params):
+        from ..text.units import UnitError, parse
+        try:
+            parse(params["unit"])
+        except UnitError as exc:
+            raise ValueError(f"parameter 'unit': {exc}") from None
+
+    @staticmethod
+    def output(t, u, y):
+        for i in range(y.size):
+            y[i] = u[i]

@@ -105,12 +105,12 @@ class WrenchSensor(Block):
     parameters = {"f_c": Param(100.0, "Hz", "bandwidth (first-order low-pass)", gt=0.0),
                   "frame": Param("base", kind="str", choices=("base", "flange"),
                                  doc="axes of the reading: base frame or flange frame"),
-                  "bias": Param(0.0, "1", "offset added to the reading (N, N.m)", shape=6)}
-    inputs = {"wrench": Port("1", size=6, doc="environment's wrench on the flange (Arm.f_ext)"),
+                  "bias": Param(0.0, "*", "offset added to the reading (N, N.m)", shape=6)}
+    inputs = {"wrench": Port("*", size=6, doc="environment's wrench on the flange (Arm.f_ext)"),
               "rot": Port("1", size=9, optional=lambda p: p["frame"] == "base",
                           doc="flange rotation, row-major (needed for frame 'flange')")}
-    outputs = {"F": Port("1", size=6, doc="measured wrench: force [N], moment [N.m]")}
-    states = {"F": State("1", size=6, doc="filtered reading")}
+    outputs = {"F": Port("*", size=6, doc="measured wrench: force [N], moment [N.m]")}
+    states = {"F": State("*", size=6, doc="filtered reading")}
 
     @classmethod
     def derive(cls, params):

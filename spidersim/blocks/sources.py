@@ -13,8 +13,9 @@ class Constant(Block):
     """Constant signal ``y = value`` (scalar or vector)."""
 
     category = "sources"
-    parameters = {"value": Param(0.0, doc="output value", shape="*")}
-    outputs = {"y": Port(size=Dim("len(value)", lambda p: len(p["value"])), doc="value")}
+    parameters = {"value": Param(0.0, "@y", "output value", shape="*")}
+    outputs = {"y": Port("*", size=Dim("len(value)", lambda p: len(p["value"])),
+                         doc="value; unit from what it feeds, or value: {value:, unit:}")}
 
     @staticmethod
     def output(t, value, y):
@@ -28,10 +29,10 @@ class Step(Block):
     category = "sources"
     parameters = {
         "t_step": Param(0.0, "s", "switching time"),
-        "before": Param(0.0, doc="value before the step"),
-        "after": Param(1.0, doc="value from the step on"),
+        "before": Param(0.0, "@y", "value before the step"),
+        "after": Param(1.0, "@y", "value from the step on"),
     }
-    outputs = {"y": Port(doc="step signal")}
+    outputs = {"y": Port("*", doc="step signal")}
     modes = {"on": Mode(doc="0 before the step, 1 after")}
 
     @staticmethod
@@ -52,11 +53,11 @@ class Ramp(Block):
 
     category = "sources"
     parameters = {
-        "slope": Param(1.0, "1/s", "rate of change after t_start"),
+        "slope": Param(1.0, "@y/s", "rate of change after t_start"),
         "t_start": Param(0.0, "s", "start time"),
-        "offset": Param(0.0, doc="value before t_start"),
+        "offset": Param(0.0, "@y", "value before t_start"),
     }
-    outputs = {"y": Port(doc="ramp signal")}
+    outputs = {"y": Port("*", doc="ramp signal")}
     modes = {"on": Mode(doc="0 before t_start, 1 after")}
 
     @staticmethod
@@ -77,12 +78,12 @@ class Sine(Block):
 
     category = "sources"
     parameters = {
-        "amplitude": Param(1.0, doc="peak value"),
+        "amplitude": Param(1.0, "@y", "peak value"),
         "f": Param(1.0, "Hz", "frequency", ge=0.0),
         "phase": Param(0.0, "rad", "phase at t = 0"),
-        "offset": Param(0.0, doc="mean value"),
+        "offset": Param(0.0, "@y", "mean value"),
     }
-    outputs = {"y": Port(doc="sine signal")}
+    outputs = {"y": Port("*", doc="sine signal")}
 
     @staticmethod
     def output(t, amplitude, f, phase, offset, y):
@@ -98,13 +99,13 @@ class Pulse(Block):
 
     category = "sources"
     parameters = {
-        "amplitude": Param(1.0, doc="height above low"),
+        "amplitude": Param(1.0, "@y", "height above low"),
         "period": Param(1.0, "s", "period", gt=0.0),
         "duty": Param(0.5, "1", "fraction of the period spent high", gt=0.0, lt=1.0),
         "delay": Param(0.0, "s", "time of the first rising edge", ge=0.0),
-        "low": Param(0.0, doc="value between pulses"),
+        "low": Param(0.0, "@y", "value between pulses"),
     }
-    outputs = {"y": Port(doc="pulse signal")}
+    outputs = {"y": Port("*", doc="pulse signal")}
     modes = {"high": Mode(doc="1 while the pulse is high"),
              "k": Mode(doc="number of completed periods")}
 
@@ -135,9 +136,9 @@ class TimeTable(Block):
     category = "sources"
     parameters = {
         "time": Param(doc="strictly increasing sample times", unit="s", shape="*"),
-        "value": Param(doc="values at the sample times", shape="time"),
+        "value": Param(unit="@y", doc="values at the sample times", shape="time"),
     }
-    outputs = {"y": Port(doc="interpolated value")}
+    outputs = {"y": Port("*", doc="interpolated value")}
     modes = {"k": Mode(doc="number of table times passed")}
 
     @classmethod

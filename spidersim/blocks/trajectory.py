@@ -7,8 +7,9 @@ import math
 
 from .base import Block, Mode, Param, Port
 
-_OUT = {"q": Port(doc="position"), "qd": Port(doc="velocity [unit/s]"),
-        "qdd": Port(doc="acceleration [unit/s2]")}
+_OUT = {"q": Port("*", doc="position (rad or m: the unit of the positions given)"),
+        "qd": Port("@q/s", doc="velocity [unit/s]"),
+        "qdd": Port("@q/s2", doc="acceleration [unit/s2]")}
 
 
 class TrapezoidalProfile(Block):
@@ -17,9 +18,10 @@ class TrapezoidalProfile(Block):
     the distance is too short to reach ``v_max``)."""
 
     category = "sources"
-    parameters = {"q0": Param(0.0, doc="start position"), "q1": Param(1.0, doc="end position"),
-                  "v_max": Param(1.0, doc="speed limit [unit/s]", gt=0.0),
-                  "a_max": Param(1.0, doc="acceleration limit [unit/s2]", gt=0.0),
+    parameters = {"q0": Param(0.0, "@q", "start position"),
+                  "q1": Param(1.0, "@q", "end position"),
+                  "v_max": Param(1.0, "@q/s", "speed limit [unit/s]", gt=0.0),
+                  "a_max": Param(1.0, "@q/s2", "acceleration limit [unit/s2]", gt=0.0),
                   "t_start": Param(0.0, "s", "start time")}
     outputs = _OUT
     modes = {"phase": Mode(doc="0 before, 1 accelerating, 2 cruising, 3 decelerating, 4 done")}
@@ -82,7 +84,8 @@ class QuinticProfile(Block):
     ``s = (t - t_start) / T``."""
 
     category = "sources"
-    parameters = {"q0": Param(0.0, doc="start position"), "q1": Param(1.0, doc="end position"),
+    parameters = {"q0": Param(0.0, "@q", "start position"),
+                  "q1": Param(1.0, "@q", "end position"),
                   "T": Param(1.0, "s", "duration", gt=0.0), "t_start": Param(0.0, "s", "start")}
     outputs = _OUT
     modes = {"phase": Mode(doc="0 before, 1 moving, 2 done")}
@@ -115,8 +118,8 @@ class ConstantSpeed(Block):
     """``q = q0`` before ``t_start``, then ``q0 + speed (t - t_start)``."""
 
     category = "sources"
-    parameters = {"q0": Param(0.0, doc="start position"),
-                  "speed": Param(1.0, doc="speed [unit/s]"), "t_start": Param(0.0, "s", "start")}
+    parameters = {"q0": Param(0.0, "@q", "start position"),
+                  "speed": Param(1.0, "@q/s", "speed [unit/s]"), "t_start": Param(0.0, "s", "start")}
     outputs = _OUT
     modes = {"on": Mode(doc="1 once moving")}
 

@@ -9,6 +9,7 @@ the subsystem's parameters. Overrides (``--set``) address ``name`` (a top-level 
 from __future__ import annotations
 
 import difflib
+import functools
 import os
 from dataclasses import dataclass, field
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from ..blocks.base import REGISTRY, Block, lookup
 from ..errors import DiagramError, ParameterError, SpidersimError, WiringError
+from ..text import units as U
 from ..text.expr import ExprError, evaluate
 from .spec import Address, DiagramSpec, parse_file
 
@@ -30,6 +32,7 @@ class Instance:
     file: str
     line: int
     param_lines: dict = field(default_factory=dict)
+    param_units: dict = field(default_factory=dict)   # name -> unit given in the file
 
 
 @dataclass
@@ -50,12 +53,75 @@ class Flat:
     subsystem_instances: dict    # path -> file
     aliases: dict = field(default_factory=dict)  # "sub.out" -> (path, port, start, stop)
     scope: dict = field(default_factory=dict)    # top-level parameters, evaluated
+    #: subsystem instance path -> (type, file, line) of its declaration in the parent
+    instances: dict = field(default_factory=dict)
+    #: (path, port) of a primitive input -> (instance path, exposed input, file, line) of
+    #: the outermost exposed subsystem input that feeds it
+    exposed: dict = field(default_factory=dict)
+
+    def note_subsystem(self, exc):
+        """Append :meth:`used_at` to an error about a block inside a subsystem instance
+        (its file:line is in the subsystem's file; this names the parent lines)."""
+        path = exc.block or ""
+        if "(in subsystem instance" in exc.message or "." not in path:
+            return
+        exc.message += self.used_at(path)
+
+    def used_at(self, path):
+        """`` (subsystem 's' of type 'joint', parent.yaml:12)`` for a block inside
+        subsystem instances, naming each enclosing instance's line; '' at the top."""
+        notes = []
+        parts = path.split(".")
+        for k in range(len(parts) - 1, 0, -1):
+            inst = self.instances.get(".".join(parts[:k]))
+            if inst is not None:
+                typ, file, line = inst
+                notes.append(f"subsystem instance '{'.'.join(parts[:k])}' of type '{typ}', "
+                             f"{os.path.basename(file)}:{line}")
+        return f" (in {'; in '.join(notes)})" if notes else ""
 
 
-def _eval_value(value, scope, decl, file, line, what, block=None):
+def _quantity(value, scope, decl, file, line, what, block, record):
+    """``{value: x, unit: u}``: x converted to the declared unit of ``decl`` (to coherent SI
+    when there is no declaration: a diagram or subsystem parameter); for a parameter whose
+    unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) the value stays and
+    ``record(unit)`` keeps the unit for unit inference."""
+    if set(value) != {"value", "unit"}:
+        raise ParameterError(f"{what}: a value with a unit is written {{value: 2.5, unit: "
+                             f"N.m}}; got the keys {', '.join(map(str, value))}", file=file,
+                             line=line, block=block)
+    x = _eval_value(value["value"], scope, None, file, line, what, block)
+    try:
+        given = U.parse(value["unit"])
+        if decl is None:
+            f = U.factor(given, U.base(given))
+        elif decl.kind != "real":
+            raise U.UnitError(f"a {decl.kind} parameter takes no unit")
+        elif decl.unit == U.ANY or "@" in decl.unit or callable(decl.unit):
+            if record is not None:
+                record(value["unit"])
+            return x
+        else:
+            f = U.factor(given, U.parse(decl.unit))
+    except U.UnitError as exc:
+        want = f" (declared [{decl.unit}])" if decl is not None and isinstance(
+            decl.unit, str) else ""
+        raise ParameterError(f"{what}{want}: {exc}", file=file, line=line,
+                             block=block) from None
+    if f == 1.0:
+        return x
+    if isinstance(x, bool) or not isinstance(x, (int, float, list)):
+        raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
+                             f"numbers", file=file, line=line, block=block)
+    return (np.asarray(x, dtype=float) * f).tolist()
+
+
+def _eval_value(value, scope, decl, file, line, what, block=None, record=None):
     """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay."""
     if decl is not None and decl.kind == "str":
         return value
+    if isinstance(value, dict):
+        return _quantity(value, scope, decl, file, line, what, block, record)
     try:
         if isinstance(value, str):
             return evaluate(value, scope)
@@ -187,8 +253,17 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
             sub_over = {k: v for k, (key, v) in deeper.items()}
             keymap = {k: key for k, (key, v) in deeper.items()}
             sub_used = set()
-            maps = _instantiate(sub, path + ".", sub_scope, sub_over, flat,
-                                stack + [os.path.abspath(sub_file)], sub_used)
+            flat.instances[path] = (b.type, spec.file, b.line)
+            try:
+                maps = _instantiate(sub, path + ".", sub_scope, sub_over, flat,
+                                    stack + [os.path.abspath(sub_file)], sub_used)
+            except SpidersimError as exc:
+                # an error in the subsystem's file: say which parent line brought it in
+                if exc.file == sub_file and not getattr(exc, "_used_at", False):
+                    exc.message += (f" (subsystem type '{b.type}' of block '{path}', "
+                                    f"{os.path.basename(spec.file)}:{b.line})")
+                    exc._used_at = True
+                raise
             used.update(keymap[k] for k in sub_used if k in keymap)
             local_subs[bname] = maps
             for oname, src in maps[1].items():
@@ -201,10 +276,12 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
             exc.block = path
             raise
         values = {}
+        punits = {}
         for pname, raw in b.params.items():
             decl = cls.parameters.get(pname)
             values[pname] = _eval_value(raw, scope, decl, spec.file, b.param_lines.get(pname),
-                                        f"parameter '{pname}'", block=path)
+                                        f"parameter '{pname}'", block=path,
+                                        record=functools.partial(punits.__setitem__, pname))
         for pname, (key, v) in own.items():
             decl = cls.parameters.get(pname)
             if decl is None:
@@ -218,7 +295,9 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
                 values[pname] = v
             else:
                 values[pname] = _eval_value(v, scope, decl, spec.file, b.line,
-                                            f"--set {prefix}{key}", block=path)
+                                            f"--set {prefix}{key}", block=path,
+                                            record=functools.partial(punits.__setitem__,
+                                                                     pname))
             used.add(key)
         if deeper:
             k = next(iter(deeper.values()))[0]
@@ -235,7 +314,8 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
             raise
         if path in flat.blocks:
             raise DiagramError(f"duplicate block path '{path}'", file=spec.file, line=b.line)
-        flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines))
+        flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines),
+                                     {k: v for k, v in punits.items() if k in params})
 
     # resolve local addresses into flat ones
     def resolve_src(a: Address, line):
@@ -284,7 +364,21 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
             if a.start is not None:
                 raise WiringError(f"exposed input '{name}' must map to whole input ports",
                                   file=spec.file, line=line)
-            targets += resolve_dst(a, line)
+            got = resolve_dst(a, line)
+            for dst_path, dst_port in got:
+                if a.block not in local_subs:
+                    inst = flat.blocks[dst_path]
+                    if dst_port not in inst.cls.input_names(inst.params):
+                        near = difflib.get_close_matches(
+                            dst_port, inst.cls.input_names(inst.params), n=2)
+                        hint = f"; did you mean {', '.join(near)}?" if near else ""
+                        raise WiringError(
+                            f"exposed input '{name}' maps to '{a}', but block '{a.block}' "
+                            f"({inst.cls.type_name}) has no input '{dst_port}'{hint}; inputs: "
+                            f"{', '.join(inst.cls.input_names(inst.params)) or 'none'}",
+                            file=spec.file, line=line, block=dst_path)
+                flat.exposed[(dst_path, dst_port)] = (prefix[:-1], name, spec.file, line)
+            targets += got
         in_map[name] = targets
     out_map = {}
     for name, a in spec.outputs.items():

@@ -14,6 +14,7 @@ computes its own voltage) is called once per depth.
 from __future__ import annotations
 
 import difflib
+import os
 from dataclasses import dataclass, field
 
 import networkx as nx
@@ -97,10 +98,11 @@ def infer_sizes(flat: Flat):
         bl = BlockLayout(path, cls, prm, ins, outs)
         for n in ins:
             d = cls.input_decl(n)
-            bl.ports[("in", n)] = PortInfo(cls.size_of(d.size, prm), d.unit, "in")
+            bl.ports[("in", n)] = PortInfo(cls.size_of(d.size, prm), cls.unit_of(d, prm), "in")
         for n in outs:
             d = cls.output_decl(n)
-            bl.ports[("out", n)] = PortInfo(cls.size_of(d.size, prm), d.unit, "out")
+            bl.ports[("out", n)] = PortInfo(cls.size_of(d.size, prm), cls.unit_of(d, prm),
+                                            "out")
         info[path] = bl
 
     # wiring checks: known ports, single source per input
@@ -187,9 +189,19 @@ def infer_sizes(flat: Flat):
                     if pi.size is None:
                         pi.size = 1
                     continue
+                exposed = flat.exposed.get((bl.path, n))
+                if exposed is not None and exposed[0] in flat.instances:
+                    inst_path, name, sub_file, sub_line = exposed
+                    typ, file, line = flat.instances[inst_path]
+                    raise WiringError(
+                        f"input '{name}' of subsystem instance '{inst_path}' (type '{typ}') "
+                        f"is not connected; it feeds {bl.path}.{n} "
+                        f"({os.path.basename(sub_file)}:{sub_line}). Connect it: "
+                        f"'some_block.y -> {inst_path.rpartition('.')[2]}.{name}'",
+                        file=file, line=line, block=inst_path)
+                inst = flat.blocks[bl.path]
                 raise WiringError(_unconnected_msg(info, flat, bl, n), block=bl.path,
-                                  file=flat.blocks[bl.path].file,
-                                  line=flat.blocks[bl.path].line)
+                                  file=inst.file, line=inst.line)
         for n in bl.outputs:
             if bl.ports[("out", n)].size is None:
                 inst = flat.blocks[bl.path]
@@ -245,9 +257,12 @@ def _unconnected_msg(info, flat, bl, name):
             continue
         for o in other.outputs:
             po = other.ports[("out", o)]
-            if (pi.size is None or po.size == pi.size) and "1" in (pi.unit, po.unit) or (
-                    po.unit == pi.unit and (pi.size is None or po.size == pi.size)):
-                cand.append(f"{other.path}.{o} [{po.unit}]")
+            loose = ("1", "*")        # declared units only: inference runs later
+            if (pi.size is None or po.size == pi.size) and (
+                    pi.unit in loose or po.unit in loose or "@" in pi.unit + po.unit
+                    or po.unit == pi.unit):
+                fixed = po.unit != "*" and "@" not in po.unit
+                cand.append(f"{other.path}.{o}" + (f" [{po.unit}]" if fixed else ""))
     size = "any size" if pi.size is None else f"size {pi.size}"
     hint = (f"; outputs of matching size and unit: {', '.join(cand[:8])}"
             + (" ..." if len(cand) > 8 else "")) if cand else "; no output matches it"

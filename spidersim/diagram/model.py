@@ -19,6 +19,7 @@ from ..solver.integrate import COMPILED
 from .codegen import event_tables, generate
 from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
+from .units import UNKNOWN, infer_units
 from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
 
 #: loop residual tolerances are this fraction of the integrator's atol and rtol
@@ -60,7 +61,15 @@ class Diagram:
         self.flat = flatten(spec, overrides)
         if not self.flat.blocks:
             raise DiagramError("the diagram has no blocks", file=spec.file)
-        self.layout = build_layout(self.flat)
+        try:
+            self.layout = build_layout(self.flat)
+            self.units = infer_units(self.flat)
+        except SpidersimError as exc:
+            self.flat.note_subsystem(exc)
+            raise
+        for bl in self.layout.blocks.values():
+            for (kind, name), pinfo in bl.ports.items():
+                pinfo.unit = self.units.get((bl.path, kind, name), pinfo.unit)
         self.blocks = self.flat.blocks
         self.simulation = dict(DEFAULTS)
         for k, v in spec.simulation.items():
@@ -115,7 +124,8 @@ class Diagram:
                 rows.append((f"{bl.path}.{o}", pi.loc[0], pi.loc[1], pi.loc[2], pi.unit))
             for s, (a, b) in bl.states.items():
                 if s not in bl.state_outputs and b > a and s not in bl.outputs:
-                    rows.append((f"{bl.path}.{s}", "x", a, b, bl.cls.states[s].unit))
+                    rows.append((f"{bl.path}.{s}", "x", a, b,
+                                 self.units.get((bl.path, "state", s), UNKNOWN)))
         by_port = {(r[0]): r for r in rows}
         for alias, (path, port, s0, s1) in self.flat.aliases.items():
             name, arr, a, b, unit = by_port[f"{path}.{port}"]
@@ -397,6 +407,19 @@ class Diagram:
         return trim(self, **kw)
 
     # ------------------------------------------------------------------ summary
+    def inferred_parameter_units(self):
+        """``{"block.param": unit}`` of the real parameters declared with an inherited unit
+        (a Gain's ``k``, a PI's ``kp``) whose unit the wiring fixed."""
+        out = {}
+        for path, inst in self.flat.blocks.items():
+            for name, decl in inst.cls.parameters.items():
+                rule = inst.cls.unit_of(decl, inst.params)
+                unit = self.units.get((path, "param", name))
+                if decl.kind == "real" and (rule == "*" or "@" in rule) and unit not in (
+                        None, UNKNOWN):
+                    out[f"{path}.{name}"] = unit
+        return out
+
     def summary(self):
         """Text for ``spidersim check``: blocks, states, signals, schedule."""
         L = self.layout
@@ -412,6 +435,10 @@ class Diagram:
         for name, arr, a, b, unit in self._signal_table():
             lines.append(f"    {name} [{unit}] size {b - a}" + ("  (state)" if arr == "x"
                                                                   else ""))
+        inferred = self.inferred_parameter_units()
+        if inferred:
+            lines.append("  parameter units inferred from the wiring:")
+            lines += [f"    {name} [{unit}]" for name, unit in inferred.items()]
         lines.append(f"  schedule ({len(L.calls)} items):")
         lines.append("    " + " -> ".join(p if k == "call" else f"[loop {p + 1}]"
                                           for k, p in L.calls) if L.calls else "    (none)")

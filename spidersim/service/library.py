@@ -113,7 +113,9 @@ class Model:
                 bounds = {k: getattr(decl, k) for k in ("gt", "ge", "lt", "le")
                           if getattr(decl, k) is not None}
                 params.append({"name": pname, "value": _json(inst.params.get(pname)),
-                               "unit": decl.unit, "doc": decl.doc, "bounds": bounds,
+                               "unit": d.units.get((path, "param", pname),
+                                                   cls.unit_of(decl)),
+                               "doc": decl.doc, "bounds": bounds,
                                "kind": decl.kind, "structural": decl.is_structural,
                                "choices": list(decl.choices) if decl.choices else None})
             blocks.append({"path": path, "type": cls.type_name,
@@ -122,7 +124,8 @@ class Model:
             for sname, st in cls.states.items():
                 if isinstance(st.initial, str) and st.initial in cls.parameters:
                     initial[f"{path}.{sname}"] = {
-                        "parameter": f"{path}.{st.initial}", "unit": st.unit,
+                        "parameter": f"{path}.{st.initial}",
+                        "unit": d.units.get((path, "param", st.initial), cls.unit_of(st)),
                         "value": _json(inst.params.get(st.initial)), "doc": st.doc}
         units = {r[0]: r[4] for r in d._signal_table()}
         signals = [{"name": n, "size": s, "unit": units.get(n, "1")}

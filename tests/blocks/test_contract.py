@@ -87,6 +87,7 @@ EXAMPLES = {
             dict(params={}, sizes={"u1": 1, "u2": 2}, moves=True)],
     "Demux": [dict(params={"sizes": [2, 1, 3]}, sizes={"u": 6}, moves=True)],
     "Selector": [dict(params={"index": [2, 0, 2]}, sizes={"u": 3}, moves=True)],
+    "UnitCast": [dict(params={"unit": "N.m"}, sizes={"u": 2}, moves=True)],
     "DCMotor": [dict(params={"R": 1.5, "L": 2e-3, "K": 0.05, "J": 1e-4, "b": 1e-5},
                      lo=-24.0, hi=24.0),
                 dict(params={"R": 1.5, "L": 0.0, "K": 0.05, "J": 1e-4, "b": 1e-5},

@@ -568,12 +568,14 @@ name: sweep
 blocks:
   pm:   {{type: Sine, amplitude: {amp}, f: {f}, phase: {phase}}}
   wm:   {{type: Sine, amplitude: {wamp}, f: {f}, phase: {wphase}}}
-  zero: {{type: Constant, value: 0}}
+  phi0: {{type: Constant, value: 0}}
+  w0:   {{type: Constant, value: 0}}
   gear: {{type: HarmonicDrive, N: {N}, K1: {K1}, d: {d}, backlash: {b}, friction: false}}
 connections:
   - pm.y -> gear.phi_m
   - wm.y -> gear.w_m
-  - zero.y -> gear.phi_l, gear.w_l
+  - phi0.y -> gear.phi_l
+  - w0.y -> gear.w_l
 """
 B_GAP = 2.9e-4
 A_SWEEP = 4e-4          # output-side amplitude of phi_m / N (> b/2)

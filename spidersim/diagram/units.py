@@ -1,0 +1,261 @@
+"""Unit inference: every port, state and real parameter of the flat diagram gets a unit.
+
+One pass over the flat diagram, run when the diagram is compiled:
+
+1. *Variables*: one per port, state and real parameter of every block. A declared unit
+   (``"A"``, ``"N.m"``, ``"1"``) binds its variable; ``"*"`` leaves it free; a rule such as
+   ``"@u"`` (the same unit as ``u``) joins two variables, and a product rule such as
+   ``"@k*@u"`` or ``"@u*s"`` becomes a relation. A parameter given in the file as
+   ``{value: 2, unit: V/A}`` binds its variable too.
+2. *Connections* join the source output and the destination input: same unit, or an error
+   at the connection's file:line naming both units.
+3. *Relations* are solved to a fixed point: a relation whose terms are all known but one
+   gives that one (``y = k u``: y from k and u, or k from y and u). Directed relations carry a
+   unit forward only: a Mux output takes its inputs' unit when they all agree, a Demux or
+   Selector output takes its input's.
+
+What stays free is shown as ``?`` (nothing in the diagram fixes it: e.g. a Sine feeding only
+a plot). The result maps ``(path, kind, name)`` to Modelica unit text.
+"""
+from __future__ import annotations
+
+from ..errors import DiagramError
+from ..text import units as U
+
+UNKNOWN = "?"
+
+
+class UnitMismatchError(DiagramError):
+    """Two units that must be the same are not."""
+
+
+class _Classes:
+    """Union-find over variables; each class holds a unit, its text and where it came from."""
+
+    def __init__(self):
+        self.parent = {}
+        self.unit = {}       # root -> (pint unit, text, origin)
+
+    def add(self, v):
+        self.parent.setdefault(v, v)
+
+    def find(self, v):
+        root = v
+        while self.parent[root] != root:
+            root = self.parent[root]
+        while self.parent[v] != root:
+            self.parent[v], v = root, self.parent[v]
+        return root
+
+    def get(self, v):
+        return self.unit.get(self.find(v))
+
+    def bind(self, v, unit, text, origin):
+        """Bind ``v``'s class; return the conflicting binding or None."""
+        r = self.find(v)
+        have = self.unit.get(r)
+        if have is None:
+            self.unit[r] = (unit, text, origin)
+            return None
+        return None if U.same(have[0], unit) else have
+
+    def union(self, a, b):
+        """Join the classes; return (binding of a, binding of b) when they conflict."""
+        ra, rb = self.find(a), self.find(b)
+        if ra == rb:
+            return None
+        ua, ub = self.unit.get(ra), self.unit.get(rb)
+        if ua is not None and ub is not None and not U.same(ua[0], ub[0]):
+            return ua, ub
+        self.parent[rb] = ra
+        if ua is None and ub is not None:
+            self.unit[ra] = ub
+        self.unit.pop(rb, None)
+        return None
+
+
+def _names(cls, params):
+    """name -> (kind, declaration) in lookup order for ``@name``: inputs, outputs, params,
+    states."""
+    out = {}
+    for n in cls.input_names(params):
+        out.setdefault(n, ("in", cls.input_decl(n)))
+    for n in cls.output_names(params):
+        out.setdefault(n, ("out", cls.output_decl(n)))
+    for n, p in cls.parameters.items():
+        if p.kind == "real":
+            out.setdefault(n, ("param", p))
+    for n, s in cls.states.items():
+        out.setdefault(n, ("state", s))
+    return out
+
+
+def _declared(decl, params):
+    u = decl.unit
+    return u(params) if callable(u) else u
+
+
+def _describe(v):
+    path, kind, name = v
+    return f"{path}.{name}"
+
+
+class _Problem:
+    def __init__(self, flat):
+        self.flat = flat
+        self.c = _Classes()
+        self.relations = []     # (target, [(var, power)], fixed unit, block instance, rule)
+        self.directed = []      # ("common"|"copy", target, [vars], instance)
+        self.equal = []         # (var, var, instance, rule): "@x" rules inside a block
+
+    def var(self, path, name, names):
+        kind = names[name][0]
+        return (path, "in" if kind == "in" else kind, name)
+
+    def declare(self, inst):
+        cls, params = inst.cls, inst.params
+        names = _names(cls, params)
+        given = getattr(inst, "param_units", {}) or {}
+        for name, (kind, decl) in names.items():
+            v = (inst.path, kind, name)
+            self.c.add(v)
+        for name, (kind, decl) in names.items():
+            v = (inst.path, kind, name)
+            if kind == "param" and name in given:
+                unit = U.parse(given[name])
+                self.c.bind(v, unit, given[name], f"{_describe(v)} is given as [{given[name]}]")
+            self._rule(inst, names, v, _declared(decl, params), decl)
+        for rel in cls.unit_relations(params):
+            mode, target, sources = rel
+            if mode not in ("common", "copy"):
+                raise ValueError(f"{cls.type_name}.unit_relations: unknown mode {mode!r}")
+            self.directed.append((mode, self.var(inst.path, target, names),
+                                  [self.var(inst.path, s, names) for s in sources], inst))
+
+    def _rule(self, inst, names, v, rule, decl):
+        if rule == U.ANY:
+            return
+        refs, fixed = U.rule_terms(rule)
+        for name, _p in refs:
+            if name not in names:
+                raise ValueError(f"{inst.cls.type_name}: unit rule '{rule}' of "
+                                 f"'{v[2]}' names '{name}', which the block does not have")
+        if not refs:
+            bad = self.c.bind(v, fixed, rule, f"{_describe(v)} is [{rule}]")
+            if bad is not None:
+                self._conflict_in_block(inst, v, bad, (fixed, rule, f"declared [{rule}]"))
+            return
+        ref_vars = [(self.var(inst.path, n, names), p) for n, p in refs]
+        if len(ref_vars) == 1 and ref_vars[0][1] == 1 and U.same(fixed, U.DIMENSIONLESS):
+            # joined after the connections, so that a clash is reported at the block
+            self.equal.append((v, ref_vars[0][0], inst, rule))
+            return
+        self.relations.append((v, ref_vars, fixed, inst, rule))
+
+    def join_inside_blocks(self):
+        for v, w, inst, rule in self.equal:
+            bad = self.c.union(v, w)
+            if bad is not None:
+                self._conflict_in_block(inst, v, bad[0], bad[1], rule)
+
+    def _conflict_in_block(self, inst, v, a, b, rule=None):
+        how = f" ('{v[2]}' must have the unit of '{rule[1:]}')" if rule else ""
+        raise UnitMismatchError(
+            f"{inst.cls.type_name}: unit mismatch{how}: {a[2]}, but "
+            f"{b[2]}", file=inst.file, line=inst.line, block=inst.path)
+
+    def connect(self, conn):
+        src = (conn.src[0], "out", conn.src[1])
+        dst = (conn.dst[0], "in", conn.dst[1])
+        bad = self.c.union(src, dst)
+        if bad is not None:
+            (ua, ta, _), (ub, tb, _) = bad
+            raise UnitMismatchError(
+                f"connection '{conn.text}': {_describe(src)} is [{ta}] but "
+                f"{_describe(dst)} is [{tb}]; connect a signal in [{tb}], or insert a "
+                f"UnitCast block (unit: {tb}) if reading [{ta}] as [{tb}] is deliberate"
+                + self._inside(conn.dst[0], conn.file), file=conn.file, line=conn.line)
+
+    def _inside(self, path, file):
+        """The enclosing instances of a connection written in a subsystem's file."""
+        enclosing = path.rpartition(".")[0]
+        if enclosing and self.flat.subsystem_instances.get(enclosing) == file:
+            return self.flat.used_at(path)
+        return ""
+
+    def _solve_relation(self, target, refs, fixed, inst, rule):
+        """One step on ``target = fixed * prod(ref ** p)``; True when something was bound."""
+        terms = [(target, -1)] + refs          # fixed * prod(term ** p) == 1
+        unknown = [(v, p) for v, p in terms if self.c.get(v) is None]
+        # the same class may appear twice (y = u * u); collect powers per class
+        if len({self.c.find(v) for v, _ in unknown}) > 1:
+            return False
+        product = fixed
+        for v, p in terms:
+            b = self.c.get(v)
+            if b is not None:
+                product = product * b[0] ** p
+        if not unknown:
+            if not U.same(product, U.DIMENSIONLESS):
+                t = self.c.get(target)
+                got = fixed
+                for v, p in refs:
+                    got = got * self.c.get(v)[0] ** p
+                raise UnitMismatchError(
+                    f"{inst.cls.type_name}: unit mismatch: '{target[2]} = {rule}' "
+                    f"gives [{U.text(got)}] but {t[2]}", file=inst.file, line=inst.line,
+                    block=inst.path)
+            return False
+        p_total = sum(p for _, p in unknown)
+        if p_total == 0:
+            return False
+        unit = (product ** -1) ** (1.0 / p_total) if p_total != 1 else product ** -1
+        v = unknown[0][0]
+        self.c.bind(v, unit, U.text(unit), f"{_describe(v)} inferred [{U.text(unit)}] "
+                    f"from '{target[2]} = {rule}' of block '{inst.path}'")
+        return True
+
+    def _solve_directed(self, mode, target, sources, inst):
+        if self.c.get(target) is not None:
+            return False
+        got = [self.c.get(s) for s in sources]
+        if any(g is None for g in got):
+            return False
+        if mode == "common" and not all(U.same(g[0], got[0][0]) for g in got[1:]):
+            return False        # a vector of mixed units: no single unit
+        g = got[0]
+        self.c.bind(target, g[0], g[1], f"{_describe(target)} from {_describe(sources[0])} "
+                    f"[{g[1]}]")
+        return True
+
+    def solve(self):
+        changed = True
+        while changed:
+            changed = False
+            for rel in self.relations:
+                changed |= self._solve_relation(*rel)
+            for rel in self.directed:
+                changed |= self._solve_directed(*rel)
+        for rel in self.relations:       # fully known relations are checked once more
+            self._solve_relation(*rel)
+
+    def result(self):
+        out = {}
+        for v in self.c.parent:
+            b = self.c.get(v)
+            out[v] = b[1] if b is not None else UNKNOWN
+        return out
+
+
+def infer_units(flat) -> dict:
+    """``(path, kind, name) -> unit text`` for every port (kind "in"/"out"), state and real
+    parameter of the flat diagram; raises :class:`UnitMismatchError` at the file:line of the
+    connection or block where two units disagree."""
+    prob = _Problem(flat)
+    for inst in flat.blocks.values():
+        prob.declare(inst)
+    for conn in flat.conns:
+        prob.connect(conn)
+    prob.join_inside_blocks()
+    prob.solve()
+    return prob.result()

@@ -1,0 +1,78 @@
+"""Errors inside subsystems name the subsystem file:line and the parent instance's line."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+import spidersim
+from spidersim.errors import SpidersimError
+
+SUB = """\
+blocks:
+  g: {type: Gain, k: 2}
+  i: {type: Integrator}
+connections:
+  - g.y -> i.u
+inputs:
+  u: g.u
+outputs:
+  y: i.y
+"""
+PARENT = """\
+subsystems:
+  my: sub.yaml
+blocks:
+  c: {type: Constant, value: 1}
+  s: {type: my}
+connections:
+  - c.y -> s.u
+"""
+
+
+def _error(tmp_path, sub, parent):
+    (tmp_path / "sub.yaml").write_text(sub)
+    (tmp_path / "parent.yaml").write_text(parent)
+    with pytest.raises(SpidersimError) as e:
+        spidersim.load(str(tmp_path / "parent.yaml"))
+    return e.value, str(e.value)
+
+
+def test_typo_in_exposed_input_is_reported_in_the_subsystem_file(tmp_path):
+    exc, msg = _error(tmp_path, SUB.replace("u: g.u", "u: g.uu"), PARENT)
+    assert os.path.basename(exc.file) == "sub.yaml" and exc.line == 7
+    assert "'uu'" in msg and "did you mean u" in msg
+    assert "parent.yaml:5" in msg and "'s'" in msg          # the instance's line
+
+
+def test_unconnected_exposed_input_is_reported_at_the_instance(tmp_path):
+    exc, msg = _error(tmp_path, SUB, PARENT.replace("connections:\n  - c.y -> s.u\n", ""))
+    assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 5
+    assert "input 'u' of subsystem instance 's'" in msg
+    assert "s.g.u" in msg and "sub.yaml:7" in msg
+
+
+def test_unit_mismatch_inside_a_subsystem_names_both_lines(tmp_path):
+    sub = ("blocks:\n  m: {type: DCMotor}\n  g: {type: Gain, k: 2}\nconnections:\n"
+           "  - m.i -> m.tau_load\n  - g.y -> m.v\ninputs:\n  u: g.u\noutputs:\n  y: m.w\n")
+    exc, msg = _error(tmp_path, sub, PARENT)
+    assert os.path.basename(exc.file) == "sub.yaml" and exc.line == 5
+    assert "[A]" in msg and "[N.m]" in msg and "parent.yaml:5" in msg
+
+
+def test_nested_instances_are_all_named(tmp_path):
+    (tmp_path / "inner.yaml").write_text(SUB.replace("k: 2", "k: [1, 2, 3]").replace(
+        "i: {type: Integrator}", "i: {type: Integrator, x0: [0, 0]}"))
+    mid = ("subsystems:\n  inner: inner.yaml\nblocks:\n  x: {type: inner}\n"
+           "inputs:\n  u: x.u\noutputs:\n  y: x.y\n")
+    exc, msg = _error(tmp_path, mid, PARENT)
+    assert "'s.x'" in msg and "'s'" in msg and "parent.yaml:5" in msg
+
+
+def test_running_a_subsystem_file_says_what_it_is(tmp_path):
+    (tmp_path / "sub.yaml").write_text(SUB)
+    r = subprocess.run([sys.executable, "-c", "import sys; from spidersim.cli import main; sys.exit(main())", "run",
+                        str(tmp_path / "sub.yaml")],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "subsystem" in r.stderr and "sub.yaml:6" in r.stderr
