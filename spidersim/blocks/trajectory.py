@@ -1,4 +1,5 @@
-"""Reference trajectories: trapezoidal-velocity point-to-point, quintic, constant speed.
+"""Reference trajectories: trapezoidal-velocity point-to-point, quintic, quintic through via
+points, constant speed.
 
 Each outputs position ``q``, velocity ``qd`` and acceleration ``qdd``; the corners between
 phases are time events, so each integration step sees one polynomial piece.
@@ -137,3 +138,100 @@ class ConstantSpeed(Block):
     @staticmethod
     def time_event(t, on):
         on[0] = 1.0
+
+
+class ViaPointProfile(Block):
+    """A path through via points: position ``q_k = points[k]`` at time ``t_k = times[k]``.
+
+    Holds ``q_0`` before ``t_0`` and ``q_n`` after ``t_n``. Between two consecutive via
+    points the path is the quintic polynomial with the given position, velocity and
+    acceleration at both ends, so position, velocity and acceleration are continuous (C2)
+    and the path passes exactly through every via point at its time. Every via time is a
+    time event, so each integration step sees one polynomial.
+
+    Positions are in the unit of ``points``, velocities in that unit per second,
+    accelerations in that unit per second squared; times are in s.
+
+    Notes
+    -----
+    Velocities at the via points (the classic heuristic, Craig, Introduction to Robotics,
+    ch. 7): ``v_0 = v_n = 0``; at an interior point ``k``, with the slopes of the adjacent
+    segments ``m_k = (q_k - q_{k-1}) / (t_k - t_{k-1})`` and ``m_{k+1}``,
+    ``v_k = (m_k + m_{k+1}) / 2`` when both slopes have the same sign
+    (``m_k m_{k+1} > 0``), else ``v_k = 0`` (a sign change or a zero slope, so that the
+    path does not overshoot a turning point). The accelerations at every via point are 0.
+
+    On segment ``k`` (``t_k <= t <= t_{k+1}``), with ``h = t_{k+1} - t_k``,
+    ``s = (t - t_k) / h`` and ``d = q_{k+1} - q_k``::
+
+        q   = q_k + h v_k s + c3 s^3 + c4 s^4 + c5 s^5
+        qd  = (h v_k + 3 c3 s^2 + 4 c4 s^3 + 5 c5 s^4) / h
+        qdd = (6 c3 s + 12 c4 s^2 + 20 c5 s^3) / h^2
+        c3  = 10 d - h (6 v_k + 4 v_{k+1})
+        c4  = -15 d + h (8 v_k + 7 v_{k+1})
+        c5  = 6 d - 3 h (v_k + v_{k+1})
+
+    With two points this is ``QuinticProfile`` (``q0 = q_0``, ``q1 = q_1``,
+    ``T = t_1 - t_0``, ``t_start = t_0``).
+    """
+
+    category = "sources"
+    parameters = {
+        "points": Param(unit="@q", doc="via positions q_0 .. q_n (at least 2)", shape="*"),
+        "times": Param(doc="times of the via points, strictly increasing from t_0 >= 0",
+                       unit="s", shape="points", ge=0.0),
+    }
+    outputs = _OUT
+    modes = {"k": Mode(doc="number of via times passed (0 before t_0, n + 1 after t_n)")}
+
+    @classmethod
+    def check(cls, params):
+        import numpy as np
+        if np.size(params["points"]) < 2:
+            raise ValueError(f"parameter 'points' needs at least 2 via points, got "
+                             f"{np.size(params['points'])}")
+        if np.any(np.diff(params["times"]) <= 0):
+            raise ValueError("parameter 'times' must be strictly increasing, got "
+                             f"{list(params['times'])}")
+
+    @classmethod
+    def derive(cls, params):
+        import numpy as np
+        q = np.asarray(params["points"], dtype=float)
+        t = np.asarray(params["times"], dtype=float)
+        v = np.zeros(q.size)
+        for k in range(1, q.size - 1):
+            m_in = (q[k] - q[k - 1]) / (t[k] - t[k - 1])
+            m_out = (q[k + 1] - q[k]) / (t[k + 1] - t[k])
+            if m_in * m_out > 0.0:
+                v[k] = 0.5 * (m_in + m_out)
+        return {"v_via": v}
+
+    @staticmethod
+    def output(t, points, times, v_via, k, q, qd, qdd):
+        n = points.size
+        j = int(k[0])
+        if j <= 0:
+            q[0], qd[0], qdd[0] = points[0], 0.0, 0.0
+        elif j >= n:
+            q[0], qd[0], qdd[0] = points[n - 1], 0.0, 0.0
+        else:
+            h = times[j] - times[j - 1]
+            s = (t - times[j - 1]) / h
+            d = points[j] - points[j - 1]
+            v0, v1 = v_via[j - 1], v_via[j]
+            c3 = 10.0 * d - h * (6.0 * v0 + 4.0 * v1)
+            c4 = -15.0 * d + h * (8.0 * v0 + 7.0 * v1)
+            c5 = 6.0 * d - 3.0 * h * (v0 + v1)
+            q[0] = points[j - 1] + s * (h * v0 + s * s * (c3 + s * (c4 + s * c5)))
+            qd[0] = (h * v0 + s * s * (3.0 * c3 + s * (4.0 * c4 + s * 5.0 * c5))) / h
+            qdd[0] = s * (6.0 * c3 + s * (12.0 * c4 + s * 20.0 * c5)) / (h * h)
+
+    @staticmethod
+    def next_time(t, times, k):
+        j = int(k[0])
+        return times[j] if j < times.size else math.inf
+
+    @staticmethod
+    def time_event(t, k):
+        k[0] += 1.0

@@ -50,8 +50,9 @@ class JointPathCommand(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Literal["joint_path"]
     block: Optional[str] = Field(None, description="trajectory block")
-    points: list[float] = Field(description="via points (joint units)")
-    times: list[float] = Field(description="times of the via points [s]")
+    points: list[float] = Field(description="via points (joint units); more than 2 "
+                                "replace the block by a ViaPointProfile")
+    times: list[float] = Field(description="times of the via points [s], strictly increasing")
 
 
 class CartesianLineCommand(BaseModel):

@@ -16,12 +16,15 @@ Commands, at the levels of the paper's section VI:
     Constant or TimeTable of the top-level diagram) is replaced by a ``TimeTable`` with these
     points (piecewise linear, end values held). In servo.yaml ``ref`` is the position set
     point; a table on a current or voltage source sets motor current set points.
-``{"kind": "joint_path", "block": "ref", "points": [q_a, q_b], "times": [t_a, t_b]}``
-    a joint-space move given by via points and their times, turned into the parameters of the
-    trajectory block ``ref`` (QuinticProfile: ``q0, q1, T = t_b - t_a, t_start = t_a``;
-    TrapezoidalProfile: the same ends with ``v_max = 1.5 d/T`` and ``a_max = 4.5 d/T^2``, so
-    that the move, a third accelerating, a third cruising, a third braking, takes exactly T).
-    These blocks move between two points: more via points are refused.
+``{"kind": "joint_path", "block": "ref", "points": [q_a, q_b, ...], "times": [t_a, t_b, ...]}``
+    a joint-space move given by via points and their times (one time per point, strictly
+    increasing from t >= 0) for the trajectory block ``ref`` (a TrapezoidalProfile or
+    QuinticProfile of the top-level diagram). Two points become its parameters
+    (QuinticProfile: ``q0, q1, T = t_b - t_a, t_start = t_a``; TrapezoidalProfile: the same
+    ends with ``v_max = 1.5 d/T`` and ``a_max = 4.5 d/T^2``, so that the move, a third
+    accelerating, a third cruising, a third braking, takes exactly T). More points replace
+    ``ref`` by a ``ViaPointProfile`` through them (quintic segments, C2, passing every point
+    at its time); the request may then not set parameters of ``ref``.
 ``{"kind": "cartesian_line", "direction": [x, y, z], "distance": m, "speed": m/s,
    "accel": m/s2, "t_start": s}``
     a straight flange move: the parameters of a ``CartesianLineIK`` block and of the
@@ -212,12 +215,22 @@ def apply_command(d0, spec, cmd, overrides):
         q = _numbers(cmd.get("points"), "points", spec)
         t = _numbers(cmd.get("times"), "times", spec)
         typ = spec.blocks[name].type
-        if len(q) != 2 or len(t) != 2:
-            _fail(f"command: block '{name}' ({typ}) moves between two points: give 2 points "
-                  f"and 2 times, got {len(q)} and {len(t)}", spec)
+        if len(q) < 2 or len(q) != len(t):
+            _fail(f"command: give at least 2 points and one time per point, got {len(q)} "
+                  f"points and {len(t)} times", spec)
+        if not (t[0] >= 0 and np.all(np.diff(t) > 0)):
+            _fail(f"command.times must be strictly increasing from t >= 0, got {t.tolist()}",
+                  spec)
+        if len(q) > 2:
+            for k in list(overrides):
+                if k.startswith(name + "."):
+                    _fail(f"parameter '{k}' belongs to block '{name}', which a joint_path of "
+                          f"more than 2 points replaces by a ViaPointProfile", spec)
+            old = spec.blocks[name]
+            spec.blocks[name] = BlockSpec(name, "ViaPointProfile", {
+                "points": q.tolist(), "times": t.tolist()}, old.line, {})
+            return None
         T = t[1] - t[0]
-        if not (t[0] >= 0 and T > 0):
-            _fail(f"command.times must be increasing from t >= 0, got {t.tolist()}", spec)
         _set(overrides, f"{name}.q0", float(q[0]), spec)
         _set(overrides, f"{name}.q1", float(q[1]), spec)
         _set(overrides, f"{name}.t_start", float(t[0]), spec)

@@ -125,6 +125,8 @@ EXAMPLES = {
                  dict(params={"bits": 10, "Ts": 1e-3, "noise": 1e-3}, lo=-3.0, hi=3.0)],
     "TrapezoidalProfile": [dict(params={"q0": 0.1, "q1": 1.0, "v_max": 0.5, "a_max": 2.0})],
     "QuinticProfile": [dict(params={"q0": 0.1, "q1": 1.0, "T": 2.0})],
+    "ViaPointProfile": [dict(params={"points": [0.1, 1.0, 0.5, 0.8],
+                                     "times": [0.2, 1.0, 1.8, 2.5]})],
     "ConstantSpeed": [dict(params={"q0": 0.1, "speed": 0.3, "t_start": 0.2})],
     "Arm": [dict(params={"q0": [0.1, 0.5, 0.0, -1.0, 0.2, 0.6, 0.0]},
                  sizes={"tau": 7, "f_ext": 6, "constraint": 4}, lo=-5.0, hi=5.0,

@@ -1,9 +1,10 @@
 """Fixtures: the real service (``spidersim serve``) in a subprocess on a free loopback port,
 with a fresh data folder, and users made with ``spidersim serve --add-user``.
 
-Models: ``diagrams/servo.yaml`` (short runs) and ``slow.yaml`` written here: a lightly
+Models: ``diagrams/servo.yaml`` (short runs), ``slow.yaml`` written here: a lightly
 damped second-order system under a sine, with a small max_step, so that a run takes long
-enough to be cancelled, killed or interrupted by a server restart.
+enough to be cancelled, killed or interrupted by a server restart, and ``trajectory.yaml``:
+a QuinticProfile integrated, for the ``joint_path`` command.
 """
 from __future__ import annotations
 
@@ -31,6 +32,18 @@ connections:
   - u.y -> sys.u
 simulation: {t_end: 1000, max_step: 2e-4}
 log: [u.y, sys.y]
+"""
+
+TRAJECTORY = """\
+name: trajectory
+description: A joint reference (QuinticProfile) and its integral (test model).
+blocks:
+  ref: {type: QuinticProfile, q0: 0, q1: 1, T: 1}
+  acc: {type: Integrator}
+connections:
+  - ref.q -> acc.u
+simulation: {t_end: 2}
+log: [ref.q, ref.qd, acc.y]
 """
 
 
@@ -119,6 +132,7 @@ class Server:
 def models_dir(tmp_path_factory):
     d = tmp_path_factory.mktemp("models")
     (d / "slow.yaml").write_text(SLOW)
+    (d / "trajectory.yaml").write_text(TRAJECTORY)
     return [SERVO, str(d)]
 
 

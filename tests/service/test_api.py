@@ -45,7 +45,7 @@ def test_health_needs_no_token_everything_else_does(server):
 def test_model_library_and_description(server):
     http = server.client(server.alice)
     names = [m["name"] for m in http.get("/models").json()]
-    assert names == ["servo", "slow"]
+    assert names == ["servo", "slow", "trajectory"]
     info = http.get("/models/servo").json()
     motor = next(b for b in info["blocks"] if b["path"] == "motor")
     R = next(p for p in motor["parameters"] if p["name"] == "R")
@@ -242,6 +242,38 @@ def test_commands_table_named_and_initial(server):
         c.submit("servo", command={"kind": "named", "name": "position_step",
                                    "arguments": {"ref.after": 1}}, parameters={"ref.after": 2})
     assert e.value.status == 422 and "set by the command" in str(e.value)
+
+
+def test_joint_path_of_four_via_points_runs_on_the_server(server):
+    """More than 2 via points: the server replaces the QuinticProfile by a ViaPointProfile;
+    the recorded reference passes through every point at its time (event times are
+    samples) and equals a local run of the same path."""
+    c = Client(server.url, server.alice)
+    assert c.model("trajectory")["commands"]["joint_path"][0]["block"] == "ref"
+    q, tv = [0.0, 0.5, 1.2, -0.3], [0.1, 0.6, 1.1, 1.7]
+    job = c.submit("trajectory", t_end=2.0,
+                   command={"kind": "joint_path", "block": "ref", "points": q, "times": tv})
+    assert c.wait(job, 120)["state"] == "done"
+    r = c.result(job)
+    assert [e[0] for e in r.events] == tv
+    # velocities by the rule: slopes 1.0, 1.4 at point 1 (mean), 1.4, -2.5 at point 2 (0)
+    for qk, tk, vk in zip(q, tv, [0.0, 1.2, 0.0, 0.0]):
+        k = np.flatnonzero(r.t == tk)
+        assert k.size >= 1, f"via time {tk} is not a sample"
+        assert r["ref.q"][k] == pytest.approx(qk, abs=1e-12)
+        assert r["ref.qd"][k[-1]] == pytest.approx(vk, abs=1e-12)
+    assert np.all(r["ref.q"][r.t > tv[-1]] == q[-1])
+    local = spidersim.loads(
+        "blocks:\n  ref: {type: ViaPointProfile, points: %s, times: %s}\n"
+        "  acc: {type: Integrator}\nconnections: [ref.q -> acc.u]\n" % (q, tv)).simulate(
+        t_end=2.0)
+    assert np.array_equal(r.t, local.t)
+    for s in ("ref.q", "ref.qd", "acc.y"):
+        np.testing.assert_allclose(r[s], local[s], rtol=0, atol=1e-12)
+    with pytest.raises(RemoteError) as e:
+        c.submit("trajectory", parameters={"ref.T": 2}, command={
+            "kind": "joint_path", "points": q, "times": tv})
+    assert e.value.status == 422 and "replaces by a ViaPointProfile" in str(e.value)
 
 
 def test_idempotency_key_returns_the_first_job(server):

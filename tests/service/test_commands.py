@@ -67,9 +67,46 @@ def test_joint_path_trapezoid_takes_the_given_time(tmp_path):
     v = 1.5 * abs(qb - qa) / (tb - ta)
     cruise = (r.t > ta + (tb - ta) / 3 + 1e-6) & (r.t < tb - (tb - ta) / 3 - 1e-6)
     assert np.allclose(qd[cruise], -v, rtol=1e-12)
-    with pytest.raises(spidersim.ParameterError, match="moves between two points"):
-        prepare(m, {"command": {"kind": "joint_path", "points": [0, 1, 2],
-                                "times": [0, 1, 2]}})
+
+
+def test_joint_path_of_more_points_replaces_the_block_by_a_via_point_profile(tmp_path):
+    f = tmp_path / "move.yaml"
+    f.write_text("blocks:\n  ref: {type: QuinticProfile}\n  g: {type: Gain, k: 1}\n"
+                 "connections: [ref.q -> g.u]\nlog: [ref.q, g.y]\n")
+    m = Model("move", str(f))
+    q, t = [0.0, 0.4, 1.0, 0.2], [0.1, 0.5, 1.0, 1.6]
+    d, _ = prepare(m, {"command": {"kind": "joint_path", "points": q, "times": t}})
+    assert d.blocks["ref"].cls.type_name == "ViaPointProfile"
+    assert d.blocks["ref"].params["points"].tolist() == q
+    assert d.blocks["ref"].params["times"].tolist() == t
+    r = d.simulate(t_end=2.0, jit=False)
+    for qk, tk in zip(q, t):
+        k = np.flatnonzero(r.t == tk)
+        assert k.size and r["g.y"][k] == pytest.approx(qk, abs=1e-12)
+    # two points keep the block and set its parameters
+    d, _ = prepare(m, {"command": {"kind": "joint_path", "points": [0.2, 0.7],
+                                   "times": [0.5, 1.5]}})
+    assert d.blocks["ref"].cls.type_name == "QuinticProfile"
+    p = d.blocks["ref"].params
+    assert (p["q0"], p["q1"], p["T"], p["t_start"]) == (0.2, 0.7, 1.0, 0.5)
+
+
+@pytest.mark.parametrize("cmd,params,needle", [
+    ({"points": [0, 1, 2], "times": [0, 1]}, {}, "one time per point, got 3 points and 2"),
+    ({"points": [0], "times": [0]}, {}, "at least 2 points"),
+    ({"points": [0, 1, 2], "times": [0, 2, 1]}, {}, "strictly increasing from t >= 0"),
+    ({"points": [0, 1, 2], "times": [-1, 1, 2]}, {}, "strictly increasing from t >= 0"),
+    ({"points": [0, 1, 2], "times": [0, 1, 2]}, {"ref.T": 3.0},
+     "parameter 'ref.T' belongs to block 'ref', which a joint_path of more than 2 points"),
+    ({"points": [0, 1], "times": [0, 1]}, {"ref.T": 3.0}, "'ref.T' is set by the command"),
+])
+def test_joint_path_refusals(tmp_path, cmd, params, needle):
+    f = tmp_path / "move.yaml"
+    f.write_text("blocks:\n  ref: {type: QuinticProfile}\n  g: {type: Gain, k: 1}\n"
+                 "connections: [ref.q -> g.u]\n")
+    with pytest.raises(spidersim.ParameterError, match=needle.replace(".", r"\.")):
+        prepare(Model("move", str(f)), {"command": {"kind": "joint_path", **cmd},
+                                        "parameters": params})
 
 
 def test_malformed_commands_section_names_file_and_line(tmp_path):
