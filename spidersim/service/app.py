@@ -38,12 +38,21 @@ class Limits(BaseModel):
 
 
 # ---------------------------------------------------------------------------- request types
+class Quantity(BaseModel):
+    """A value with its unit (Modelica notation), converted to the declared unit."""
+    model_config = ConfigDict(extra="forbid")
+    value: Union[float, list[float]]
+    unit: str = Field(max_length=100, description="e.g. mOhm, deg, rpm, mm, N.m")
+
+
 class TableCommand(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Literal["table"]
     block: Optional[str] = Field(None, description="source block to replace")
     time: list[float] = Field(description="strictly increasing times [s]")
     value: list[float] = Field(description="values at those times (unit of the input fed)")
+    unit: Optional[str] = Field(None, max_length=100,
+                                description="unit of the values (default: the model's)")
 
 
 class JointPathCommand(BaseModel):
@@ -53,6 +62,8 @@ class JointPathCommand(BaseModel):
     points: list[float] = Field(description="via points (joint units); more than 2 "
                                 "replace the block by a ViaPointProfile")
     times: list[float] = Field(description="times of the via points [s], strictly increasing")
+    unit: Optional[str] = Field(None, max_length=100,
+                                description="unit of the points (default: the joint's, rad)")
 
 
 class CartesianLineCommand(BaseModel):
@@ -60,10 +71,11 @@ class CartesianLineCommand(BaseModel):
     kind: Literal["cartesian_line"]
     ik: Optional[str] = None
     direction: list[float] = Field(description="line direction, base frame")
-    distance: Optional[float] = Field(None, description="path length [m]")
-    speed: Optional[float] = Field(None, description="cruise speed [m/s]")
-    accel: Optional[float] = Field(None, description="path acceleration [m/s2]")
-    t_start: Optional[float] = Field(None, description="start time [s]")
+    distance: Optional[Union[float, Quantity]] = Field(None, description="path length [m]")
+    speed: Optional[Union[float, Quantity]] = Field(None, description="cruise speed [m/s]")
+    accel: Optional[Union[float, Quantity]] = Field(None,
+                                                    description="path acceleration [m/s2]")
+    t_start: Optional[Union[float, Quantity]] = Field(None, description="start time [s]")
 
 
 class NamedCommand(BaseModel):
@@ -75,7 +87,7 @@ class NamedCommand(BaseModel):
 
 Command = Annotated[Union[TableCommand, JointPathCommand, CartesianLineCommand, NamedCommand],
                     Field(discriminator="kind")]
-Value = Union[float, int, bool, str, list]
+Value = Union[float, int, bool, str, list, Quantity]
 
 
 class RunRequest(BaseModel):

@@ -40,6 +40,13 @@ Commands, at the levels of the paper's section VI:
               t_latch: {doc: latch time, unit: s}   # a diagram or block parameter path
             t_end: 12                         # default run length
 
+Units: a parameter, initial state or named-command argument may be given as
+``{"value": 1500, "unit": "mOhm"}`` (converted to the declared unit; an incompatible unit is
+refused); ``table`` and ``joint_path`` take an optional ``"unit"`` for their values
+(converted to the unit the model infers for the block's output), ``cartesian_line`` values
+may each be ``{"value", "unit"}`` (distance m, speed m/s, accel m/s2). A plain number is in
+the declared unit.
+
 Every value is checked by the diagram loader, so a request gets the CLI's messages (unknown
 names with suggestions, bounds, shapes); problems with the command itself raise
 :class:`~spidersim.errors.ParameterError` naming the field.
@@ -50,7 +57,9 @@ import numpy as np
 
 import spidersim
 from spidersim.diagram.spec import BlockSpec
+from spidersim.diagram.units import UNKNOWN
 from spidersim.errors import ParameterError
+from spidersim.text import units as U
 
 TABLE_TYPES = ("Step", "Ramp", "Sine", "Pulse", "Constant", "TimeTable")
 PATH_TYPES = ("TrapezoidalProfile", "QuinticProfile")
@@ -168,6 +177,32 @@ def _numbers(v, what, spec, n_max=MAX_TABLE):
     return a
 
 
+def _to_unit(values, given, target, what, spec):
+    """``values`` given in unit ``given`` (text or None), in the unit ``target`` (the
+    signal's inferred unit, or ``?``): converted when both are known; ``(values, unit)``
+    with the unit to record when the target is not fixed (None: no unit given)."""
+    if given is None:
+        return values, None
+    try:
+        g = U.parse(given)
+        if target in (None, UNKNOWN, U.ANY) or "@" in target:
+            return values, str(given)
+        return values * U.factor(g, U.parse(target)), None
+    except U.UnitError as exc:
+        _fail(f"command.unit of {what}: {exc}", spec)
+
+
+def _scalar_with_unit(value, key, unit, spec):
+    """A number, or ``{"value": x, "unit": u}`` converted to ``unit``."""
+    if isinstance(value, dict):
+        if set(value) != {"value", "unit"}:
+            _fail(f"command.{key}: a value with a unit is {{\"value\": 2, \"unit\": "
+                  f"\"{unit}\"}}", spec)
+        x = _numbers([value["value"]], key, spec)[0]
+        return float(_to_unit(np.array([x]), value["unit"], unit, key, spec)[0][0])
+    return float(_numbers([value], key, spec)[0])
+
+
 def _pick(options, given, what, spec, key="block"):
     names = [o if isinstance(o, str) else o[key] for o in options]
     if not names:
@@ -204,9 +239,12 @@ def apply_command(d0, spec, cmd, overrides):
             if k.startswith(name + "."):
                 _fail(f"parameter '{k}' belongs to block '{name}', which the table command "
                       f"replaces", spec)
+        v, unit = _to_unit(v, cmd.get("unit"), d0.units.get((name, "out", "y")),
+                           f"block '{name}'", spec)
         old = spec.blocks[name]
+        value = v.tolist() if unit is None else {"value": v.tolist(), "unit": unit}
         spec.blocks[name] = BlockSpec(name, "TimeTable", {"time": t.tolist(),
-                                                          "value": v.tolist()}, old.line, {})
+                                                          "value": value}, old.line, {})
         return None
     if kind == "joint_path":
         opts = [n for n, b in spec.blocks.items() if b.type in PATH_TYPES]
@@ -214,6 +252,11 @@ def apply_command(d0, spec, cmd, overrides):
                      "QuinticProfile)", spec)
         q = _numbers(cmd.get("points"), "points", spec)
         t = _numbers(cmd.get("times"), "times", spec)
+        q, unit = _to_unit(q, cmd.get("unit"), d0.units.get((name, "out", "q")),
+                           f"block '{name}'", spec)
+        if unit is not None:
+            _fail(f"command.unit: the unit of block '{name}''s positions is not fixed by the "
+                  f"model; give the points without a unit", spec)
         typ = spec.blocks[name].type
         if len(q) < 2 or len(q) != len(t):
             _fail(f"command: give at least 2 points and one time per point, got {len(q)} "
@@ -252,11 +295,11 @@ def apply_command(d0, spec, cmd, overrides):
             _fail(f"command.direction must have 3 components, got {len(u)}", spec)
         _set(overrides, f"{ik}.direction", u.tolist(), spec)
         _set(overrides, f"{prof}.q0", 0.0, spec)
-        for key, param in (("distance", "q1"), ("speed", "v_max"), ("accel", "a_max"),
-                           ("t_start", "t_start")):
+        for key, param, unit in (("distance", "q1", "m"), ("speed", "v_max", "m/s"),
+                                 ("accel", "a_max", "m/s2"), ("t_start", "t_start", "s")):
             if cmd.get(key) is not None:
-                val = _numbers([cmd[key]], key, spec)[0]
-                _set(overrides, f"{prof}.{param}", float(val), spec)
+                val = _scalar_with_unit(cmd[key], key, unit, spec)
+                _set(overrides, f"{prof}.{param}", val, spec)
         return None
     if kind == "named":
         cmds = named_commands(spec)
@@ -274,6 +317,17 @@ def apply_command(d0, spec, cmd, overrides):
             if k not in c["arguments"]:
                 _fail(f"command '{name}' has no argument '{k}'; arguments: "
                       f"{', '.join(c['arguments']) or 'none'}", spec)
+            declared = c["arguments"][k]["unit"]
+            if isinstance(v, dict) and declared:
+                # a value with a unit, in the unit the command declares for the argument
+                # (without a declared unit the loader converts to the parameter's own)
+                if set(v) != {"value", "unit"}:
+                    _fail(f"command argument '{k}': a value with a unit is {{\"value\": x, "
+                          f"\"unit\": \"{declared}\"}}", spec)
+                x = v["value"]
+                arr = _numbers(x if isinstance(x, list) else [x], f"arguments.{k}", spec)
+                arr = _to_unit(arr, v["unit"], declared, f"argument '{k}'", spec)[0]
+                v = arr.tolist() if isinstance(x, list) else float(arr[0])
             _set(overrides, k, v, spec)
         for k, a in c["arguments"].items():
             if k not in args and a["default"] is not None:

@@ -105,6 +105,14 @@ def test_oversized_body_is_413(server):
     ({"parameters": {"motor.R": "motor.R.__class__"}}, "is not allowed"),
     ({"parameters": {"e_pos.signs": "+-);import os#"}}, "string of '+-' characters"),
     ({"colour": "red"}, "colour"),
+    # values with units: checked against the declared or inferred unit
+    ({"parameters": {"motor.R": {"value": 1, "unit": "V"}}}, "does not convert"),
+    ({"parameters": {"motor.R": {"value": 1, "unit": "parsecs_x"}}}, "unknown unit"),
+    ({"initial": {"motor.w": {"value": 1, "unit": "m"}}}, "does not convert"),
+    ({"command": {"kind": "table", "time": [0, 1], "value": [0, 1], "unit": "A"}},
+     "does not convert"),
+    ({"command": {"kind": "named", "name": "position_step",
+                  "arguments": {"ref.after": {"value": 1, "unit": "N"}}}}, "does not convert"),
 ])
 def test_validation_errors_are_422_with_the_cli_message(server, body, needle):
     http = server.client(server.alice)

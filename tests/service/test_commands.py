@@ -118,3 +118,40 @@ def test_malformed_commands_section_names_file_and_line(tmp_path):
     assert "bad.yaml:6" in str(e.value) and "unknown key(s) colour" in str(e.value)
     # local runs ignore the section
     assert spidersim.load(str(f)).simulate(t_end=0.1, jit=False).status == "ok"
+
+
+def test_values_with_units_are_converted(lib):
+    """Request values with units land in the model's units (mOhm -> Ohm, deg -> rad, ms ->
+    s); a plain number is taken in the declared unit."""
+    import math
+    servo = lib.get("servo")
+    d, _ = prepare(servo, {"parameters": {"motor.R": {"value": 1500, "unit": "mOhm"}},
+                           "initial": {"motor.w": {"value": 60, "unit": "rpm"}},
+                           "command": {"kind": "table", "time": [0, 1], "value": [0, 90],
+                                       "unit": "deg"}})
+    assert math.isclose(d.blocks["motor"].params["R"], 1.5)
+    assert math.isclose(d.blocks["motor"].params["w0"], 2 * math.pi)
+    assert np.allclose(d.blocks["ref"].params["value"], [0, math.pi / 2])
+    d, _ = prepare(servo, {"command": {"kind": "named", "name": "position_step", "arguments": {
+        "ref.after": {"value": 45, "unit": "deg"}, "ref.t_step": {"value": 200, "unit": "ms"}}}})
+    assert math.isclose(d.blocks["ref"].params["after"], math.pi / 4)
+    assert math.isclose(d.blocks["ref"].params["t_step"], 0.2)
+    d, _ = prepare(lib.get("spider"), {"command": {
+        "kind": "cartesian_line", "direction": [1, 0, 0],
+        "distance": {"value": 100, "unit": "mm"}, "speed": {"value": 2, "unit": "cm/s"}}})
+    p = d.blocks["path"].params
+    assert math.isclose(p["q1"], 0.1) and math.isclose(p["v_max"], 0.02)
+
+
+def test_joint_path_in_degrees(tmp_path):
+    import math
+    f = tmp_path / "move.yaml"
+    f.write_text("blocks:\n  ref: {type: QuinticProfile}\n  m: {type: DCMotor}\n"
+                 "  e: {type: Sum, signs: '+-'}\n  v: {type: Gain, k: 1}\n"
+                 "connections: [ref.q -> e.u1, m.phi -> e.u2, e.y -> v.u, v.y -> m.v]\n")
+    d, _ = prepare(Model("move", str(f)), {"command": {
+        "kind": "joint_path", "points": [0, 30, 90], "times": [0, 1, 2], "unit": "deg"}})
+    assert np.allclose(d.blocks["ref"].params["points"], np.radians([0, 30, 90]))
+    with pytest.raises(Exception, match="does not convert"):
+        prepare(Model("move", str(f)), {"command": {
+            "kind": "joint_path", "points": [0, 1], "times": [0, 1], "unit": "m"}})
