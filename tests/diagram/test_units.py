@@ -196,3 +196,20 @@ def test_spider_arm_signals_carry_physical_units():
     units = {r[0]: r[4] for r in d._signal_table()}
     assert units["arm.q"] == "rad" and units["arm.base_force"] == "N"
     assert units["j1.motor.tau"] == "N.m"
+
+
+def test_results_plots_and_csv_carry_inferred_units(tmp_path):
+    """A reference and its response share a unit, hence one plot panel (they were split
+    when the reference was '[1]')."""
+    import matplotlib
+    matplotlib.use("Agg")
+    d = spidersim.loads(SERVO)
+    r = d.simulate(0.05)
+    assert r.units["ref.y"] == r.units["motor.phi"] == "rad"
+    fig = r.plot(["ref.y", "motor.phi"])
+    assert len(fig.axes) == 1 and "[rad]" in fig.axes[0].get_ylabel()
+    r.save(str(tmp_path))
+    header = open(tmp_path / "result.csv").readline()
+    assert "ref.y [rad]" in header and "pos.y [rad/s]" in header
+    back = spidersim.Result.load(str(tmp_path))
+    assert back.units["e_w.y"] == "rad/s"
