@@ -25,7 +25,7 @@ spider
     10 s of ``spider.yaml``: wall time, steps, RHS calls, compile time, real-time factor
     (target >= 1.0 on one core), and the arm's forward dynamics per call (target <= 30 us).
 contact
-    ``diagrams/force_control_rigid.yaml`` (arm pressed on a rigid plane by the hybrid
+    ``diagrams/force_control_rigid_ideal.yaml`` (arm pressed on a rigid plane by the hybrid
     controller): wall time, Newton iterations per RHS evaluation, largest penetration.
 sweep
     A 3 x 2 grid of ``diagrams/impact_fault.yaml`` serial in one process and on a local Dask
@@ -321,11 +321,11 @@ def bench_spider():
 
 def bench_contact():
     from spidersim import load
-    d = load(os.path.join(ROOT, "diagrams", "force_control_rigid.yaml"))
+    d = load(os.path.join(ROOT, "diagrams", "force_control_rigid_ideal.yaml"))
     d.compile()
     best, med, r = _best(d.simulate, repeat=3)
     s = r.stats
-    print("== contact: diagrams/force_control_rigid.yaml, 1.6 s, rigid plane closed as an "
+    print("== contact: diagrams/force_control_rigid_ideal.yaml, 1.6 s, rigid plane closed as an "
           "acceleration-level loop ==")
     print(f"wall time {best:.3f} s (median {med:.3f} s); steps {s['steps']}, RHS calls "
           f"{s['rhs_calls']}, Newton iterations {s['newton_iterations']} "

@@ -222,8 +222,11 @@ class RigidContact(_Plane):
     modes = {"active": Mode(initial=lambda p: 1.0 if p["engaged"] else 0.0,
                             doc="1 while the constraint is engaged"),
              "t_on": Mode(initial=lambda p: 0.0 if p["engaged"] else -math.inf,
-                          doc="time of the last onset (the start when engaged)")}
-    events = {"onset": Event(-1, "the gap falls through zero: impact, constraint engaged"),
+                          doc="time of the last onset (the start when engaged)"),
+             "gap_off": Mode(doc="onset level after a release: min(gap at release, 0) - 1 nm "
+                                 "(0 before any release)")}
+    events = {"onset": Event(-1, "the gap falls through the onset level (zero, or just below "
+                                 "where a release left the point): impact, engaged"),
               "release": Event(-1, "the constraint force falls through zero")}
     #: output -> (residual, initial guess)
     implicit = {"lam": ("residual", "lam0")}
@@ -250,21 +253,27 @@ class RigidContact(_Plane):
             constraint[1 + k] = n[k]
 
     @staticmethod
-    def guard(t, gap, lam, active, zc):
+    def guard(t, gap, lam, active, gap_off, zc):
         if active[0] > 0.5:
             zc[0] = 1.0
             zc[1] = lam[0]
         else:
-            zc[0] = gap[0]
+            zc[0] = gap[0] - gap_off[0]
             zc[1] = 1.0
 
     @staticmethod
-    def on_event(t, which, direction, active, t_on):
+    def on_event(t, which, direction, gap, active, t_on, gap_off):
         if which == 0:
             active[0] = 1.0
             t_on[0] = t
         else:
+            # released where the constraint held the point: at zero gap, or a Baumgarte
+            # round-off below. The onset level sits just below that point, so that a body
+            # the applied forces push back in (a force set point that pulls for an instant,
+            # a force loop's noise at zero force) is caught again by an impact instead of
+            # sinking through the surface.
             active[0] = 0.0
+            gap_off[0] = min(gap[0], 0.0) - 1e-9
 
     @staticmethod
     def initialize(t, lam, active, t_on):

@@ -55,6 +55,12 @@ def locate(gfun, t_a, t_b, g_a, xtol):
     g_b = gfun(t_b)
     if g_b == 0.0 or np.sign(g_b) == np.sign(g_a):
         return t_b
+    g_a_now = gfun(t_a)
+    if g_a_now == 0.0 or np.sign(g_a_now) == np.sign(g_b):
+        # evaluated again, the guard is already across at t_a (a guard fed by an algebraic
+        # loop can differ in the last digits from the value the step began with): the
+        # crossing is at t_a, within round-off
+        return t_a
     r = brentq(gfun, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
     for _ in range(8):
         g = gfun(r)

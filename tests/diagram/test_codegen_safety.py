@@ -96,7 +96,7 @@ _HASH = ("import hashlib, spidersim, sys; d = spidersim.load(sys.argv[1]); "
 
 
 @pytest.mark.parametrize("diagram", ["diagrams/algebraic_loop.yaml",
-                                     "diagrams/force_control_rigid.yaml"])
+                                     "diagrams/force_control_rigid_ideal.yaml"])
 def test_generated_text_independent_of_hash_seed(diagram):
     """The cache key (the text) must not depend on set iteration order (issue #14 defect)."""
     out = []

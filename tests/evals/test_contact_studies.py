@@ -1,6 +1,7 @@
 """The paper's contact studies, run from their diagrams and checked against their design.
 
-* ``force_control_rigid.yaml`` (Fig. 10): with a perfectly stiff plane the force loop is
+* ``force_control_rigid_ideal.yaml`` (Fig. 10 on ideal torques): with a perfectly stiff
+  plane the force loop is
   linear. The controller integrates the force error (ki_f), the constraint force follows
   the command at once, the 50 Hz sensor lags it (tau_s = 1 / (2 pi f_c))::
 
@@ -12,7 +13,7 @@
   sensor's 2 % settling time ``5.83 / w`` = 37 ms is the design. In the tangential
   directions the PD on unit task inertia lags a ramp by ``Kd v / Kp``.
 * ``impact_fault.yaml`` (Fig. 9): peak force rises with V_ci and with K over the grid.
-* ``payload_capture.yaml`` (Fig. 6): at rest before the motion (no force on the truss),
+* ``payload_capture_ideal.yaml`` (Fig. 6 on ideal torques): at rest before the motion (no force on the truss),
   ramp following error ``Kd v / Kp`` while approaching, latch at t_latch; carrying the
   payload the controller (whose model lacks it) tracks worse than it does without it.
 """
@@ -42,7 +43,7 @@ T_SETTLE = brentq(lambda x: (1 + x) * math.exp(-x) - 0.02, 1.0, 20.0) / W
 
 @pytest.fixture(scope="module")
 def force_run():
-    return spidersim.load(os.path.join(DIAGRAMS, "force_control_rigid.yaml")).simulate()
+    return spidersim.load(os.path.join(DIAGRAMS, "force_control_rigid_ideal.yaml")).simulate()
 
 
 def _closed_form(t, zero):
@@ -138,7 +139,7 @@ KP, KD = 100.0, 20.0
 
 @pytest.fixture(scope="module")
 def capture_runs():
-    path = os.path.join(DIAGRAMS, "payload_capture.yaml")
+    path = os.path.join(DIAGRAMS, "payload_capture_ideal.yaml")
     return (spidersim.load(path).simulate(),
             spidersim.load(path, set={"m_payload": 1e-9}).simulate())
 
