@@ -19,7 +19,7 @@ import inspect
 import re
 import textwrap
 
-from ..solver.newton import newton_source
+from ..solver.newton import MAX_ITERATIONS, Workspace
 from .graph import Layout
 
 
@@ -144,7 +144,12 @@ class Generator:
         return f"{indent}{name}({', '.join(exprs)})"
 
     def loop_source(self, lp):
-        """Residual function and Newton solve of one algebraic loop."""
+        """Residual function and Newton driver of one algebraic loop.
+
+        The driver owns the residual evaluations of the solve; the algorithm is the fixed,
+        compiled functions of :mod:`spidersim.solver.newton` (reverse communication: they
+        say when to evaluate). Only integers of the layout enter this text.
+        """
         lines = [f"@_jit", f"def _loop{lp.index}_res(t, x, sig, p, modes, r):",
                  f'    """Residual of algebraic loop {lp.index}."""']
         lines += [self.call(self.layout.blocks[path], "output") for path in lp.calls
@@ -153,9 +158,29 @@ class Generator:
             lines.append(f"    r[{k}] = sig[{a}] - sig[{o}]" if kind == "signal"
                          else f"    r[{k}] = sig[{a}]")
         a_tol, r_tol = self.layout.p_loop_tol
-        return "\n".join(lines) + "\n" + newton_source(
-            f"_loop{lp.index}_solve", f"_loop{lp.index}_res", lp.index, lp.zidx, lp.ws0,
-            a_tol, r_tol)
+        n = len(lp.zidx)
+        ws = Workspace(n)
+        zidx = "(" + "".join(f"{int(i)}, " for i in lp.zidx) + ")"
+        return "\n".join(lines) + f"""
+
+
+@_jit
+def _loop{lp.index}_solve(t, x, sig, p, modes):
+    \"\"\"Newton solve of algebraic loop {lp.index} ({n} unknowns), by reverse
+    communication with spidersim.solver.newton: this driver evaluates the residual.\"\"\"
+    ws = sig[{lp.ws0}:{lp.ws0 + ws.size}]
+    zi = {zidx}
+    z = _newton.unknowns(ws, {n})
+    r = _newton.evaluation(ws, {n})
+    for i in range({n}):
+        z[i] = sig[zi[i]]
+    task = _newton.begin(ws, {n})
+    while task == _newton.EVALUATE:
+        for i in range({n}):
+            sig[zi[i]] = z[i]
+        _loop{lp.index}_res(t, x, sig, p, modes, r)
+        task = _newton.resume(ws, {n}, t, p[{int(a_tol)}], p[{int(r_tol)}], {MAX_ITERATIONS})
+"""
 
     def module(self, jit: bool) -> str:
         L = self.layout
@@ -209,9 +234,6 @@ if JIT:
 else:
     def _jit(f):
         return f
-
-lu_factor = _jit(_newton.lu_factor)
-lu_solve = _jit(_newton.lu_solve)
 
 N_X = {L.n_x}
 N_TIMED = {len(timed)}

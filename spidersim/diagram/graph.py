@@ -67,7 +67,7 @@ class Loop:
     zidx: list = field(default_factory=list)     # sig indices of all unknowns
     residual: list = field(default_factory=list)  # (kind, a, b) per unknown element
     names: list = field(default_factory=list)    # a name per unknown element
-    ws0: int = 0
+    ws0: int = 0                # offset in sig of its Newton workspace (newton.Workspace)
 
 
 @dataclass
@@ -371,7 +371,7 @@ def build_layout(flat: Flat) -> Layout:
             n = bl.cls.size_of(spec, bl.params)
             bl.scratch[name] = (n_sig, n_sig + n)
             n_sig += n
-    from ..solver.newton import workspace_size
+    from ..solver.newton import Workspace
     for lp in loops:
         for path, port, kind in lp.tears:
             pi = info[path].ports[("out", port)]
@@ -465,7 +465,7 @@ def build_layout(flat: Flat) -> Layout:
                 lp.names += [f"{path}.{f}" + (f"[{k}]" if fb - fa > 1 else "")
                              for k in range(fb - fa)]
         lp.ws0 = n_sig
-        n_sig += workspace_size(len(lp.zidx))
+        n_sig += Workspace(len(lp.zidx)).size
     p_tol = (n_p, n_p + 1)
     n_p += 2
     return Layout(info, n_x, n_sig, n_p, n_modes, calls, loops, g, zero_slot, p_tol, n_g)

@@ -189,8 +189,13 @@ class CompiledSystem:
 
     def newton_iterations(self):
         """Newton iterations over all loops since the start (0 without loops)."""
-        from .newton import WS_TOTAL
-        return int(sum(self.sig[lp["ws0"] + WS_TOTAL] for lp in self.loops))
+        from .newton import Workspace
+        return sum(Workspace.total_iterations(self._workspace(lp)) for lp in self.loops)
+
+    def _workspace(self, lp):
+        """The Newton workspace of loop ``lp`` (a view of ``sig``)."""
+        from .newton import Workspace
+        return self.sig[lp["ws0"]:lp["ws0"] + Workspace(lp["n"]).size]
 
     def loop_failure(self):
         """``(report, loop)`` of the most recent failed Newton solve of any loop, or
@@ -199,29 +204,26 @@ class CompiledSystem:
         Failures during rejected trial steps are normal; this is read only once the
         integration itself has failed.
         """
-        from .newton import WS_FAIL, WS_FAIL_ITERS, WS_FAIL_T, fail_residual_offset
+        from .newton import Workspace
         worst = None
         for lp in self.loops:
-            ws0 = lp["ws0"]
-            status = int(self.sig[ws0 + WS_FAIL])
-            if status and (worst is None or self.sig[ws0 + WS_FAIL_T] >= worst[1]):
-                worst = (lp, self.sig[ws0 + WS_FAIL_T], status)
+            fail = Workspace(lp["n"]).failure(self._workspace(lp))
+            if fail is not None and (worst is None or fail["t"] >= worst[1]["t"]):
+                worst = (lp, fail)
         if worst is None:
             return "", None
-        lp, t, status = worst
-        ws0 = lp["ws0"]
+        lp, fail = worst
+        status, t = fail["status"], fail["t"]
         why = {1: "did not converge", 2: "produced a non-finite residual",
                3: "has a singular Jacobian"}.get(status, "failed")
-        r0 = ws0 + fail_residual_offset(lp["n"])
-        r = self.sig[r0:r0 + lp["n"]]
-        res = "; ".join(f"{nm} = {v:.3g}" for nm, v in zip(lp["names"], r))
+        res = "; ".join(f"{nm} = {v:.3g}" for nm, v in zip(lp["names"], fail["residuals"]))
         advice = {1: "check that the loop has a solution near the last one (a jump of an "
                      "input may need a smaller max_step), or break the loop with a small lag",
                   2: "a block in the loop divides by zero or overflows for these values",
                   3: "the unknowns do not influence the residual (a saturated or constant "
                      "path): the loop has no unique solution here"}.get(status, "")
         return (f"algebraic loop {lp['index'] + 1} {why} at t = {t:.9g} s after "
-                f"{int(self.sig[ws0 + WS_FAIL_ITERS])} Newton iterations.\n"
+                f"{fail['iterations']} Newton iterations.\n"
                 f"  loop: {lp['walk']}\n  unknowns (tear variables): "
                 f"{', '.join(lp['tears'])}\n  residuals: {res}\n  advice: {advice}"), lp
 
