@@ -219,8 +219,13 @@ def describe_loops(g, loops):
     ``=>`` a block's direct feedthrough)."""
     lines = []
     for comp in loops:
-        sub = g.subgraph(comp)
-        cycle = nx.find_cycle(sub)
+        # a plain graph in a fixed order (a subgraph view iterates the component's set,
+        # whose order changes with the hash seed): the same walk in every process
+        nodes = sorted(comp)
+        sub = nx.DiGraph()
+        sub.add_nodes_from(nodes)
+        sub.add_edges_from((u, v) for u, v in g.edges if u in comp and v in comp)
+        cycle = nx.find_cycle(sub, source=nodes[0])
         text = f"{cycle[0][0][1]}.{cycle[0][0][2]}"
         for u, v in cycle:
             arrow = "->" if g.edges[u, v].get("kind") == "wire" else "=>"

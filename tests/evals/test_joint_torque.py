@@ -58,3 +58,22 @@ def test_friction_takes_part_of_the_command():
     ideal, rough = _run(30.0)["j.tau_l"][-1], _run(30.0, friction=1)["j.tau_l"][-1]
     assert ideal == pytest.approx(30.0, rel=1e-4)
     assert abs(rough - 30.0) > 0.05
+
+
+def test_active_damping_of_the_gear_mode():
+    """Held load, torque step: the gear deflection is a second-order response of the rotor's
+    reflected inertia on K1. Its own damping gives zeta = d / (2 sqrt(K1 J_m N^2)) = 0.027
+    (overshoot exp(-pi zeta / sqrt(1 - zeta^2)) = 92 %); the active damping term sets
+    zeta_a = 0.5 (overshoot 16 %)."""
+    import math
+
+    def overshoot(zeta_a):
+        text = HELD.format(joint=JOINT, tau=30.0, friction=0).replace(
+            "N: 160}", f"N: 160, zeta_a: {zeta_a}}}")
+        r = spidersim.loads(text).simulate(0.3)
+        x = r["j.deflection"]
+        return x.max() / (30.0 / K1) - 1.0
+
+    for zeta, got in ((0.027, overshoot(0)), (0.5, overshoot(0.5))):
+        assert got == pytest.approx(math.exp(-math.pi * zeta / math.sqrt(1 - zeta ** 2)),
+                                    abs=0.03)
