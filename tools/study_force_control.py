@@ -59,6 +59,30 @@ def run(path, sets=None):
     return r
 
 
+def plot(cases, out):
+    """Contact forces of the drive-train cases (top) and the ideal case (bottom) against
+    their set points; returns the PNG's path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    os.makedirs(out, exist_ok=True)
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6.5))
+    for ax, group in zip(axes, (cases[1:], cases[:1])):
+        for name, r, _steps in group:
+            ax.plot(r.t, r["wall.lam"], label=name)
+        ref = group[0][1]
+        ax.plot(ref.t, ref["fset.y"], "k--", lw=1, label="set point")
+        ax.set_ylabel("contact force [N]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_title("Force control on a rigid plane: SPIDER drive trains (top), ideal "
+                      "torques (bottom)")
+    axes[1].set_xlabel("t [s]")
+    path = os.path.join(out, "force_control_drive_trains.png")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    return path
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="results/force_control_study")
@@ -76,24 +100,7 @@ def main(argv=None):
         for a, before, to, settle, over, steady in step_figures(r, steps):
             print(f"{name:32s} {before:5.0f}->{to:3.0f} N {settle * 1e3:7.0f} ms "
                   f"{over * 100:9.1f} % {steady:8.3f} N")
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    os.makedirs(args.out, exist_ok=True)
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6.5))
-    for ax, group in zip(axes, (cases[1:], cases[:1])):
-        for name, r, _steps in group:
-            ax.plot(r.t, r["wall.lam"], label=name)
-        ref = group[0][1]
-        ax.plot(ref.t, ref["fset.y"], "k--", lw=1, label="set point")
-        ax.set_ylabel("contact force [N]")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8)
-    axes[0].set_title("Force control on a rigid plane: SPIDER drive trains (top), ideal "
-                      "torques (bottom)")
-    axes[1].set_xlabel("t [s]")
-    path = os.path.join(args.out, "force_control_drive_trains.png")
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    path = plot(cases, args.out)
     print(f"\nwrote {path}")
 
 
