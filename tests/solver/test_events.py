@@ -278,3 +278,16 @@ simulation: {t_end: 3}
     assert np.array_equal(r["sat.y"][-1], [1.0, 1.0])
     assert [e for e in r.events if e[1] == "sat"] == [(1.0, "sat", "upper[0]")] or \
         abs([e for e in r.events if e[1] == "sat"][0][0] - 1.0) < 1e-9
+
+
+def test_locate_when_the_start_reevaluates_across():
+    """A guard fed by an algebraic loop can give, evaluated again at the step's start, a
+    value on the far side (the loop solved from another warm start): the crossing is at the
+    start, within round-off, instead of a bracketing error from the root finder."""
+    from spidersim.solver.events import locate
+    g_recorded = 1e-15                       # what the step began with
+    gfun = lambda s: -1e-15 - (s - 1.0)      # noqa: E731  evaluated again: already below
+    assert locate(gfun, 1.0, 1.1, g_recorded, 1e-13) == 1.0
+    # an ordinary crossing is still located on the far side, to xtol
+    t = locate(lambda s: 1.05 - s, 1.0, 1.1, 0.05, 1e-13)
+    assert 1.05 <= t <= 1.05 + 2e-13
