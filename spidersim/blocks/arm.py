@@ -22,6 +22,7 @@ import os
 
 import numpy as np
 
+from ..multibody.kernels import WS_ACC, WS_O, WS_R, WS_W
 from ..multibody.kernels import WS_PER_LINK as _WS
 from .base import Block, Dim, Event, Mode, Param, Port, State, unit_vector
 
@@ -151,12 +152,12 @@ class Arm(Block):
             base_moment[k] = -bw[3 + k]
         b = n * _WS
         for k in range(9):
-            flange_rot[k] = ws[b + k]
+            flange_rot[k] = ws[b + WS_R + k]
         for k in range(3):
-            flange_pos[k] = ws[b + 9 + k]
-            flange_twist[3 + k] = ws[b + 12 + k]
+            flange_pos[k] = ws[b + WS_O + k]
+            flange_twist[3 + k] = ws[b + WS_W + k]
             # the last RNEA pass ran with the base accelerating at -g
-            flange_acc[k] = ws[b + 18 + k] + gravity[k]
+            flange_acc[k] = ws[b + WS_ACC + k] + gravity[k]
         flange_jacobian(n, ws, Jw)
         for r in range(3):
             acc = 0.0
@@ -271,7 +272,7 @@ class CartesianLineIK(Block):
         b = n * _WS
         for k in range(3):
             p_ref[k] = p0[k] + s[0] * u[k]
-            v6[k] = sd[0] * u[k] + K * (p_ref[k] - ws[b + 9 + k])
+            v6[k] = sd[0] * u[k] + K * (p_ref[k] - ws[b + WS_O + k])
         orientation_error(ws, n, R0, y6)               # 0.5 sum_i r_i x r_d,i
         v6[3], v6[4], v6[5] = K * y6[0], K * y6[1], K * y6[2]
         A = A6.reshape((6, 6))
@@ -325,7 +326,7 @@ class ForwardKinematics(Block):
         for k in range(9):
             rot[k] = ws[b + k]
         for k in range(3):
-            pos[k] = ws[b + 9 + k]
+            pos[k] = ws[b + WS_O + k]
 
 
 class Jacobian(Block):

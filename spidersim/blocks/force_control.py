@@ -28,6 +28,7 @@ finite.
 """
 import numpy as np
 
+from ..multibody.kernels import WS_O
 from .arm import _N, _WS, _chain, _n, _ws_dim
 from .base import Block, Dim, Param, Port, State
 
@@ -102,7 +103,7 @@ class HybridForceController(Block):
         b = n * _WS
         # task errors and velocity
         for k in range(3):
-            v6[k] = p_ref[k] - ws[b + 9 + k]
+            v6[k] = p_ref[k] - ws[b + WS_O + k]
         orientation_error(ws, n, R0, y6)
         v6[3], v6[4], v6[5] = y6[0], y6[1], y6[2]
         for r in range(6):

@@ -112,7 +112,7 @@ class Chain:
         b = self.n * K.WS_PER_LINK
         T = np.eye(4)
         T[:3, :3] = self._ws[b:b + 9].reshape(3, 3)
-        T[:3, 3] = self._ws[b + 9:b + 12]
+        T[:3, 3] = self._ws[b + K.WS_O:b + K.WS_O + 3]
         return T
 
     def frames(self, q):
@@ -168,12 +168,12 @@ class Chain:
         for i in range(self.n):
             b = (i + 1) * K.WS_PER_LINK
             m = self.P[i, 3]
-            c = self._ws[b + 21:b + 24]
-            w = self._ws[b + 12:b + 15]
+            c = self._ws[b + K.WS_COM:b + K.WS_COM + 3]
+            w = self._ws[b + K.WS_W:b + K.WS_W + 3]
             o_prev = self._ws[i * K.WS_PER_LINK + 9:i * K.WS_PER_LINK + 12]
             # velocity of the COM from the joint origin velocity; recompute by the Jacobian
             v = self._point_velocity(q, qd, i, c)
-            Iw = self._ws[b + 24:b + 33].reshape(3, 3)
+            Iw = self._ws[b + K.WS_IW:b + K.WS_IW + 9].reshape(3, 3)
             p += m * v
             L += m * np.cross(c, v) + Iw @ w
         return p, L
@@ -184,7 +184,7 @@ class Chain:
         for k in range(i + 1):
             b = k * K.WS_PER_LINK
             z = self._ws[b:b + 9].reshape(3, 3)[:, 2]
-            v += qd[k] * np.cross(z, point - self._ws[b + 9:b + 12])
+            v += qd[k] * np.cross(z, point - self._ws[b + K.WS_O:b + K.WS_O + 3])
         return v
 
     def kinetic_energy(self, q, qd):

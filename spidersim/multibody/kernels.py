@@ -19,7 +19,15 @@ import numpy as np
 ROW = 16
 WS_PER_LINK = 48
 # workspace layout per link k (0 = base): R 0..8, o 9..11, w 12..14, al 15..17, ap 18..20,
-# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44
+# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44. The offsets by name, for code
+# outside this module (``ws[k * WS_PER_LINK + WS_O + i]`` is o_k[i]):
+WS_R = 0          # rotation matrix of frame k, row-major (9)
+WS_O = 9          # origin o_k [m] (3)
+WS_W = 12         # angular velocity w_k [rad/s] (3)
+WS_ALPHA = 15     # angular acceleration [rad/s2] (3)
+WS_ACC = 18       # acceleration of o_k [m/s2], with the base accelerating at -g (3)
+WS_COM = 21       # centre of mass of link k [m] (3)
+WS_IW = 24        # inertia about the COM in the base frame [kg.m2] (9)
 
 
 def fk(q, P, ws):
