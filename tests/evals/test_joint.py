@@ -709,8 +709,10 @@ def test_speed_loop_resonance():
                        set={"joint.friction": 0, "joint.res_bits": 0})
     sys = d.linearize(["joint.ctrl.i_cmd"], ["joint.motor.w"], open=["joint.ctrl.i_cmd"],
                       jit=False)
-    poles = _light_pairs(np.linalg.eigvals(np.asarray(sys.A)))
-    zeros = _light_pairs(_tzeros(sys))
+    # the rigid-body mode (the arm's angle is free with the loop opened; the RDC tracks it)
+    # shows as a pair at round-off distance from the origin: the resonances are above 1 Hz
+    poles = [f for f in _light_pairs(np.linalg.eigvals(np.asarray(sys.A))) if f > 1.0]
+    zeros = [f for f in _light_pairs(_tzeros(sys)) if f > 1.0]
     assert len(poles) == 1 and len(zeros) == 1, (poles, zeros)
     assert poles[0] == pytest.approx(F_FREE, rel=0.02)       # measured 24.68 Hz
     assert zeros[0] == pytest.approx(F_LOCKED, rel=0.02)     # measured 8.997 Hz
