@@ -31,6 +31,7 @@ _REGISTRY = pint.UnitRegistry(autoconvert_offset_to_baseunit=False)
 _TOKEN = re.compile(r"([A-Za-z_][A-Za-z_0-9]*?)(-?\d+)?(?=$|[./*()\s])")
 _ALIASES = {"Ohm": "ohm", "degC": "degree_Celsius", "deg": "degree"}
 _MAX_TEXT = 200
+_MAX_POWER = 12
 
 
 class UnitError(ValueError):
@@ -47,19 +48,29 @@ def _to_pint(text):
             out.append(ch)
             i += 1
         elif ch in "./*":
+            if text[i + 1:i + 2] in ("*", "/", "."):
+                raise UnitError(f"cannot read unit '{text}' at '{text[i:i + 10]}': two "
+                                f"operators in a row (write m2 for a square, not m**2)")
             out.append("/" if ch == "/" else "*")
             i += 1
         elif ch.isspace():
             i += 1
         elif ch.isdigit():
-            m = re.match(r"\d+", text[i:])
-            out.append(m.group(0))
-            i += m.end()
+            # only the "1" of "1/s": powers belong to a name (m2, s-1), never free numbers
+            # (no "10**10**10" for the parser to compute)
+            if ch != "1" or text[i + 1:i + 2].isdigit():
+                raise UnitError(f"cannot read unit '{text}' at '{text[i:i + 10]}': a number "
+                                f"may only be the 1 of 1/s; powers follow a name (m2, s-1)")
+            out.append("1")
+            i += 1
         else:
             m = _TOKEN.match(text, i)
             if m is None:
                 raise UnitError(f"cannot read unit '{text}' at '{text[i:i + 10]}'")
             name, power = m.group(1), m.group(2)
+            if power and abs(int(power)) > _MAX_POWER:
+                raise UnitError(f"unit '{text}': power {power} of '{name}' is beyond "
+                                f"{_MAX_POWER}")
             if name not in _ALIASES and name.endswith("Ohm"):     # kOhm, mOhm
                 name = name[:-3] + "ohm"
             out.append(_ALIASES.get(name, name) + (f"**{power}" if power else ""))
@@ -129,7 +140,7 @@ def text(unit: pint.Unit) -> str:
     num, den = [], []
     for name, power in items:
         sym = _REGISTRY.get_symbol(name)
-        sym = {"Ω": "Ohm", "°": "deg", "°C": "degC"}.get(sym, sym)
+        sym = {"°": "deg", "°C": "degC"}.get(sym, sym).replace("Ω", "Ohm").replace("µ", "u")
         p = abs(power)
         p = int(p) if float(p).is_integer() else p
         (num if power > 0 else den).append(sym + ("" if p == 1 else str(p)))
