@@ -28,7 +28,7 @@ contact
     ``diagrams/force_control_rigid_ideal.yaml`` (arm pressed on a rigid plane by the hybrid
     controller): wall time, Newton iterations per RHS evaluation, largest penetration.
 sweep
-    A 3 x 2 grid of ``diagrams/impact_fault.yaml`` serial in one process and on a local Dask
+    A 3 x 2 grid of ``diagrams/impact_fault_joint1.yaml`` serial in one process and on a local Dask
     cluster of 2 workers: runs per minute each, the speed-up (cluster start-up and each
     worker's first import of the cached compiled module included), and whether both gave
     the same numbers.
@@ -337,10 +337,10 @@ def bench_contact():
 
 def bench_sweep():
     from spidersim.sweep import sweep
-    path = os.path.join(ROOT, "diagrams", "impact_fault.yaml")
+    path = os.path.join(ROOT, "diagrams", "impact_fault_joint1.yaml")
     vary = [("V_ci", [20.0, 28.0, 36.0]), ("K", [1e4, 1e6])]
     n = 6
-    print("== sweep: diagrams/impact_fault.yaml, grid V_ci = 20, 28, 36 x K = 1e4, 1e6 "
+    print("== sweep: diagrams/impact_fault_joint1.yaml, grid V_ci = 20, 28, 36 x K = 1e4, 1e6 "
           "(6 runs of 0.9 s) ==")
     serial = sweep(path, vary, workers=0)
     dask2 = sweep(path, vary, workers=2)

@@ -173,7 +173,8 @@ class Brake(Block):
         "t_engage": Param(0.02, "s", "engagement time once commanded", ge=0.0),
         "w_eps": Param(1e-3, "rad/s", "speed of the friction regularization", gt=0.0),
     }
-    inputs = {"fault": Port("1", doc="fault flag (> 0.5: a fault is present)"),
+    inputs = {"fault": Port("1", optional=True,
+                            doc="fault flag (> 0.5: a fault is present); unconnected: none"),
               "w": Port("rad/s", doc="shaft speed")}
     outputs = {"tau": Port("N.m", feedthrough=("w",), doc="brake torque on the shaft"),
                "engaged": Port("1", doc="1 once the brake holds, else 0")}

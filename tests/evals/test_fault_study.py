@@ -1,0 +1,60 @@
+"""The paper's fault study with the drive trains (diagrams/impact_fault.yaml): the arm
+moving its flange at the maximum operating speed (0.1 m/s) when the control fails and drives
+I_max into every motor; detection cuts the currents and commands the brakes t_detect later;
+an elastic obstacle stands in the way.
+
+What is checked: the sequence (fault, brakes commanded at t_fault + t_detect and holding
+t_engage later, current commands zero after detection), the runaway (the flange leaves the
+operating speed and hits the obstacle faster than 0.1 m/s), the contact mechanics (peak
+force and absorbed energy consistent with an undamped elastic wall: E = F^2 / (2 K) at the
+peak), and the paper's trend: a higher supply voltage V_ci lets the motors run away faster,
+so the impact is harder.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+import spidersim
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PATH = os.path.join(ROOT, "diagrams", "impact_fault.yaml")
+T_FAULT, T_DETECT, T_ENGAGE, K = 1.0, 0.3, 0.02, 1.0e5
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {v: spidersim.load(PATH, set={"V_ci": v}).simulate() for v in (20, 36)}
+
+
+def test_fault_sequence(runs):
+    r = runs[20]
+    names = [(round(t, 9), b, n) for t, b, n in r.events]
+    assert (T_FAULT, "fault", "time") in names
+    brakes = [t for t, b, n in r.events if b.endswith(".brake") and n == "time"]
+    assert len(brakes) == 7 and np.allclose(brakes, T_FAULT + T_DETECT + T_ENGAGE)
+    after = r.t > T_FAULT + T_DETECT + 1e-6
+    assert np.all(r["cut.y"][after] == 0.0)                   # currents cut
+    k = np.searchsorted(r.t, T_FAULT) - 1                      # the flange has caught up
+    assert r["arm.flange_twist"][k, 1] == pytest.approx(0.1, abs=0.005)   # with 0.1 m/s
+
+
+def test_runaway_hits_the_obstacle_harder_than_operation(runs):
+    r = runs[20]
+    onset = [t for t, b, n in r.events if b == "wall" and n == "onset"]
+    assert onset and T_FAULT < onset[0] < T_FAULT + T_DETECT   # before detection
+    k = np.searchsorted(r.t, onset[0])
+    assert r["arm.flange_twist"][k, 1] > 0.2                   # runaway speed at impact
+    F, E = r["wall.fn"], r["wall.energy"]
+    i = np.argmax(F)
+    assert F[i] > 100.0
+    # the wall is a spring: at the force peak the stored energy is F^2 / (2 K)
+    assert E[i] == pytest.approx(F[i] ** 2 / (2 * K), rel=0.02)
+
+
+def test_higher_supply_voltage_hits_harder(runs):
+    low, high = runs[20], runs[36]
+    assert high["wall.fn"].max() > low["wall.fn"].max()
+    assert high["wall.energy"].max() > low["wall.energy"].max()
