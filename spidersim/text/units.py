@@ -99,15 +99,6 @@ def parse(text: str) -> pint.Unit:
     return unit
 
 
-def is_unit(text) -> bool:
-    """True for a fixed unit text (not ``*`` and not a ``@`` rule) that parses."""
-    try:
-        parse(text)
-    except UnitError:
-        return False
-    return True
-
-
 def factor(src: pint.Unit, dst: pint.Unit) -> float:
     """The number ``f`` with ``value_dst = f * value_src``; :class:`UnitError` if the
     dimensions differ or a unit has an offset (degC)."""
@@ -175,11 +166,6 @@ def rule_terms(rule: str):
         else:
             fixed = fixed * parse(term) ** power
     return refs, fixed
-
-
-def power(unit: pint.Unit, p: int) -> pint.Unit:
-    """``unit ** p``."""
-    return unit ** p
 
 
 DIMENSIONLESS = _REGISTRY.dimensionless
