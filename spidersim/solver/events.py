@@ -2,7 +2,7 @@
 
 A guard ``g_i(t, x)`` is a block's zero-crossing function; its event fires when ``g_i``
 crosses zero in the block's direction (``+1`` rising, ``-1`` falling, ``0`` either). These
-helpers are shared by the SciPy-stepper loop (:mod:`spidersim.solver.integrate`) and the
+helpers are shared by the SciPy-stepper loop (:mod:`spidersim.solver.scipy_loop`) and the
 compiled loop (:mod:`spidersim.solver.loop`) and are tested on plain arrays and functions.
 """
 from __future__ import annotations
@@ -13,6 +13,16 @@ from ._jit import njit
 
 #: iterations of the bracketing root finder: the bracket at least halves every third one
 LOCATE_MAX_ITER = 200
+
+# the event rules both loops share
+#: events (and rounds of time events) allowed at one instant before the run fails
+MAX_EVENTS_AT_ONE_TIME = 1000
+#: a run stalls when this many consecutive accepted steps are each shorter than
+#: STALL_STEP * max(1, |t|): the solution is running into a singularity
+STALL_COUNT = 500
+STALL_STEP = 1e-10
+#: chattering: this many events of one block within max(1e-9, 1e-6 * span) s is an error
+CHATTER_COUNT = 50
 
 
 @njit

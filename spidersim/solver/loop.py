@@ -40,6 +40,8 @@ import math
 import numpy as np
 
 from . import dp54
+from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME,  # noqa: F401 (read by loop_body)
+                     STALL_COUNT, STALL_STEP)
 
 # return codes of run_dp54
 DONE, ROWS_FULL, EVENTS_FULL, PAUSE = 0, 1, 2, 3
@@ -60,10 +62,6 @@ N_G_ROWS = 7
 # columns of the event log ``ev_i``: guard or timed-block index, kind, direction
 KIND_STATE, KIND_TIME = 0, 1
 
-MAX_EVENTS_AT_ONE_TIME = 1000
-STALL_COUNT = 500
-STALL_STEP = 1e-10
-CHATTER_COUNT = 50
 #: rows kept free in the record buffer at the start of every step (pre/post event rows)
 ROW_RESERVE = 4
 

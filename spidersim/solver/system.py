@@ -10,6 +10,8 @@ Contract (what :func:`spidersim.solver.integrate.integrate` needs)
 4. ``record_row(t, x, buf, row) -> bool``: outputs at (t, x), logged values written into
    ``buf[row]``; False when the state or a logged value is not finite. ``record_size``,
    ``record_names``, ``record_slices`` (name -> (start, stop)) and ``units`` describe a row.
+   ``record_row_guards(t, x, buf, row, g)`` does the same and writes the guards into ``g``
+   (one evaluation of the outputs for both).
 5. ``n_g``, ``event_table`` (list of (block, event name, direction)), ``guards(t, x) -> g``
    (a new array of the zero-crossing functions) and ``apply_event(t, x, k, direction)``
    (applies event ``k`` in place on ``x`` and ``modes``); ``initialize(t, x)`` lets blocks
@@ -17,6 +19,11 @@ Contract (what :func:`spidersim.solver.integrate.integrate` needs)
 6. ``diagnose(t, x) -> str``: which signal or state derivative is not finite, in schedule
    order, for error messages.
 7. ``jac_sparsity``: ``None`` or an (n_x, n_x) boolean pattern for the implicit methods.
+8. ``newton_iterations() -> int`` and ``loop_failure() -> (report, loop)`` for systems with
+   algebraic loops (``0`` and ``("", None)`` without).
+
+:class:`PlainSystem` gives every item a default, so that a hand-written system for a test
+is a few lines; :class:`CompiledSystem` is the one a diagram compiles into.
 """
 from __future__ import annotations
 
@@ -257,3 +264,72 @@ class CompiledSystem:
             if parts:
                 return "at t = " + f"{t:.9g} s: " + ", ".join(parts)
         return ""
+
+
+class PlainSystem:
+    """A ``System`` written by hand in Python: the contract with its defaults.
+
+    A subclass gives ``x0`` and overrides ``rhs`` and, where it has them, ``guards`` with
+    ``event_table``/``n_g``, ``apply_event``, ``next_time`` and ``time_events``. The whole
+    state is recorded under the name ``"x"``. Used to test the integration loop without a
+    diagram, a code generator or numba::
+
+        class Fall(PlainSystem):                    # a ball falling onto the floor
+            n_g, event_table = 1, [("ball", "impact", -1)]
+            def rhs(self, t, x): return np.array([x[1], -9.81])
+            def guards(self, t, x): return np.array([x[0]])
+            def apply_event(self, t, x, k, direction): x[1] = -0.8 * x[1]
+
+        integrate(Fall([1.0, 0.0]), 2.0)
+    """
+
+    n_g = 0
+    event_table: list = []
+    jac_sparsity = None
+
+    def __init__(self, x0, modes=()):
+        self.x0 = np.array(x0, dtype=float)
+        self.n_x = len(self.x0)
+        self.modes = np.array(modes, dtype=float)
+        self.record_names = ["x"]
+        self.record_slices = {"x": (0, self.n_x)}
+        self.record_size = self.n_x
+        self.units = {"x": ""}
+
+    def rhs(self, t, x):
+        raise NotImplementedError
+
+    def outputs(self, t, x):
+        """No signals besides the state."""
+
+    def guards(self, t, x):
+        return np.zeros(0)
+
+    def apply_event(self, t, x, k, direction):
+        """No state events."""
+
+    def initialize(self, t, x):
+        """No modes to make consistent."""
+
+    def next_time(self, t):
+        return np.inf
+
+    def time_events(self, t, x, tol):
+        return []
+
+    def record_row(self, t, x, buf, row):
+        buf[row, :self.n_x] = x
+        return bool(np.all(np.isfinite(x)))
+
+    def record_row_guards(self, t, x, buf, row, g):
+        g[:] = self.guards(t, x)
+        return self.record_row(t, x, buf, row)
+
+    def diagnose(self, t, x):
+        return ""
+
+    def newton_iterations(self):
+        return 0
+
+    def loop_failure(self):
+        return "", None

@@ -1,0 +1,427 @@
+"""The SciPy-stepper integration loop, as small named parts.
+
+This is the cross-check path of the integration loop (``method: LSODA, RK45, ...``); the
+production path for ``DP54`` is the compiled loop of :mod:`spidersim.solver.loop_body`, made
+of the same parts. A run is a sequence of *segments* between time events; each segment is
+integrated by a fresh SciPy stepper whose ``t_bound`` is the next event time.
+
+The parts, in the order one accepted step uses them
+---------------------------------------------------
+1. ``_step``: one accepted step of the stepper, with the stall check.
+2. ``_detect``: the guards at the step's end (recorded with the outputs in one evaluation)
+   and the armed guards that changed sign in the event's direction.
+3. ``_locate``: the time of each crossing on the stepper's dense output, to 1e-13 relative.
+4. ``_apply``: the earliest crossings applied at their common instant, chattering checked,
+   then ``_settle`` (crossings the jump caused) and ``_disarm`` (a guard that has just fired
+   must leave zero before firing again).
+5. ``_fire_due``: time events and sampled blocks due at a segment's end, then ``_settle``.
+6. ``_record`` / ``_record_grid``: a row at every accepted step, or on a uniform grid through
+   the dense output (a grid point at an event instant is recorded after the event).
+
+Every failure goes through ``_fail``, which raises with the samples recorded so far.
+The system is anything that meets the contract of :mod:`spidersim.solver.system`.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import AlgebraicLoopError, IntegrationError
+from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT, STALL_STEP,
+                     crossed, crossings, locate)
+from .result import Result
+
+
+def _tol(t):
+    """Two times closer than this are the same instant."""
+    return 1e-12 * max(1.0, abs(t))
+
+
+class Recorder:
+    """Logged rows in a preallocated buffer that doubles when full."""
+
+    def __init__(self, system, capacity=1024):
+        self.system = system
+        self.buf = np.zeros((capacity, system.record_size))
+        self.tbuf = np.zeros(capacity)
+        self.n = 0
+
+    def add(self, t, x, g=None):
+        """Record outputs at (t, x); with ``g``, also the guards into it (one evaluation).
+        Return False if something is not finite."""
+        if self.n == len(self.tbuf):
+            self.buf = np.concatenate((self.buf, np.zeros_like(self.buf)))
+            self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
+        if g is None:
+            ok = self.system.record_row(t, x, self.buf, self.n)
+        else:
+            ok = self.system.record_row_guards(t, x, self.buf, self.n, g)
+        self.tbuf[self.n] = t
+        self.n += 1
+        return ok
+
+    @property
+    def t(self):
+        return self.tbuf[:self.n]
+
+    def result(self, events, stats, status="ok", message=""):
+        s = self.system
+        return Result(self.t.copy(), self.buf[:self.n].copy(), s.record_slices, s.units,
+                      events, stats, status, message)
+
+
+class SciPyLoop:
+    """One run of ``system`` from ``t0`` to ``t_end`` with the SciPy stepper class ``cls``.
+
+    Parameters
+    ----------
+    system : System
+        See :mod:`spidersim.solver.system`.
+    cls : type
+        A :class:`scipy.integrate.OdeSolver` subclass; ``kw`` its keyword arguments.
+    output_interval, progress, should_stop, stats
+        As in :func:`spidersim.solver.integrate.integrate`.
+    """
+
+    def __init__(self, system, cls, kw, t0, t_end, output_interval=None, progress=None,
+                 should_stop=None, stats=None):
+        self.system = system
+        self.cls, self.kw = cls, kw
+        self.t0, self.t_end = float(t0), t_end
+        self.output_interval = output_interval
+        self.progress, self.should_stop = progress, should_stop
+        self.st = dict(stats or {})
+        self.st.update(steps=0, rhs_calls=0, jacobian_calls=0, lu_decompositions=0,
+                       segments=0, time_events=0)
+        self.rec = Recorder(system)
+        self.events = []               # (t, block, event name or "time")
+        self.grid_k = 0                # next grid point index (output_interval)
+        self.tiny = 0                  # consecutive stalled steps
+        n_g = self.n_g = system.n_g
+        self.directions = np.array([d for _, _, d in system.event_table], dtype=float)
+        self.armed = np.ones(n_g, dtype=bool)
+        self.armed_all = True
+        self.hit_buf = np.empty(max(1, n_g), dtype=np.int64)
+        self.g_new = np.zeros(n_g)
+        self.recent = {}               # block -> times of its latest events (chattering)
+        self.chatter_window = max(1e-9, 1e-6 * (t_end - t0))
+        self.wall0 = time.perf_counter()
+
+    # -- failures -----------------------------------------------------------------------
+
+    def _fail(self, msg, t, x):
+        """Raise :class:`IntegrationError` (or the loop's :class:`AlgebraicLoopError`)
+        carrying the samples recorded so far."""
+        s, st = self.system, self.st
+        st["t_reached"] = t
+        st["wall_time"] = time.perf_counter() - self.wall0
+        st["newton_iterations"] = s.newton_iterations()
+        loop, lp = s.loop_failure()
+        if loop:
+            err = AlgebraicLoopError(loop, file=lp.get("file"), line=lp.get("line"),
+                                     block=lp.get("block"))
+            err.partial = self.rec.result(self.events, st, "failed", loop)
+            raise err
+        why = s.diagnose(t, x) if x is not None else ""
+        full = f"integration failed at t = {t:.9g} s: {msg}" + (f"; {why}" if why else "")
+        raise IntegrationError(full, partial=self.rec.result(self.events, st, "failed", full))
+
+    def _partial(self, msg=""):
+        return self.rec.result(self.events, self.st, "failed", msg)
+
+    # -- time events --------------------------------------------------------------------
+
+    def _fire_due(self, t, x):
+        """Apply every time event due at ``t`` (repeatedly, while new ones fall due at the
+        same instant), then settle the crossings the jumps caused."""
+        s = self.system
+        n = 0
+        g_before = s.guards(t, x) if self.n_g else None
+        timed_blocks = set()
+        while s.next_time(t) <= t + _tol(t):
+            fired = s.time_events(t, x, _tol(t))
+            self.events.extend((t, name, "time") for name in fired)
+            timed_blocks.update(fired)
+            self.st["time_events"] += len(fired)
+            s.initialize(t, x)
+            n += 1
+            if n > MAX_EVENTS_AT_ONE_TIME or not fired:
+                raise IntegrationError(
+                    f"time events keep firing at t = {t:.9g} s without time advancing "
+                    f"(blocks: {', '.join(fired) or 'none'})", partial=self._partial())
+        if n:
+            self._settle(t, x, g_before, timed_blocks)
+
+    # -- state events -------------------------------------------------------------------
+
+    def _locate(self, hits, dense, t_old, t_new, g_old):
+        """Crossing time of each guard in ``hits`` inside [t_old, t_new] on ``dense``."""
+        s = self.system
+        xtol = 1e-13 * max(1.0, abs(t_new))
+        times = {}
+        for i in hits:
+            if g_old[i] == 0.0:           # left zero at the start of the step
+                times[i] = t_old
+                continue
+            times[i] = locate(lambda u, i=i: s.guards(u, dense(u))[i], t_old, t_new,
+                              g_old[i], xtol)
+        return times, xtol
+
+    def _chatter(self, block, name, t_ev, x_ev):
+        """Raise when ``block`` has fired CHATTER_COUNT events within the window."""
+        q = self.recent.setdefault(block, [])
+        q.append(t_ev)
+        if len(q) > CHATTER_COUNT:
+            q.pop(0)
+        if len(q) == CHATTER_COUNT and q[-1] - q[0] <= self.chatter_window:
+            msg = (f"chattering: block '{block}' fired {CHATTER_COUNT} events ('{name}') "
+                   f"within {q[-1] - q[0]:.3g} s up to t = {t_ev:.9g} s (Zeno "
+                   f"behaviour); give the block a rest mode or threshold, or stop "
+                   f"the run earlier")
+            self.st["t_reached"] = t_ev
+            self.st["events"] = len(self.events)
+            self.rec.add(t_ev, x_ev)
+            raise IntegrationError(msg, partial=self.rec.result(self.events, self.st,
+                                                                "failed", msg), block=block)
+
+    def _apply(self, now, t_ev, x_ev, g_old, g_new):
+        """Apply the crossings ``now`` at ``t_ev`` (in place on ``x_ev``), then settle and
+        disarm the blocks that fired."""
+        s = self.system
+        g_before = s.guards(t_ev, x_ev)
+        for i in sorted(now):
+            block, name, _d = s.event_table[i]
+            s.apply_event(t_ev, x_ev, int(i), np.sign(g_new[i] - g_old[i]) or 1.0)
+            self.events.append((float(t_ev), block, name))
+            self._chatter(block, name, t_ev, x_ev)
+        s.initialize(t_ev, x_ev)
+        fired = {s.event_table[i][0] for i in now}
+        self._settle(t_ev, x_ev, g_before, fired)
+        self._disarm(fired)
+
+    def _state_events(self, solver, t_old, g_old, g_new):
+        """Locate and apply the earliest crossing of the last step; return the event's
+        ``(t, x)`` or None when no armed guard crossed."""
+        n_hit = crossings(g_old, g_new, self.directions, self.armed, self.hit_buf)
+        if not n_hit:
+            return None
+        hits = self.hit_buf[:n_hit].copy()
+        dense = solver.dense_output()
+        times, xtol = self._locate(hits, dense, t_old, solver.t, g_old)
+        t_ev = min(times.values())
+        now = [i for i in hits if times[i] <= t_ev + 2 * xtol]
+        x_ev = dense(t_ev) if t_ev < solver.t else solver.y.copy()
+        if self.output_interval is not None:
+            self._record_grid(dense, t_old, t_ev)
+        else:
+            self.rec.add(t_ev, x_ev)
+        self._apply(now, t_ev, x_ev, g_old, g_new)
+        return t_ev, x_ev
+
+    def _disarm(self, blocks):
+        """Guards of blocks that have just fired must leave zero before firing again."""
+        for i, (blk, _n, _d) in enumerate(self.system.event_table):
+            if blk in blocks:
+                self.armed[i] = False
+                self.armed_all = False
+
+    def _rearm(self, g):
+        """A disarmed guard is armed again once it has left zero."""
+        if not self.armed_all:
+            self.armed |= g != 0.0
+            self.armed_all = bool(self.armed.all())
+
+    def _settle(self, t, x, g_before, fired_blocks):
+        """Fire the crossings caused by a jump at an event instant: a guard of another block
+        that was on one side just before the event and is on the other just after it (a
+        step input that jumps past a corner). Guards of blocks whose own event has just
+        changed their mode are not compared (their guard functions changed with the mode).
+        Repeats until nothing more fires."""
+        if not self.n_g:
+            return
+        s = self.system
+        for _ in range(MAX_EVENTS_AT_ONE_TIME):
+            g_after = s.guards(t, x)
+            hits = [i for i in crossed(g_before, g_after, self.directions)
+                    if s.event_table[i][0] not in fired_blocks]
+            if not hits:
+                return
+            for i in hits:
+                block, name, _d = s.event_table[i]
+                s.apply_event(t, x, int(i), np.sign(g_after[i] - g_before[i]) or 1.0)
+                self.events.append((float(t), block, name))
+                fired_blocks.add(block)
+            s.initialize(t, x)
+            g_before = s.guards(t, x)
+        raise IntegrationError(f"events keep firing at t = {t:.9g} s",
+                               partial=self._partial())
+
+    # -- recording ----------------------------------------------------------------------
+
+    def _grid_time(self, k):
+        return self.t0 + k * self.output_interval
+
+    def _record_grid(self, dense, t_a, t_b):
+        """Grid points in [t_a, t_b): a point at an event time is recorded after the event
+        (signals are right-continuous)."""
+        tk = self._grid_time(self.grid_k)
+        while tk < t_b - _tol(t_b):
+            self.rec.add(tk, dense(tk))
+            self.grid_k += 1
+            tk = self._grid_time(self.grid_k)
+
+    def _record_step(self, solver, t_old, recorded):
+        """Record the end of an accepted step (or the grid points it passed)."""
+        if self.output_interval is None:
+            if not recorded and not self.rec.add(solver.t, solver.y):
+                self._fail("non-finite value", solver.t, solver.y)
+        else:
+            if not np.all(np.isfinite(solver.y)):
+                self._fail("non-finite state", solver.t, solver.y)
+            if self._grid_time(self.grid_k) <= solver.t:
+                self._record_grid(solver.dense_output(), t_old, solver.t)
+
+    def _record_at(self, t, x):
+        """Record at a segment's end, after its time events."""
+        if self.output_interval is None:
+            self.rec.add(t, x)
+        elif abs(self._grid_time(self.grid_k) - t) <= _tol(t):
+            self.rec.add(t, x)
+            self.grid_k += 1
+
+    # -- stepping -----------------------------------------------------------------------
+
+    def _count(self, solver):
+        """Add the stepper's evaluation counts to the statistics."""
+        self.st["rhs_calls"] += int(solver.nfev)
+        self.st["jacobian_calls"] += int(getattr(solver, "njev", 0))
+        self.st["lu_decompositions"] += int(getattr(solver, "nlu", 0))
+
+    def _step(self, solver):
+        """One accepted step; fail on a solver failure or a stall."""
+        t_old = solver.t
+        msg = solver.step()
+        if solver.status == "failed":
+            self._fail(msg or "solver failure", solver.t, solver.y)
+        self.st["steps"] += 1
+        if solver.t - t_old < STALL_STEP * max(1.0, abs(solver.t)):
+            self.tiny += 1
+            if self.tiny >= STALL_COUNT:
+                self._fail(f"the integration stalls: {STALL_COUNT} consecutive steps shorter "
+                           f"than {STALL_STEP:g} s (a singularity, e.g. a division by a "
+                           f"signal crossing zero, or a discontinuity without an event)",
+                           solver.t, solver.y)
+        else:
+            self.tiny = 0
+        return t_old
+
+    def _detect(self, solver, t_old, g_old):
+        """Guards at the end of the step (the row recorded in the same evaluation when
+        recording every step); locate and apply any crossing. Returns ``(hit, recorded)``:
+        the event's ``(t, x)`` or None, and whether the step's end has been recorded."""
+        g_new = self.g_new
+        recorded = False
+        if self.output_interval is None:
+            # the row is overwritten if an event is located inside the step
+            n_before = self.rec.n
+            ok = self.rec.add(solver.t, solver.y, g_new)
+            recorded = True
+        else:
+            g_new[:] = self.system.guards(solver.t, solver.y)
+        hit = None
+        if crossings(g_old, g_new, self.directions, self.armed, self.hit_buf):
+            if recorded:                  # the step's end lies beyond the event
+                self.rec.n = n_before
+                recorded = False
+            hit = self._state_events(solver, t_old, g_old, g_new.copy())
+        if hit is None and recorded and not ok:
+            self._fail("non-finite value", solver.t, solver.y)
+        if hit is None:
+            g_old[:] = g_new
+            self._rearm(g_new)
+        return hit, recorded
+
+    def _segment(self, t, x):
+        """Integrate from (t, x) to the next time event, the end, or the first state event.
+
+        Returns ``(solver, outcome, t, x)`` with outcome ``"event"`` (a state event at
+        (t, x)), ``"interrupted"`` or ``"bound"`` (the segment's end reached)."""
+        s = self.system
+        t_seg = min(s.next_time(t), self.t_end)
+        self.st["segments"] += 1
+        try:
+            solver = self.cls(s.rhs, t, x, t_seg, **self.kw)
+        except ValueError as exc:
+            self._fail(str(exc), t, x)
+        g_old = s.guards(t, x) if self.n_g else None
+        while solver.status == "running":
+            t_old = self._step(solver)
+            recorded = False
+            if self.n_g:
+                hit, recorded = self._detect(solver, t_old, g_old)
+                if hit is not None:
+                    self._count(solver)
+                    t, x = hit
+                    if self.output_interval is None and not self.rec.add(t, x):
+                        self._fail("non-finite value after an event", t, x)
+                    return solver, "event", t, x
+            self._record_step(solver, t_old, recorded)
+            if self.progress is not None:
+                self.progress(solver.t)
+            if self.should_stop is not None and self.should_stop():
+                return solver, "interrupted", solver.t, solver.y.copy()
+        self._count(solver)
+        return solver, "bound", solver.t, solver.y.copy()
+
+    def run(self):
+        """Integrate from ``t0`` to ``t_end``; return the :class:`Result` (its ``final``
+        holds the end time, state and modes)."""
+        s, st = self.system, self.st
+        t = self.t0
+        x = s.x0.copy()
+        s.initialize(t, x)
+        self._fire_due(t, x)
+        if not self.rec.add(t, x):
+            self._fail("non-finite value at the start", t, x)
+        self.grid_k = 1
+        interrupted = False
+        while t < self.t_end:
+            if s.next_time(t) <= t + _tol(t):
+                # a time event due here (a state event may have stopped exactly on it)
+                self._fire_due(t, x)
+                if self.output_interval is None:
+                    self.rec.add(t, x)
+            solver, outcome, t, x = self._segment(t, x)
+            if outcome == "interrupted":
+                # stop at the step reached: what was recorded so far is the result
+                st["rhs_calls"] += int(solver.nfev)
+                if self.output_interval is not None and (not self.rec.n or
+                                                         self.rec.t[-1] < t):
+                    self.rec.add(t, x)
+                interrupted = True
+                break
+            if outcome == "event":
+                continue
+            if t >= self.t_end and s.next_time(t) > t + _tol(t):
+                break
+            self._fire_due(t, x)
+            self._record_at(t, x)
+            if t >= self.t_end:
+                break
+        return self._finish(t, x, interrupted)
+
+    def _finish(self, t, x, interrupted):
+        s, st = self.system, self.st
+        if not interrupted and self.output_interval is not None and (
+                not self.rec.n or self.rec.t[-1] < self.t_end * (1 - 1e-12)):
+            self.rec.add(self.t_end, x)
+        st["t_reached"] = t
+        st["events"] = len(self.events)
+        st["newton_iterations"] = s.newton_iterations()
+        st["samples"] = self.rec.n
+        st["wall_time"] = time.perf_counter() - self.wall0
+        result = (self.rec.result(self.events, st, "interrupted", f"interrupted at t = {t:.9g} s")
+                  if interrupted else self.rec.result(self.events, st))
+        result.final = (float(t), np.array(x, dtype=float), s.modes.copy())
+        return result
