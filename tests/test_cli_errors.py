@@ -294,20 +294,8 @@ def test_run_failure_writes_partial_data_and_exits_non_zero(tmp_path, capsys, mo
     assert "status: failed" in report
 
 
-ALGEBRAIC_LOOP = """\
-    parameters:
-      K: -1          # y = u - K y = u + y: no solution
-    blocks:
-      u:   {type: Step, t_step: 0}
-      sum: {type: Sum, signs: "+-"}
-      fb:  {type: Gain, k: K}
-      x:   {type: Integrator}
-    connections:
-      - u.y -> sum.u1
-      - sum.y -> fb.u
-      - fb.y -> sum.u2
-      - sum.y -> x.u
-    """
+ALGEBRAIC_LOOP = open(os.path.join(os.path.dirname(__file__), "data",
+                                   "unsolvable_loop.yaml")).read()
 
 
 def test_run_unsolvable_loop_is_reported_and_keeps_data(tmp_path, capsys, monkeypatch):

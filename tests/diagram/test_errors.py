@@ -18,6 +18,7 @@ import re
 import subprocess
 import sys
 import textwrap
+from typing import NamedTuple
 
 import pytest
 
@@ -62,19 +63,6 @@ def assert_where(err, path, line, block=None):
 
 
 # ---------------------------------------------------------------------------- block types
-def test_unknown_block_type_suggests_nearest_names(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          src: {type: Constant, value: 1}
-          g:   {type: Gian, k: 2}
-        connections:
-          - src.y -> g.u
-        """)
-    err = load_error(p, BlockTypeError)
-    assert_where(err, p, line_of(p, "type: Gian"), block="g")
-    assert "unknown block type 'Gian'" in err.message
-    assert "Gain" in err.message                      # the nearest name
-    assert "spidersim blocks" in err.message          # where to find the list
 
 
 def test_unknown_block_type_suggests_subsystem_types(tmp_path):
@@ -95,52 +83,6 @@ def test_unknown_block_type_suggests_subsystem_types(tmp_path):
 
 
 # ---------------------------------------------------------------------------- parameters
-def test_unknown_parameter_suggests_near_name(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          src: {type: Constant, value: 1}
-          g:
-            type: Gain
-            kk: 2
-        connections:
-          - src.y -> g.u
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "kk: 2"), block="g")
-    assert "unknown parameter 'kk'" in err.message
-    assert "'k'" in err.message
-
-
-def test_missing_required_parameter(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          u:  {type: Constant, value: 1}
-          ss:
-            type: StateSpace
-            A: [[-1]]
-            B: [[1]]
-        connections:
-          - u.y -> ss.u
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "ss:"), block="ss")
-    assert "missing parameter 'C'" in err.message
-    assert "StateSpace" in err.message
-
-
-def test_parameter_out_of_bounds(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          v: {type: Constant, value: 1}
-          motor:
-            type: DCMotor
-            R: -1
-        connections:
-          - v.y -> motor.v
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "R: -1"), block="motor")
-    assert "'R'" in err.message and "> 0" in err.message and "-1" in err.message
 
 
 def test_state_matrix_not_square(tmp_path):
@@ -160,20 +102,6 @@ def test_state_matrix_not_square(tmp_path):
     assert err.line in (line_of(p, "ss:"), line_of(p, "A: [[1, 2, 3]"))
     assert_where(err, p, err.line, block="ss")
     assert "square" in err.message and "(2, 3)" in err.message
-
-
-def test_time_table_value_length_differs_from_time(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          tt:
-            type: TimeTable
-            time: [0, 1, 2]
-            value: [0, 1]
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "value: [0, 1]"), block="tt")
-    assert "'value'" in err.message
-    assert "3" in err.message and "2" in err.message      # expected and found lengths
 
 
 @pytest.mark.parametrize("block, entry, value", [
@@ -201,72 +129,7 @@ def test_string_where_a_number_is_needed(tmp_path, block, entry, value):
     assert value in err.message                                # what was found
 
 
-def test_string_parameter_not_in_choices_suggests_nearest(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          e: {type: Constant, value: 1}
-          pi:
-            type: PI
-            antiwindup: clamp
-        connections:
-          - e.y -> pi.e
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "antiwindup: clamp"), block="pi")
-    assert "'clamp'" in err.message and "clamping" in err.message
-    assert "backcalc" in err.message and "none" in err.message     # the choices
-
-
 # ---------------------------------------------------------------------------- expressions
-def test_expression_syntax_error(tmp_path):
-    p = write(tmp_path, """\
-        parameters:
-          K: 2
-        blocks:
-          src: {type: Constant, value: 1}
-          g:
-            type: Gain
-            k: 2*(K+
-        connections:
-          - src.y -> g.u
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "k: 2*(K+"), block="g")
-    assert "'k'" in err.message and "2*(K+" in err.message
-    assert "parse" in err.message
-
-
-def test_expression_unknown_name_suggests_parameter(tmp_path):
-    p = write(tmp_path, """\
-        parameters:
-          gain_K: 2
-        blocks:
-          src: {type: Constant, value: 1}
-          g:
-            type: Gain
-            k: 3*gain_k
-        connections:
-          - src.y -> g.u
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "k: 3*gain_k"), block="g")
-    assert "unknown name 'gain_k'" in err.message and "gain_K" in err.message
-
-
-def test_parameters_section_unknown_name_suggests_earlier_parameter(tmp_path):
-    p = write(tmp_path, """\
-        parameters:
-          tau: 0.1
-          k: 2*taux
-        blocks:
-          src: {type: Constant, value: 1}
-          g: {type: Gain, k: k}
-        connections:
-          - src.y -> g.u
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "k: 2*taux"))
-    assert "unknown name 'taux'" in err.message and "tau" in err.message
 
 
 UNSAFE = [
@@ -318,22 +181,6 @@ def test_unsafe_expression_in_block_parameter(tmp_path):
     assert not mark.exists()
 
 
-def test_integer_too_large_for_a_float(tmp_path):
-    """A huge integer result must be a ParameterError, not a raw OverflowError."""
-    p = write(tmp_path, """\
-        blocks:
-          src: {type: Constant, value: 1}
-          g:
-            type: Gain
-            k: 2**10000
-        connections:
-          - src.y -> g.u
-        """)
-    err = load_error(p, ParameterError)
-    assert_where(err, p, line_of(p, "k: 2**10000"), block="g")
-    assert "2**10000" in err.message
-
-
 def test_huge_power_is_rejected_quickly(tmp_path):
     """``9**9**9`` is a 370-million-digit integer: the evaluator must refuse it instead of
     computing it for minutes (a denial of service through a parameter file)."""
@@ -362,17 +209,6 @@ def test_huge_power_is_rejected_quickly(tmp_path):
 
 
 # ---------------------------------------------------------------------------- wiring
-def test_unknown_port_names_available_ports(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          src: {type: Constant, value: 1}
-          g: {type: Gain, k: 2}
-        connections:
-          - src.y -> g.in
-        """)
-    err = load_error(p, WiringError)
-    assert_where(err, p, line_of(p, "src.y -> g.in"), block="g")
-    assert "no input 'in'" in err.message and "inputs: u" in err.message
 
 
 def test_unknown_output_port_suggests_near_name(tmp_path):
@@ -390,24 +226,6 @@ def test_unknown_output_port_suggests_near_name(tmp_path):
     assert "no output 'ww'" in err.message and "did you mean w" in err.message
     listed = err.message.split("outputs:", 1)[-1]
     assert all(n in listed for n in ("phi", "tau")), err.message       # the outputs
-
-
-def test_size_mismatch_mux_into_state_space(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          a: {type: Constant, value: 1}
-          b: {type: Constant, value: 2}
-          mux: {type: Mux, n: 2}
-          ss: {type: StateSpace, A: [[-1]], B: [[1]], C: [[1]]}
-        connections:
-          - a.y -> mux.u1
-          - b.y -> mux.u2
-          - mux.y -> ss.u
-        """)
-    err = load_error(p, WiringError)
-    assert_where(err, p, line_of(p, "mux.y -> ss.u"), block="ss")
-    assert "size mismatch" in err.message and "mux.y -> ss.u" in err.message
-    assert "gives 2" in err.message and "expects 1" in err.message
 
 
 def test_selector_index_beyond_input_size(tmp_path):
@@ -511,21 +329,6 @@ def test_subsystem_file_does_not_exist(tmp_path):
     assert "'lag'" in err.message
 
 
-def test_subsystem_includes_itself_directly(tmp_path):
-    p = write(tmp_path, """\
-        subsystems:
-          me: main.yaml
-        blocks:
-          step: {type: Step}
-          inner: {type: me}
-        connections:
-          - step.y -> inner.u
-        """)
-    err = load_error(p, DiagramError)
-    assert_where(err, p, line_of(p, "inner: {type: me}"), block="inner")
-    assert "includes itself" in err.message and "main.yaml -> main.yaml" in err.message
-
-
 def test_subsystem_includes_itself_through_another_file(tmp_path):
     write(tmp_path, """\
         subsystems:
@@ -589,37 +392,6 @@ def test_yaml_syntax_error_has_line(tmp_path, text, needle):
     err = load_error(p, DiagramError)
     assert_where(err, p, line_of(p, needle))
     assert "YAML syntax error" in err.message
-
-
-def test_unknown_top_level_section_suggests_near_name(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          a: {type: Constant, value: 1}
-          g: {type: Gain}
-        conections:
-          - a.y -> g.u
-        """)
-    err = load_error(p, DiagramError)
-    assert_where(err, p, line_of(p, "conections:"))
-    assert "unknown section 'conections'" in err.message
-    assert "did you mean 'connections'" in err.message
-
-
-def test_unknown_simulation_setting(tmp_path):
-    p = write(tmp_path, """\
-        blocks:
-          a: {type: Constant, value: 1}
-          g: {type: Gain}
-        connections:
-          - a.y -> g.u
-        simulation:
-          t_end: 1
-          rel_tol: 1e-6
-        """)
-    err = load_error(p, DiagramError)
-    assert_where(err, p, line_of(p, "rel_tol:"))
-    assert "unknown simulation setting 'rel_tol'" in err.message
-    assert "rtol" in err.message and "t_end" in err.message        # the valid settings
 
 
 # ---------------------------------------------------------------------------- --set / set=
@@ -732,20 +504,8 @@ def test_non_finite_values_during_a_run_keep_partial_data(tmp_path):
     assert r.t[0] == 0.0
 
 
-ALGEBRAIC_LOOP = """\
-    parameters:
-      K: -1          # y = u - K y = u + y: no solution
-    blocks:
-      u:   {type: Step, t_step: 0}
-      sum: {type: Sum, signs: "+-"}
-      fb:  {type: Gain, k: K}
-      x:   {type: Integrator}
-    connections:
-      - u.y -> sum.u1
-      - sum.y -> fb.u
-      - fb.y -> sum.u2
-      - sum.y -> x.u
-    """
+ALGEBRAIC_LOOP = open(os.path.join(os.path.dirname(__file__), "..", "data",
+                                   "unsolvable_loop.yaml")).read()
 
 
 def test_unsolvable_algebraic_loop_walks_the_loop(tmp_path):
@@ -772,3 +532,228 @@ def test_every_error_is_a_spidersim_error():
                 AlgebraicLoopError, IntegrationError):
         assert issubclass(cls, SpidersimError) and cls.exit_code == 2
     assert issubclass(BlockTypeError, DiagramError)
+
+
+# ---------------------------------------------------------------------------- the table
+class Case(NamedTuple):
+    """One bad diagram: the error class, the line (the first line containing ``needle``),
+    the block, and substrings the message must contain (what was expected and found)."""
+    id: str
+    text: str
+    error: type
+    needle: str
+    block: str | None
+    contains: tuple
+    guards: str | None = None    # what the case guards, when the id does not say it
+
+
+CASES = [
+    Case(
+        'unknown_block_type_suggests_nearest_names',
+        """\
+        blocks:
+          src: {type: Constant, value: 1}
+          g:   {type: Gian, k: 2}
+        connections:
+          - src.y -> g.u
+        """,
+        BlockTypeError, 'type: Gian', 'g',
+        ("unknown block type 'Gian'", 'Gain', 'spidersim blocks')),
+    Case(
+        'unknown_parameter_suggests_near_name',
+        """\
+        blocks:
+          src: {type: Constant, value: 1}
+          g:
+            type: Gain
+            kk: 2
+        connections:
+          - src.y -> g.u
+        """,
+        ParameterError, 'kk: 2', 'g',
+        ("unknown parameter 'kk'", "'k'")),
+    Case(
+        'missing_required_parameter',
+        """\
+        blocks:
+          u:  {type: Constant, value: 1}
+          ss:
+            type: StateSpace
+            A: [[-1]]
+            B: [[1]]
+        connections:
+          - u.y -> ss.u
+        """,
+        ParameterError, 'ss:', 'ss',
+        ("missing parameter 'C'", 'StateSpace')),
+    Case(
+        'parameter_out_of_bounds',
+        """\
+        blocks:
+          v: {type: Constant, value: 1}
+          motor:
+            type: DCMotor
+            R: -1
+        connections:
+          - v.y -> motor.v
+        """,
+        ParameterError, 'R: -1', 'motor',
+        ("'R'", '> 0', '-1')),
+    Case(
+        'time_table_value_length_differs_from_time',
+        """\
+        blocks:
+          tt:
+            type: TimeTable
+            time: [0, 1, 2]
+            value: [0, 1]
+        """,
+        ParameterError, 'value: [0, 1]', 'tt',
+        ("'value'", '3', '2')),
+    Case(
+        'string_parameter_not_in_choices_suggests_nearest',
+        """\
+        blocks:
+          e: {type: Constant, value: 1}
+          pi:
+            type: PI
+            antiwindup: clamp
+        connections:
+          - e.y -> pi.e
+        """,
+        ParameterError, 'antiwindup: clamp', 'pi',
+        ("'clamp'", 'clamping', 'backcalc', 'none')),
+    Case(
+        'expression_syntax_error',
+        """\
+        parameters:
+          K: 2
+        blocks:
+          src: {type: Constant, value: 1}
+          g:
+            type: Gain
+            k: 2*(K+
+        connections:
+          - src.y -> g.u
+        """,
+        ParameterError, 'k: 2*(K+', 'g',
+        ("'k'", '2*(K+', 'parse')),
+    Case(
+        'expression_unknown_name_suggests_parameter',
+        """\
+        parameters:
+          gain_K: 2
+        blocks:
+          src: {type: Constant, value: 1}
+          g:
+            type: Gain
+            k: 3*gain_k
+        connections:
+          - src.y -> g.u
+        """,
+        ParameterError, 'k: 3*gain_k', 'g',
+        ("unknown name 'gain_k'", 'gain_K')),
+    Case(
+        'parameters_section_unknown_name_suggests_earlier_parameter',
+        """\
+        parameters:
+          tau: 0.1
+          k: 2*taux
+        blocks:
+          src: {type: Constant, value: 1}
+          g: {type: Gain, k: k}
+        connections:
+          - src.y -> g.u
+        """,
+        ParameterError, 'k: 2*taux', None,
+        ("unknown name 'taux'", 'tau')),
+    Case(
+        'integer_too_large_for_a_float',
+        """\
+        blocks:
+          src: {type: Constant, value: 1}
+          g:
+            type: Gain
+            k: 2**10000
+        connections:
+          - src.y -> g.u
+        """,
+        ParameterError, 'k: 2**10000', 'g',
+        ('2**10000',),
+        guards='A huge integer result must be a ParameterError, not a raw OverflowError.'),
+    Case(
+        'unknown_port_names_available_ports',
+        """\
+        blocks:
+          src: {type: Constant, value: 1}
+          g: {type: Gain, k: 2}
+        connections:
+          - src.y -> g.in
+        """,
+        WiringError, 'src.y -> g.in', 'g',
+        ("no input 'in'", 'inputs: u')),
+    Case(
+        'size_mismatch_mux_into_state_space',
+        """\
+        blocks:
+          a: {type: Constant, value: 1}
+          b: {type: Constant, value: 2}
+          mux: {type: Mux, n: 2}
+          ss: {type: StateSpace, A: [[-1]], B: [[1]], C: [[1]]}
+        connections:
+          - a.y -> mux.u1
+          - b.y -> mux.u2
+          - mux.y -> ss.u
+        """,
+        WiringError, 'mux.y -> ss.u', 'ss',
+        ('size mismatch', 'mux.y -> ss.u', 'gives 2', 'expects 1')),
+    Case(
+        'subsystem_includes_itself_directly',
+        """\
+        subsystems:
+          me: main.yaml
+        blocks:
+          step: {type: Step}
+          inner: {type: me}
+        connections:
+          - step.y -> inner.u
+        """,
+        DiagramError, 'inner: {type: me}', 'inner',
+        ('includes itself', 'main.yaml -> main.yaml')),
+    Case(
+        'unknown_top_level_section_suggests_near_name',
+        """\
+        blocks:
+          a: {type: Constant, value: 1}
+          g: {type: Gain}
+        conections:
+          - a.y -> g.u
+        """,
+        DiagramError, 'conections:', None,
+        ("unknown section 'conections'", "did you mean 'connections'")),
+    Case(
+        'unknown_simulation_setting',
+        """\
+        blocks:
+          a: {type: Constant, value: 1}
+          g: {type: Gain}
+        connections:
+          - a.y -> g.u
+        simulation:
+          t_end: 1
+          rel_tol: 1e-6
+        """,
+        DiagramError, 'rel_tol:', None,
+        ("unknown simulation setting 'rel_tol'", 'rtol', 't_end')),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_bad_diagram_is_reported_where_it_is(tmp_path, case):
+    """Each case of the table: the error's class, file:line and block, and the message's
+    key words (the expected and the found value, the suggested near name)."""
+    p = write(tmp_path, case.text)
+    err = load_error(p, case.error)
+    assert_where(err, p, line_of(p, case.needle), block=case.block)
+    for s in case.contains:
+        assert s in err.message, (s, err.message)
