@@ -11,6 +11,7 @@ import math
 import os
 import sys
 import time
+import warnings
 
 import yaml
 
@@ -737,9 +738,22 @@ def cmd_cache(args):
     return 0
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """spidersim's own warnings as one line (``spidersim: warning: ...``), others as usual."""
+    from .errors import RenamedParameterWarning
+    if issubclass(category, RenamedParameterWarning):
+        print(f"spidersim: warning: {message}", file=sys.stderr)
+    else:
+        _SHOW_WARNING(message, category, filename, lineno, file, line)
+
+
+_SHOW_WARNING = warnings.showwarning
+
+
 def main(argv=None):
     # plots are files here: a non-interactive backend unless the user chose one
     os.environ.setdefault("MPLBACKEND", "Agg")
+    warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
     try:
         return args.fn(args)

@@ -88,3 +88,8 @@ class IntegrationError(SpidersimError):
     def __init__(self, message, partial=None, **kw):
         super().__init__(message, **kw)
         self.partial = partial
+
+
+class RenamedParameterWarning(FutureWarning):
+    """A parameter given under its old name (accepted for one release); the message says
+    where and what the new name is. The CLI prints it as ``spidersim: warning: ...``."""

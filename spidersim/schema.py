@@ -114,6 +114,11 @@ def block_schema(cls):
                     "anyOf": [inner, {"$ref": "#/$defs/each"}]}
         if "default" in inner:
             props[n]["default"] = inner.pop("default")
+    for old, new in cls.renamed.items():      # accepted for one release, flagged
+        props[old] = {**props[new], "deprecated": True,
+                      "description": f"old name of '{new}' (rename it): "
+                                     + props[new]["description"]}
+        props[old].pop("default", None)
     required = ["type"] + [n for n, d in cls.parameters.items() if d.default is REQUIRED]
     return {"type": "object", "title": cls.type_name,
             "description": f"{first}\nInputs: {_port_text(cls, 'in')}.\n"

@@ -65,12 +65,13 @@ import inspect
 import math
 import re
 import sys
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import BlockTypeError, ParameterError
+from ..errors import BlockTypeError, ParameterError, RenamedParameterWarning
 
 REQUIRED = object()
 
@@ -226,6 +227,9 @@ class Block:
     scratch: dict = {}
     #: output -> (residual port, initial-guess parameter): outputs the engine solves for
     implicit: dict = {}
+    #: old parameter name -> current name: a renamed parameter is still accepted under its
+    #: old name for one release, with a :class:`RenamedParameterWarning` saying where
+    renamed: dict = {}
 
     def __init_subclass__(cls, abstract=False, **kw):
         super().__init_subclass__(**kw)
@@ -259,6 +263,10 @@ class Block:
                     res in cls.outputs or res in cls.inputs):
                 fail(f"implicit output '{o}' needs output '{o}', a residual port '{res}' "
                      f"(input or output) and a guess parameter '{guess}'")
+        for old, new in cls.renamed.items():
+            if new not in cls.parameters or old in cls.parameters:
+                fail(f"renamed parameter '{old}' -> '{new}' needs '{new}' declared and "
+                     f"'{old}' not")
         if cls.has_kernel("derivative") and not cls.states:
             fail("defines 'derivative' but declares no states")
         if cls.has_kernel("guard") and not cls.events:
@@ -396,6 +404,11 @@ class Block:
         them for error messages. Raises :class:`ParameterError`.
         """
         where = where or (lambda name: (None, None))
+        old_of = {cls.renamed[k]: k for k in given if k in cls.renamed}
+        given = cls.current_names(given, where)
+        if old_of:                       # locate a renamed value at its old name's line
+            where_given = where
+            where = lambda name: where_given(old_of.get(name, name))  # noqa: E731
         for name in given:
             if name not in cls.parameters:
                 near = difflib.get_close_matches(name, list(cls.parameters), n=3)
@@ -422,6 +435,28 @@ class Block:
         except ValueError as exc:
             f, l = where(None)
             raise ParameterError(str(exc), file=f, line=l) from None
+        return out
+
+    @classmethod
+    def current_names(cls, given: dict, where=None) -> dict:
+        """``given`` with renamed parameters under their current names (see ``renamed``),
+        warning once per use; both names at once is a :class:`ParameterError`."""
+        if not cls.renamed or not any(k in cls.renamed for k in given):
+            return given
+        where = where or (lambda name: (None, None))
+        out = dict(given)
+        for old, new in cls.renamed.items():
+            if old not in out:
+                continue
+            f, l = where(old)
+            if new in out:
+                raise ParameterError(f"parameter '{old}' is the old name of '{new}'; give "
+                                     f"only '{new}'", file=f, line=l)
+            out[new] = out.pop(old)
+            at = f"{f}:{l}: " if f and l else (f"{f}: " if f else "")
+            warnings.warn(f"{at}{cls.type_name}: parameter '{old}' is now called '{new}' "
+                          f"(the names table in the README); '{old}' is accepted until "
+                          f"spidersim 0.2", RenamedParameterWarning, stacklevel=2)
         return out
 
     @classmethod

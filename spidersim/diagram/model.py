@@ -229,6 +229,7 @@ class Diagram:
         if bl is None:
             raise ParameterError(f"set {path}: no block '{block}' (write block.param; "
                                  f"subsystem parameters need load(set=...))")
+        (name, value), = bl.cls.current_names({name: value}).items()
         decl = bl.cls.parameters.get(name)
         if decl is None:
             raise ParameterError(f"set {path}: type {bl.cls.type_name} has no parameter "

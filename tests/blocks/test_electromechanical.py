@@ -7,7 +7,7 @@ from scipy.linalg import expm
 from .harness import Probe, simulate
 
 RTOL, ATOL = 1e-8, 1e-10
-M = dict(R=1.2, L=2e-3, K=0.05, J=1e-4, b=1e-5)
+M = dict(R=1.2, L=2e-3, K_t=0.05, J=1e-4, b=1e-5)
 
 
 def _motor(v, tau=None, t_end=1.0, extra="", conns="", **params):
@@ -23,7 +23,7 @@ def _motor(v, tau=None, t_end=1.0, extra="", conns="", **params):
 @pytest.mark.parametrize("v,tau", [(12.0, None), (12.0, 0.01), (-6.0, -0.005)])
 def test_steady_state(v, tau):
     """w = (K v - R tau) / (R b + K^2), i = (b w + tau) / K (no load: w = K v / (R b + K^2))."""
-    R, K, b = M["R"], M["K"], M["b"]
+    R, K, b = M["R"], M["K_t"], M["b"]
     r = _motor(v, tau, t_end=1.5)
     tl = tau or 0.0
     w = (K * v - R * tl) / (R * b + K ** 2)
@@ -36,7 +36,7 @@ def test_steady_state(v, tau):
 
 def test_matches_linear_solution():
     """x = (i, w, phi): dx/dt = A x + B (v, tau_load) from i0, w0, phi0 (matrix exponential)."""
-    R, L, K, J, b = (M[k] for k in "RLKJb")
+    R, L, K, J, b = (M[k] for k in ("R", "L", "K_t", "J", "b"))
     x0 = np.array([0.5, -20.0, 1.0])
     u = np.array([9.0, 0.004])
     A = np.array([[-R / L, -K / L, 0.0], [K / J, -b / J, 0.0], [0.0, 1.0, 0.0]])
@@ -96,7 +96,7 @@ def test_positive_load_torque_decelerates():
     assert loaded == pytest.approx(free - 0.01 / M["J"])
     assert p.derivatives(0.0, x)["phi"][0] == 100.0
     p.set_input("v", 5.0)
-    assert p.derivatives(0.0, x)["i"][0] == pytest.approx((5.0 - M["K"] * 100.0) / M["L"])
+    assert p.derivatives(0.0, x)["i"][0] == pytest.approx((5.0 - M["K_t"] * 100.0) / M["L"])
 
 
 def test_unconnected_load_reads_zero():
@@ -109,7 +109,7 @@ def test_unconnected_load_reads_zero():
 def test_zero_inductance_is_first_order_with_algebraic_current():
     """L = 0: i = (v - K w)/R (feedthrough of v), J w' = K i - b w - tau: a first-order lag
     w = w_ss + (w0 - w_ss) exp(-t / T), T = J / (K^2/R + b), w_ss = (K v/R - tau) T / J."""
-    R, K, J, b = M["R"], M["K"], M["J"], M["b"]
+    R, K, J, b = M["R"], M["K_t"], M["J"], M["b"]
     v, tau, w0 = 12.0, 0.004, 30.0
     r = _motor(v, tau, t_end=0.5, L=0.0, w0=w0)
     c = K ** 2 / R + b

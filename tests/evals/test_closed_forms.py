@@ -179,7 +179,7 @@ def test_oscillator_of_two_integrators_and_a_gain_loads():
 
 
 # ---------------------------------------------------------------------------- PI speed loop
-MOTOR = dict(R=1.0, L=1e-3, K=0.05, J=1e-4, b=1e-5)
+MOTOR = dict(R=1.0, L=1e-3, K_t=0.05, J=1e-4, b=1e-5)
 KP, KI, W_REF = 0.05, 5.0, 100.0   # closed-loop poles -950, -25 +- 44.8j
 PI_LOOP = f"""
 name: speed_pi
@@ -187,7 +187,7 @@ blocks:
   ref:   {{type: Step, t_step: 0, after: {W_REF}}}
   err:   {{type: Sum, signs: "+-"}}
   pi:    {{type: PI, kp: {KP}, ki: {KI}, antiwindup: none}}
-  motor: {{type: DCMotor, R: {MOTOR['R']}, L: {MOTOR['L']}, K: {MOTOR['K']}, J: {MOTOR['J']},
+  motor: {{type: DCMotor, R: {MOTOR['R']}, L: {MOTOR['L']}, K_t: {MOTOR['K_t']}, J: {MOTOR['J']},
           b: {MOTOR['b']}}}
 connections:
   - ref.y -> err.u1
@@ -207,7 +207,7 @@ def pi_loop_ss(R=MOTOR["R"]):
         dI/dt   = ki (r - w)
         dphi/dt = w
     """
-    L, K, J, b = MOTOR["L"], MOTOR["K"], MOTOR["J"], MOTOR["b"]
+    L, K, J, b = MOTOR["L"], MOTOR["K_t"], MOTOR["J"], MOTOR["b"]
     A = np.array([[-R / L, -(K + KP) / L, 1 / L, 0],
                   [K / J, -b / J, 0, 0],
                   [0, -KI, 0, 0],

@@ -122,7 +122,7 @@ def test_round_trip_opening_removes_the_feedback_path():
 
 
 # ----------------------------------------------------------------------------- DC motor + PI
-MOTOR = dict(R=1.0, L=1e-3, K=0.05, J=1e-4, b=1e-5)
+MOTOR = dict(R=1.0, L=1e-3, K_t=0.05, J=1e-4, b=1e-5)
 KP, KI = 0.3, 30.0
 
 MOTOR_PI = f"""
@@ -131,7 +131,7 @@ blocks:
   ref:   {{type: Constant, value: 0.0}}
   err:   {{type: Sum, signs: "+-"}}
   pi:    {{type: PI, kp: {KP}, ki: {KI}, antiwindup: none}}
-  motor: {{type: DCMotor, R: {MOTOR['R']}, L: {MOTOR['L']}, K: {MOTOR['K']}, J: {MOTOR['J']},
+  motor: {{type: DCMotor, R: {MOTOR['R']}, L: {MOTOR['L']}, K_t: {MOTOR['K_t']}, J: {MOTOR['J']},
           b: {MOTOR['b']}}}
 connections:
   - ref.y -> err.u1
@@ -143,7 +143,7 @@ connections:
 
 def _motor_hand():
     """Speed loop by hand: (L s + R) I = V - K W, (J s + b) W = K I  =>  W/V = P(s)."""
-    R, L, K, J, b = (MOTOR[k] for k in "RLKJb")
+    R, L, K, J, b = (MOTOR[k] for k in ("R", "L", "K_t", "J", "b"))
     plant = K / ((L * S + R) * (J * S + b) + K ** 2)
     pi = KP + KI / S
     loop = pi * plant                       # the PI output, around the loop, back to itself

@@ -142,7 +142,7 @@ blocks:
   ref: {{type: Step, t_step: 0.001, after: 2}}
   err: {{type: Sum, signs: "+-"}}
   pi: {{type: PI, kp: 20, ki: 20000}}
-  motor: {{type: DCMotor, R: 1, L: {L}, K: 0.05, J: 1e-4, b: 1e-5}}
+  motor: {{type: DCMotor, R: 1, L: {L}, K_t: 0.05, J: 1e-4, b: 1e-5}}
 connections:
   - ref.y -> err.u1
   - motor.i -> err.u2
