@@ -350,7 +350,8 @@ class RigidContact6(Block):
     through ``origin``), ``lam_k >= 0`` pushes. Onset (event): ``e_t,k`` falls through zero;
     release (event): ``lam_k`` falls through zero; each unilateral direction on its own. If
     the applied forces already pull at the onset instant (after the impact), that direction
-    lets go at once. Bilateral directions never release: they engage at the start
+    lets go at once; with ``engaged``, one that starts with a gap (``e_t,k > 1 nm``) waits for
+    its onset. Bilateral directions never release: they engage at the start
     (``engaged``) holding the contact frame (``h = 0``, ``R_h = I``: start the flange on
     it), or with the first unilateral onset holding the pose of that instant (``h_k =
     e_t,k``, ``R_h = R_e``: a fixture that latches where it is touched).
@@ -413,6 +414,7 @@ class RigidContact6(Block):
              "hold": Mode(size=3, doc="translation h a bilateral direction holds [m]"),
              "R_hold": Mode(size=9, initial=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
                             doc="orientation R_h the rotation rows hold (row-major)"),
+             "fresh": Mode(initial=1.0, doc="1 until the start has been initialised"),
              "gap_off": Mode(size=3, doc="onset level after a release: min(e_t,k at "
                                          "release, 0) - 1 nm (0 before any release)")}
     events = {"onset": Event(-1, "a unilateral translation falls through its onset level: "
@@ -536,10 +538,13 @@ class RigidContact6(Block):
             gap_off[k] = min(error[k], 0.0) - 1e-9
 
     @staticmethod
-    def initialize(t, lam, unilateral, active, t_on):
+    def initialize(t, lam, error, unilateral, active, t_on, fresh):
         # a unilateral direction that would pull at its onset (right after the impact, or
-        # at the start of a run that begins engaged) lets go at once
+        # at the start of a run that begins engaged) lets go at once; at the start, one
+        # with a gap (e_t,k > 1 nm) waits for its onset
         for k in range(3):
-            if unilateral[k] > 0.5 and active[k] > 0.5 and lam[k] < 0.0 and t == t_on[k]:
+            if unilateral[k] > 0.5 and active[k] > 0.5 and t == t_on[k] and (
+                    lam[k] < 0.0 or (fresh[0] > 0.5 and error[k] > 1e-9)):
                 active[k] = 0.0
+        fresh[0] = 0.0
 

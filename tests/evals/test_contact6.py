@@ -17,6 +17,7 @@ against closed forms and an independent integration of the constrained dynamics.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ import spidersim
 from spidersim.errors import ParameterError
 from spidersim.multibody import Chain
 
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 N = 7
 Q0 = np.array([0.0, 0.6, 0.0, -1.3, 0.0, 0.8, 0.0])
 G = 9.81
@@ -420,3 +422,54 @@ connections:
     msg = str(exc.value).lower()
     for w in words:
         assert w.lower() in msg, (w, msg)
+
+
+# =========================================================================== the demo
+def test_peg_contact_diagram():
+    """diagrams/peg_contact.yaml (the README's demo): the peg slides to the bottom of the
+    hole at the instant the 4-direction constrained dynamics (x, y, rx, ry held, scipy)
+    predict, the bottom engages with the 5-direction plastic impact, holds with a push
+    (lam_z > 0) and lets go the instant the pull steps in; every engaged direction held
+    to 1e-9 throughout."""
+    d = spidersim.load(os.path.join(ROOT, "diagrams", "peg_contact.yaml"))
+    r = d.simulate(jit=False, output_interval=None)
+    on = _events(r, "wall", "onset")
+    assert len(on) == 1 and _events(r, "arm", "impact6") == on
+    assert _events(r, "wall", "release") == [pytest.approx(0.6, abs=1e-12)]
+    from spidersim.blocks.contact import rpy_matrix
+    Rc = rpy_matrix([0.0, 2.7, 0.0])
+    bottom = np.array(d.spec.parameters["bottom"], float)
+    tau = np.array(d.spec.parameters["tau_push"], float)
+    ch = _chain([0, 0, 0])
+
+    def gap(t, x):
+        return Rc[:, 2] @ (ch.fk(x[:N])[:3, 3] - bottom)
+    gap.terminal, gap.direction = True, -1
+    ref = _reference_with_event(ch, tau, Rc, gap)
+    assert on[0] == pytest.approx(ref, rel=1e-7)
+    assert np.abs(r["wall.drift"]).max() < 1e-9
+    held = (r.t > on[0]) & (r.t < 0.6)
+    assert r["wall.lam"][held, 2].min() > 15.0
+    out = r.t > 0.6
+    assert np.all(np.diff(r["wall.error"][out, 2]) >= 0) and r["wall.error"][-1, 2] > 0.05
+
+
+def _reference_with_event(ch, tau, Rc, event):
+    sel = [1, 1, 0, 1, 1, 0]
+
+    def f(t, x):
+        q, qd = x[:N], x[N:]
+        M = ch.mass_matrix(q)
+        b = ch.rnea(q, qd, np.zeros(N))
+        Jc = contact_jacobian(ch, q, Rc, sel)
+        h = 1e-6
+        Jd = (contact_jacobian(ch, q + h * qd, Rc, sel)
+              - contact_jacobian(ch, q - h * qd, Rc, sel)) / (2 * h)
+        Minv_rhs = np.linalg.solve(M, tau - b)
+        Y = np.linalg.solve(M, Jc.T)
+        lam = -np.linalg.solve(Jc @ Y, Jc @ Minv_rhs + Jd @ qd)
+        return np.concatenate([qd, Minv_rhs + Y @ lam])
+    q0 = np.array([0, 0.6, 0, -1.3, 0, 0.8, 0.0])
+    sol = solve_ivp(f, (0.0, 0.5), np.concatenate([q0, np.zeros(N)]), method="DOP853",
+                    rtol=1e-11, atol=1e-13, events=event)
+    return sol.t_events[0][0]
