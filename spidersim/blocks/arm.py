@@ -12,6 +12,12 @@ part of the last link while ``latched``. Before the latch it is fixed in space (
 when the ``latch`` input rises through 0.5 the joint velocities jump so that the
 generalized momentum is conserved, ``M'(q) qd+ = M(q) qd-`` (a plastic capture).
 
+Rigid contact on the flange: a :class:`RigidContact` (``constraint``, one normal) or a
+:class:`RigidContact6` (``constraint6``, any subset of six directions) engaging a direction
+is a plastic impact, ``qd+ = qd- - M^-1 J_c^T (J_c M^-1 J_c^T)^-1 J_c qd-`` over the
+engaged rows ``J_c`` of the flange Jacobian in the contact axes. ``flange_alpha`` (the
+angular acceleration ``J_w qdd + Jdot_w qd``) closes the rotational rows of such a loop.
+
 ``base_force`` and ``base_moment`` (about the base origin, base frame) are the wrench the
 arm applies to its mounting (the ISS truss): the opposite of the wrench the mounting
 applies to the arm. With ``gravity = 0`` they equal minus the rate of change of the arm's

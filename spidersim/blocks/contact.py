@@ -342,8 +342,9 @@ class RigidContact6(Block):
     applies to the flange; ``wrench = [R_c lam_t; R_c lam_r]`` (moment about the flange
     origin, base frame) is what ``Arm.f_ext`` expects. ``d_r`` vanishes exactly when the
     flange has turned from ``R_h`` about the free rotation axes only (``E = Rz(theta)``
-    with rz free); its Baumgarte gain is then scaled by ``(1 + cos theta) / 2`` (stable for
-    ``|theta| < pi``).
+    with rz free); near it, the position feedback of rx, ry is scaled by ``cos(theta / 2)``
+    and rotated by ``theta / 2`` about the free axis: full for small turns, vanishing at a
+    half turn, where only the velocity-level terms hold those rows.
 
     Unilateral directions (``unilateral`` 1: translations only, a subset of ``select``):
     the free side is ``e_t,k > 0`` (contact axis k is the outward normal of a surface
