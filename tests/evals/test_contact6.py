@@ -473,3 +473,35 @@ def _reference_with_event(ch, tau, Rc, event):
     sol = solve_ivp(f, (0.0, 0.5), np.concatenate([q0, np.zeros(N)]), method="DOP853",
                     rtol=1e-11, atol=1e-13, events=event)
     return sol.t_events[0][0]
+
+
+def test_engaged_with_a_gap_waits_for_the_onset():
+    """``engaged: true`` with the flange 1 um above the plane (unilateral z) and pushed
+    towards it with F = 20 N (g = 0, tau = -J_z^T F): the direction is not engaged at the
+    start (lam_z = 0; the Baumgarte terms would otherwise hold it at the gap and push back),
+    the flange falls with a = F J_z M^-1 J_z^T and lands at t = sqrt(2 gap / a) (the motion
+    is tiny: the closed form holds to 1e-4), with the plastic impact there."""
+    ch = _chain([0, 0, 0])
+    F, gap = 20.0, 1e-6
+    T = ch.fk(Q0)
+    Jz = ch.jacobian(Q0)[2]
+    tau = -Jz * F
+    text = f"""
+name: gap_start
+blocks:
+  tau:  {{type: Constant, value: {_yl(tau)}}}
+  arm:  {{type: Arm, q0: {_yl(Q0)}}}
+  wall: {{type: RigidContact6, origin: {_yl(T[:3, 3] - [0, 0, gap])}, engaged: true}}
+connections:
+  - tau.y -> arm.tau
+{ARM_WIRES}log: [wall.lam, wall.error]
+"""
+    r = spidersim.loads(text).simulate(t_end=0.004, **SIM)
+    a = F * Jz @ np.linalg.solve(ch.mass_matrix(Q0), Jz)
+    on = _events(r, "wall", "onset")
+    assert on == [pytest.approx(math.sqrt(2 * gap / a), rel=1e-4)]
+    assert _events(r, "arm", "impact6") == on
+    before = r.t < on[0]
+    assert np.abs(r["wall.lam"][before]).max() < 1e-12
+    after = r.t > on[0]
+    assert r["wall.lam"][after, 2].min() > 0.99 * F
