@@ -12,6 +12,12 @@ part of the last link while ``latched``. Before the latch it is fixed in space (
 when the ``latch`` input rises through 0.5 the joint velocities jump so that the
 generalized momentum is conserved, ``M'(q) qd+ = M(q) qd-`` (a plastic capture).
 
+Rigid contact on the flange: a :class:`RigidContact` (``constraint``, one normal) or a
+:class:`RigidContact6` (``constraint6``, any subset of six directions) engaging a direction
+is a plastic impact, ``qd+ = qd- - M^-1 J_c^T (J_c M^-1 J_c^T)^-1 J_c qd-`` over the
+engaged rows ``J_c`` of the flange Jacobian in the contact axes. ``flange_alpha`` (the
+angular acceleration ``J_w qdd + Jdot_w qd``) closes the rotational rows of such a loop.
+
 ``base_force`` and ``base_moment`` (about the base origin, base frame) are the wrench the
 arm applies to its mounting (the ISS truss): the opposite of the wrench the mounting
 applies to the arm. With ``gravity = 0`` they equal minus the rate of change of the arm's
@@ -22,7 +28,7 @@ import os
 
 import numpy as np
 
-from ..multibody.kernels import WS_ACC, WS_O, WS_R, WS_W
+from ..multibody.kernels import WS_ACC, WS_ALPHA, WS_O, WS_R, WS_W
 from ..multibody.kernels import WS_PER_LINK as _WS
 from .base import Block, Dim, Event, Mode, Param, Port, State, unit_vector
 
@@ -95,7 +101,10 @@ class Arm(Block):
               "latch": Port("1", optional=True, doc="rising through 0.5: capture the payload"),
               "constraint": Port("*", size=4, optional=True,
                                  doc="[engaged, n] from a RigidContact on the flange: "
-                                     "plastic impact when it engages")}
+                                     "plastic impact when it engages"),
+              "constraint6": Port("*", size=15, optional=True,
+                                  doc="[engaged per direction (6), R_c row-major (9)] from a "
+                                      "RigidContact6: plastic impact when one engages")}
     outputs = {
         "q": Port("rad", size=_N, doc="joint angles (link side)"),
         "qd": Port("rad/s", size=_N, doc="joint speeds"),
@@ -105,6 +114,8 @@ class Arm(Block):
         "flange_twist": Port("*", size=6, doc="flange linear [m/s] and angular [rad/s] velocity"),
         "flange_acc": Port("m/s2", size=3, feedthrough=("tau", "f_ext"),
                            doc="flange origin acceleration, J qdd + Jdot qd"),
+        "flange_alpha": Port("rad/s2", size=3, feedthrough=("tau", "f_ext"),
+                             doc="flange angular acceleration, J_w qdd + Jdot_w qd"),
         "base_force": Port("N", size=3, feedthrough=("tau", "f_ext"),
                            doc="force the arm applies to its mounting"),
         "base_moment": Port("N.m", size=3, feedthrough=("tau", "f_ext"),
@@ -115,13 +126,18 @@ class Arm(Block):
     modes = {"attached": Mode(initial=lambda p: 1.0 if p["latched"] else 0.0,
                               doc="1 once the payload is attached")}
     events = {"latch": Event(1, "the latch input rises: the payload is captured"),
-              "impact": Event(1, "a rigid constraint on the flange engages: plastic impact")}
+              "impact": Event(1, "a rigid constraint on the flange engages: plastic impact"),
+              "impact6": Event(1, "a direction of a RigidContact6 engages: plastic impact "
+                                  "on all its engaged directions", size=6)}
     scratch = {"ws": _ws_dim(),
                "Mw": Dim("n^2", lambda p: _n(p) ** 2),
                "Mw2": Dim("n^2", lambda p: _n(p) ** 2),
                "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
                "v1": Dim("n", _n), "Jw": Dim("6 n", lambda p: 6 * _n(p)),
-               "key": Dim("n + 2", lambda p: _n(p) + 2)}
+               "key": Dim("n + 2", lambda p: _n(p) + 2),
+               "Jc": Dim("6 n", lambda p: 6 * _n(p)), "Yc": Dim("6 n", lambda p: 6 * _n(p)),
+               "Ac": Dim("36", lambda p: 36), "rc": Dim("6", lambda p: 6),
+               "xc": Dim("6", lambda p: 6)}
 
     @classmethod
     def check(cls, params):
@@ -139,8 +155,8 @@ class Arm(Block):
 
     @staticmethod
     def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, Jw, key,
-               qdd, flange_pos, flange_rot, flange_twist, flange_acc, base_force,
-               base_moment):
+               qdd, flange_pos, flange_rot, flange_twist, flange_acc, flange_alpha,
+               base_force, base_moment):
         n = q.size
         M = Mw.reshape((n, n))
         PP = P_lat if attached[0] > 0.5 else P
@@ -158,6 +174,7 @@ class Arm(Block):
             flange_twist[3 + k] = ws[b + WS_W + k]
             # the last RNEA pass ran with the base accelerating at -g
             flange_acc[k] = ws[b + WS_ACC + k] + gravity[k]
+            flange_alpha[k] = ws[b + WS_ALPHA + k]
         flange_jacobian(n, ws, Jw)
         for r in range(3):
             acc = 0.0
@@ -172,17 +189,24 @@ class Arm(Block):
             der_qd[i] = qdd[i]
 
     @staticmethod
-    def guard(t, latch, constraint, attached, zc):
+    def guard(t, latch, constraint, constraint6, attached, zc):
         zc[0] = latch[0] - 0.5 if attached[0] < 0.5 else -1.0
         zc[1] = constraint[0] - 0.5
+        for k in range(6):
+            zc[2 + k] = constraint6[k] - 0.5
 
     @staticmethod
-    def on_event(t, which, direction, q, qd, constraint, P, P_lat, attached, ws, Mw, Mw2,
-                 tmp, bw, v1, Jw, key):
+    def on_event(t, which, direction, q, qd, constraint, constraint6, P, P_lat, attached,
+                 ws, Mw, Mw2, tmp, bw, v1, Jw, key, Jc, Yc, Ac, rc, xc):
         n = q.size
         M = Mw.reshape((n, n))
         M2 = Mw2.reshape((n, n))
         key[n + 1] = 0.0                              # Mw is overwritten here
+        if which >= 2:
+            mass_matrix(q, P_lat if attached[0] > 0.5 else P, ws, M, tmp, bw)
+            flange_jacobian(n, ws, Jw)
+            impact_projection(n, qd, constraint6, M, Jw, Jc, Yc, Ac, rc, xc)
+            return
         if which == 1:
             # plastic impact on the plane of normal c: J_n = c^T J_v (1 x n),
             # qd+ = qd- - M^-1 J_n^T (J_n M^-1 J_n^T)^-1 J_n qd-   (approaching only)
@@ -218,10 +242,10 @@ class Arm(Block):
 
 def _bind():
     from ..multibody import kernels as K
-    return K.forward_dynamics, K.mass_matrix, K.cholesky_solve
+    return K.forward_dynamics, K.mass_matrix, K.cholesky_solve, K.impact_projection
 
 
-forward_dynamics, mass_matrix, cholesky_solve = _bind()
+forward_dynamics, mass_matrix, cholesky_solve, impact_projection = _bind()
 
 
 class CartesianLineIK(Block):

@@ -268,6 +268,66 @@ def orientation_error(ws, n, R_ref, e):
     e[0], e[1], e[2] = ex, ey, ez
 
 
+def relative_rotation(Rc, R, out):
+    """``out = R_c^T R`` for 3 x 3 rotations, all row-major (9 floats): ``R`` seen from
+    the frame ``R_c``."""
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for r in range(3):
+                acc += Rc[3 * r + i] * R[3 * r + j]
+            out[3 * i + j] = acc
+
+
+def impact_projection(n, qd, c, M, J, Jc, Y, A, r, x):
+    """Plastic impact on the engaged directions of a 6-D flange constraint, in place::
+
+        qd+ = qd- - M^-1 J_c^T (J_c M^-1 J_c^T)^-1 J_c qd-
+
+    ``c`` is ``[s_0..s_5, R_c]``: ``s_k > 0.5`` marks an engaged direction (0-2: translation
+    along, 3-5: rotation about the contact axis k mod 3, the column k mod 3 of the contact
+    rotation ``R_c``, row-major, base frame). Row k of ``J_c`` is ``x_k^T J_v`` or
+    ``x_k^T J_w`` (``J``: the flange Jacobian, 6 x n row-major, base frame), so ``J_c qd+ =
+    0``: the flange velocity along every engaged direction vanishes. ``M`` is factored in
+    place; ``Jc``, ``Y`` (6 n), ``A`` (36), ``r``, ``x`` (6) are scratch. The projection is
+    the least kinetic-energy change that removes the constrained velocity (energy is lost,
+    never gained). Redundant rows (a singular pose) leave ``A`` singular: NaN results.
+    """
+    m = 0
+    for k in range(6):
+        if c[k] > 0.5:
+            col = k % 3
+            blk = 0 if k < 3 else 3
+            for i in range(n):
+                acc = 0.0
+                for rr in range(3):
+                    acc += c[6 + 3 * rr + col] * J[(blk + rr) * n + i]
+                Jc[m * n + i] = acc
+            m += 1
+    if m == 0:
+        return
+    cholesky_factor(M)
+    for j in range(m):
+        cholesky_subst(M, Jc[j * n:(j + 1) * n], Y[j * n:(j + 1) * n])   # M^-1 J_c^T
+    Am = A[:m * m].reshape((m, m))
+    for a in range(m):
+        acc = 0.0
+        for i in range(n):
+            acc += Jc[a * n + i] * qd[i]
+        r[a] = acc                                                      # J_c qd-
+        for b in range(m):
+            acc = 0.0
+            for i in range(n):
+                acc += Jc[a * n + i] * Y[b * n + i]
+            Am[a, b] = acc
+    cholesky_solve(Am, r[:m], x[:m])
+    for i in range(n):
+        acc = 0.0
+        for j in range(m):
+            acc += Y[j * n + i] * x[j]
+        qd[i] -= acc
+
+
 def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd, key):
     """``qdd`` from ``M(q) qdd = tau - b(q, qd)`` (``b``: RNEA with ``qdd = 0``), then the
     base wrench of the resulting motion into ``base``.
@@ -326,4 +386,6 @@ cholesky_subst = _jit(cholesky_subst)
 cholesky_solve = _jit(cholesky_solve)
 task_inertia_factor = _jit(task_inertia_factor)
 orientation_error = _jit(orientation_error)
+impact_projection = _jit(impact_projection)
+relative_rotation = _jit(relative_rotation)
 forward_dynamics = _jit(forward_dynamics)
