@@ -127,8 +127,12 @@ def _payload_start(p):
     rot_to_quat(Rp.ravel().copy(), Q)
     w_b = Rp.T @ np.asarray(p["payload_w0"], float)
     grasp = np.zeros(12)
-    grasp[_G_COM:_G_COM + 3] = Rf.T @ (x - of)
-    grasp[_G_ROT:_G_ROT + 9] = (Rf.T @ Rp).ravel()
+    if p["payload_frame"] == "flange":          # exactly the given grasp (no round trip)
+        grasp[_G_COM:_G_COM + 3] = pos0 + Rq @ com
+        grasp[_G_ROT:_G_ROT + 9] = Rq.ravel()
+    else:
+        grasp[_G_COM:_G_COM + 3] = Rf.T @ (x - of)
+        grasp[_G_ROT:_G_ROT + 9] = (Rf.T @ Rp).ravel()
     return x, Q, np.asarray(p["payload_v0"], float) * np.ones(3), w_b, grasp
 
 
