@@ -7,10 +7,38 @@ with spidersim, or a path); see :mod:`spidersim.multibody`. The joint states (li
 live here; the joint torques come from the gearboxes. ``f_ext`` (force, moment about the
 flange origin, base frame) is applied by the environment to the arm.
 
-Payload: a rigid body (mass, COM offset and principal inertia in the flange frame) that is
-part of the last link while ``latched``. Before the latch it is fixed in space (at rest);
-when the ``latch`` input rises through 0.5 the joint velocities jump so that the
-generalized momentum is conserved, ``M'(q) qd+ = M(q) qd-`` (a plastic capture).
+Payload: a rigid body of mass ``m_p`` and principal inertia ``I_p`` about its COM. Its own
+frame (the *payload frame*) has its origin at the grapple fixture and its axes along the
+principal axes; ``payload_com`` is the COM in that frame. The nominal grasp puts the payload
+frame on the flange frame (then ``payload_com`` is the COM in the flange frame).
+
+* Free (``attached = 0``): a torque-free rigid body in orbit, integrated as states: COM
+  position ``x_p`` and velocity ``v_p`` (base frame; ``dv_p/dt = g``), attitude quaternion
+  ``Q_p`` (body axes in the base frame, scalar first; ``R_p`` always formed from
+  ``Q_p / |Q_p|``) and body-axis angular velocity ``w_b`` (Euler's equations, see
+  :mod:`spidersim.multibody.rigid_body`). It does not load the arm. The initial pose is
+  ``payload_pos0`` (grapple fixture) and ``payload_quat0`` (payload axes) in the flange frame
+  at ``q0`` (``payload_frame: flange``, the default: zeros and [1, 0, 0, 0] are the nominal
+  grasp) or in the base frame (``payload_frame: base``); the initial twist ``payload_v0``
+  (COM velocity) and ``payload_w0`` (angular velocity) is in the base frame.
+* Capture (the ``latch`` input rises through 0.5): the payload is attached *where it is*:
+  its pose relative to the flange at that instant (COM ``c_rel``, axes ``R_rel``) is kept
+  (no snap to the nominal grasp: the capture logic decides when the flange is close enough),
+  and merged into the last link. A plastic impact: the impulses between flange and payload
+  and between base and link 1 are unknown, the joint torques finite, so the generalized
+  momentum projected on the joints is conserved::
+
+      M'(q) qd+ = M(q) qd- + J_c^T M_p V_p-,   M' = M + J_c^T M_p J_c,
+      J_c = [J_v - [r]x J_w; J_w]  (COM Jacobian, r = x_p - o_n),  M_p = diag(m_p E, R_p I_p R_p^T)
+
+  ``V_p- = [v_p; R_p w_b]``. Linear and angular momentum of arm + payload are *not* conserved
+  with a fixed base: the ISS takes an impulse; only its moment about the joint-1 axis is
+  zero (that component of the momentum is conserved).
+* Release (the ``release`` input rises through 0.5 while attached): the payload leaves with
+  its current twist, ``v_p = v_n + w_n x r``, ``w = w_n``, as free-body states; the joint
+  speeds do not jump (no impulse), the arm's momentum drops by the payload's.
+* ``latched: true``: attached from the start at its initial pose (the twist parameters are
+  then unused).
 
 Rigid contact on the flange: a :class:`RigidContact` (``constraint``, one normal) or a
 :class:`RigidContact6` (``constraint6``, any subset of six directions) engaging a direction
@@ -23,7 +51,6 @@ arm applies to its mounting (the ISS truss): the opposite of the wrench the moun
 applies to the arm. With ``gravity = 0`` they equal minus the rate of change of the arm's
 (and latched payload's) momentum.
 """
-import math
 import os
 
 import numpy as np
@@ -31,6 +58,10 @@ import numpy as np
 from ..multibody.kernels import WS_ACC, WS_ALPHA, WS_O, WS_R, WS_W
 from ..multibody.kernels import WS_PER_LINK as _WS
 from .base import Block, Dim, Event, Mode, Param, Port, State, unit_vector
+
+# grasp mode layout: COM in the flange frame (3), payload axes in the flange frame R_rel
+# (row-major 9)
+_G_COM, _G_ROT = 0, 3
 
 _CHAINS = {}
 
@@ -56,7 +87,9 @@ _N = Dim("number of joints of the model", _n)
 
 
 def _with_payload(P, mass, com, inertia):
-    """Link table with the payload merged into the last link (link coordinates)."""
+    """Link table with the payload merged into the last link at the nominal grasp (COM
+    ``com`` and principal axes along the flange frame); the block itself merges at the
+    actual grasp with :func:`spidersim.multibody.rigid_body.merge_into_link`."""
     P = P.copy()
     last = P[-1]
     m0, c0 = last[3], last[4:7].copy()
@@ -78,6 +111,44 @@ def _with_payload(P, mass, com, inertia):
     return P
 
 
+def _payload_start(p):
+    """Initial payload state in the base frame: (COM x_p, quaternion Q_p, v_p, w_b), and the
+    grasp (COM and axes in the flange frame at q0)."""
+    ch = _chain(p["model"])
+    T = ch.fk(np.asarray(p["q0"], float) * np.ones(ch.n))
+    Rf, of = T[:3, :3], T[:3, 3]
+    Qn = _unit_quat(p["payload_quat0"])
+    Rq = np.zeros(9)
+    quat_to_rot(Qn, Rq)
+    Rq = Rq.reshape(3, 3)
+    pos0 = np.asarray(p["payload_pos0"], float)
+    com = np.asarray(p["payload_com"], float)
+    if p["payload_frame"] == "flange":
+        Rp, grapple = Rf @ Rq, of + Rf @ pos0
+    else:
+        Rp, grapple = Rq, pos0
+    x = grapple + Rp @ com
+    Q = np.zeros(4)
+    rot_to_quat(Rp.ravel().copy(), Q)
+    w_b = Rp.T @ np.asarray(p["payload_w0"], float)
+    grasp = np.zeros(12)
+    if p["payload_frame"] == "flange":          # exactly the given grasp (no round trip)
+        grasp[_G_COM:_G_COM + 3] = pos0 + Rq @ com
+        grasp[_G_ROT:_G_ROT + 9] = Rq.ravel()
+    else:
+        grasp[_G_COM:_G_COM + 3] = Rf.T @ (x - of)
+        grasp[_G_ROT:_G_ROT + 9] = (Rf.T @ Rp).ravel()
+    return x, Q, np.asarray(p["payload_v0"], float) * np.ones(3), w_b, grasp
+
+
+def _unit_quat(Q):
+    Q = np.asarray(Q, float)
+    s = np.linalg.norm(Q)
+    if not s > 1e-12:
+        raise ValueError(f"payload_quat0: a unit quaternion [w, x, y, z] is needed, got {list(Q)}")
+    return Q / s
+
+
 class Arm(Block):
     """n-DOF serial arm with payload (see the module docstring)."""
 
@@ -89,16 +160,31 @@ class Arm(Block):
         "q0": Param(0.0, "rad", "initial joint angles", shape=_N),
         "qd0": Param(0.0, "rad/s", "initial joint speeds", shape=_N),
         "payload_mass": Param(0.0, "kg", "payload mass", ge=0.0),
-        "payload_com": Param([0.0, 0.0, 0.0], "m", "payload COM in the flange frame", shape=3),
+        "payload_com": Param([0.0, 0.0, 0.0], "m", "payload COM in the payload frame "
+                             "(origin: grapple fixture; the flange frame at the nominal grasp)",
+                             shape=3),
         "payload_inertia": Param([0.0, 0.0, 0.0], "kg.m2",
-                                 "payload principal inertia about its COM, flange axes",
+                                 "payload principal inertia about its COM, payload axes",
                                  shape=3, ge=0.0),
         "latched": Param(False, kind="bool", doc="payload attached from the start"),
+        "payload_frame": Param("flange", kind="str", choices=("flange", "base"),
+                               doc="frame of payload_pos0 and payload_quat0: the flange frame "
+                                   "at q0, or the base frame"),
+        "payload_pos0": Param([0.0, 0.0, 0.0], "m", "initial grapple fixture position "
+                              "(payload frame origin), in payload_frame", shape=3),
+        "payload_quat0": Param([1.0, 0.0, 0.0, 0.0], "1", "initial payload axes, quaternion "
+                               "[w, x, y, z] in payload_frame (normalised)", shape=4),
+        "payload_v0": Param([0.0, 0.0, 0.0], "m/s", "initial payload COM velocity, base frame",
+                            shape=3),
+        "payload_w0": Param([0.0, 0.0, 0.0], "rad/s",
+                            "initial payload angular velocity, base frame", shape=3),
     }
     inputs = {"tau": Port("N.m", size=_N, doc="joint torques (from the gearboxes)"),
               "f_ext": Port("*", size=6, optional=True,
                             doc="external wrench on the flange: force [N], moment [N.m]"),
               "latch": Port("1", optional=True, doc="rising through 0.5: capture the payload"),
+              "release": Port("1", optional=True,
+                              doc="rising through 0.5: release the payload with its twist"),
               "constraint": Port("*", size=4, optional=True,
                                  doc="[engaged, n] from a RigidContact on the flange: "
                                      "plastic impact when it engages"),
@@ -120,13 +206,30 @@ class Arm(Block):
                            doc="force the arm applies to its mounting"),
         "base_moment": Port("N.m", size=3, feedthrough=("tau", "f_ext"),
                             doc="moment about the base origin the arm applies to its mounting"),
+        "payload_pos": Port("m", size=3, doc="payload COM, base frame"),
+        "payload_rot": Port("1", size=9, doc="payload axes in the base frame, row-major"),
+        "payload_twist": Port("*", size=6, doc="payload COM velocity [m/s] and angular "
+                                               "velocity [rad/s], base frame"),
+        "grapple_pos": Port("m", size=3, doc="payload grapple fixture, base frame"),
     }
     states = {"q": State("rad", size=_N, initial="q0", doc="joint angles"),
-              "qd": State("rad/s", size=_N, initial="qd0", doc="joint speeds")}
+              "qd": State("rad/s", size=_N, initial="qd0", doc="joint speeds"),
+              "x_p": State("m", size=3, initial=lambda p: _payload_start(p)[0],
+                           doc="free payload COM, base frame (frozen while attached)"),
+              "Q_p": State("1", size=4, initial=lambda p: _payload_start(p)[1],
+                           doc="free payload attitude quaternion [w, x, y, z]"),
+              "v_p": State("m/s", size=3, initial=lambda p: _payload_start(p)[2],
+                           doc="free payload COM velocity, base frame"),
+              "w_b": State("rad/s", size=3, initial=lambda p: _payload_start(p)[3],
+                           doc="free payload angular velocity, payload axes")}
     modes = {"attached": Mode(initial=lambda p: 1.0 if p["latched"] else 0.0,
-                              doc="1 once the payload is attached")}
+                              doc="1 while the payload is attached"),
+             "grasp": Mode(size=12, initial=lambda p: _payload_start(p)[4],
+                           doc="attached payload's COM (3) and axes (9, row-major) in the "
+                               "flange frame")}
     events = {"latch": Event(1, "the latch input rises: the payload is captured"),
               "impact": Event(1, "a rigid constraint on the flange engages: plastic impact"),
+              "release": Event(1, "the release input rises: the payload leaves"),
               "impact6": Event(1, "a direction of a RigidContact6 engages: plastic impact "
                                   "on all its engaged directions", size=6)}
     scratch = {"ws": _ws_dim(),
@@ -135,6 +238,7 @@ class Arm(Block):
                "tmp": Dim("6 n", lambda p: 6 * _n(p)), "bw": Dim("6", lambda p: 6),
                "v1": Dim("n", _n), "Jw": Dim("6 n", lambda p: 6 * _n(p)),
                "key": Dim("n + 2", lambda p: _n(p) + 2),
+               "Pw": Dim("16 n", lambda p: 16 * _n(p)), "pw": Dim("24", lambda p: 24),
                "Jc": Dim("6 n", lambda p: 6 * _n(p)), "Yc": Dim("6 n", lambda p: 6 * _n(p)),
                "Ac": Dim("36", lambda p: 36), "rc": Dim("6", lambda p: 6),
                "xc": Dim("6", lambda p: 6)}
@@ -145,21 +249,25 @@ class Arm(Block):
         if model != "spider" and not os.path.isfile(model):
             raise ValueError(f"arm data file not found: {model} (use 'spider' for the "
                              f"shipped SPIDER-like arm)")
+        _unit_quat(params["payload_quat0"])
+        I1, I2, I3 = (float(v) for v in params["payload_inertia"])
+        if I1 > I2 + I3 or I2 > I1 + I3 or I3 > I1 + I2:
+            raise ValueError(f"payload_inertia: principal moments {[I1, I2, I3]} break the "
+                             f"triangle inequality (no rigid body has them)")
 
     @classmethod
     def derive(cls, params):
-        P = _chain(params["model"]).P
-        return {"P": P, "P_lat": _with_payload(P, params["payload_mass"],
-                                               params["payload_com"],
-                                               params["payload_inertia"])}
+        return {"P": _chain(params["model"]).P}
 
     @staticmethod
-    def output(t, q, qd, tau, f_ext, gravity, P, P_lat, attached, ws, Mw, tmp, bw, Jw, key,
+    def output(t, q, qd, x_p, Q_p, v_p, w_b, tau, f_ext, gravity, P, payload_mass,
+               payload_com, payload_inertia, attached, grasp, ws, Mw, tmp, bw, Jw, key, Pw, pw,
                qdd, flange_pos, flange_rot, flange_twist, flange_acc, flange_alpha,
-               base_force, base_moment):
+               base_force, base_moment, payload_pos, payload_rot, payload_twist, grapple_pos):
         n = q.size
         M = Mw.reshape((n, n))
-        PP = P_lat if attached[0] > 0.5 else P
+        PP = Pw.reshape((n, 16))
+        link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
         # key: the factor of M(q) in Mw is reused while q is unchanged (Newton iterations
         # of a contact loop change f_ext only)
         forward_dynamics(q, qd, tau, gravity, f_ext, PP, ws, M, tmp, bw, qdd, key)
@@ -181,36 +289,67 @@ class Arm(Block):
             for i in range(n):
                 acc += Jw[r * n + i] * qd[i]
             flange_twist[r] = acc
+        if attached[0] > 0.5:
+            payload_on_flange(ws, n, flange_twist, grasp, payload_pos, payload_rot,
+                              payload_twist)
+        else:
+            quat_to_rot(Q_p, payload_rot)
+            for k in range(3):
+                payload_pos[k] = x_p[k]
+                payload_twist[k] = v_p[k]
+                payload_twist[3 + k] = (payload_rot[3 * k] * w_b[0]
+                                        + payload_rot[3 * k + 1] * w_b[1]
+                                        + payload_rot[3 * k + 2] * w_b[2])
+        for k in range(3):       # the fixture is at -payload_com from the COM, payload axes
+            grapple_pos[k] = payload_pos[k] - (payload_rot[3 * k] * payload_com[0]
+                                               + payload_rot[3 * k + 1] * payload_com[1]
+                                               + payload_rot[3 * k + 2] * payload_com[2])
 
     @staticmethod
-    def derivative(t, qd, qdd, der_q, der_qd):
+    def derivative(t, qd, qdd, v_p, Q_p, w_b, gravity, payload_inertia, attached,
+                   der_q, der_qd, der_x_p, der_Q_p, der_v_p, der_w_b):
         for i in range(qd.size):
             der_q[i] = qd[i]
             der_qd[i] = qdd[i]
+        free = 1.0 if attached[0] < 0.5 else 0.0       # frozen while attached
+        free_body_rates(Q_p, w_b, payload_inertia, der_Q_p, der_w_b)
+        for k in range(4):
+            der_Q_p[k] *= free
+        for k in range(3):
+            der_w_b[k] *= free
+            der_x_p[k] = free * v_p[k]
+            der_v_p[k] = free * gravity[k]
 
     @staticmethod
-    def guard(t, latch, constraint, constraint6, attached, zc):
+    def guard(t, latch, release, constraint, constraint6, attached, zc):
         zc[0] = latch[0] - 0.5 if attached[0] < 0.5 else -1.0
         zc[1] = constraint[0] - 0.5
+        zc[2] = release[0] - 0.5 if attached[0] > 0.5 else -1.0
         for k in range(6):
-            zc[2 + k] = constraint6[k] - 0.5
+            zc[3 + k] = constraint6[k] - 0.5
 
     @staticmethod
-    def on_event(t, which, direction, q, qd, constraint, constraint6, P, P_lat, attached,
-                 ws, Mw, Mw2, tmp, bw, v1, Jw, key, Jc, Yc, Ac, rc, xc):
+    def on_event(t, which, direction, q, qd, x_p, Q_p, v_p, w_b, constraint, constraint6, P,
+                 payload_mass, payload_inertia, attached, grasp, ws, Mw, Mw2, tmp, bw, v1,
+                 Jw, key, Pw, pw, Jc, Yc, Ac, rc, xc):
         n = q.size
         M = Mw.reshape((n, n))
         M2 = Mw2.reshape((n, n))
+        PP = Pw.reshape((n, 16))
         key[n + 1] = 0.0                              # Mw is overwritten here
-        if which >= 2:
-            mass_matrix(q, P_lat if attached[0] > 0.5 else P, ws, M, tmp, bw)
+        b = n * _WS
+        if which >= 3:
+            # a RigidContact6 direction engages: project on all its engaged directions
+            link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
+            mass_matrix(q, PP, ws, M, tmp, bw)
             flange_jacobian(n, ws, Jw)
             impact_projection(n, qd, constraint6, M, Jw, Jc, Yc, Ac, rc, xc)
             return
         if which == 1:
             # plastic impact on the plane of normal c: J_n = c^T J_v (1 x n),
             # qd+ = qd- - M^-1 J_n^T (J_n M^-1 J_n^T)^-1 J_n qd-   (approaching only)
-            mass_matrix(q, P_lat if attached[0] > 0.5 else P, ws, M, tmp, bw)
+            link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
+            mass_matrix(q, PP, ws, M, tmp, bw)
             flange_jacobian(n, ws, Jw)
             vn = 0.0
             for i in range(n):
@@ -229,15 +368,66 @@ class Arm(Block):
             for i in range(n):
                 qd[i] -= y[i] * vn / s
             return
-        mass_matrix(q, P, ws, M, tmp, bw)
+        if which == 2:
+            # release: the payload's twist on the flange becomes its free-body state
+            fk(q, P, ws)
+            flange_jacobian(n, ws, Jw)
+            tw = pw[:6]
+            for r in range(6):
+                acc = 0.0
+                for i in range(n):
+                    acc += Jw[r * n + i] * qd[i]
+                tw[r] = acc
+            Rp = pw[6:15]
+            pos = pw[15:18]
+            V = pw[18:24]
+            payload_on_flange(ws, n, tw, grasp, pos, Rp, V)
+            rot_to_quat(Rp, Q_p)
+            for k in range(3):
+                x_p[k] = pos[k]
+                v_p[k] = V[k]
+            for k in range(3):                        # w_b = R_p^T w
+                w_b[k] = Rp[k] * V[3] + Rp[3 + k] * V[4] + Rp[6 + k] * V[5]
+            attached[0] = 0.0
+            return
+        # capture: attach where it is, M' qd+ = M qd- + J_c^T M_p V_p-
+        mass_matrix(q, P, ws, M, tmp, bw)             # also leaves fk(q) in ws
+        flange_jacobian(n, ws, Jw)
+        Rp = pw[6:15]
+        quat_to_rot(Q_p, Rp)
+        # grasp: COM and axes in the flange frame, c_rel = R_f^T r, R_rel = R_f^T R_p
+        rx = x_p[0] - ws[b + WS_O]
+        ry = x_p[1] - ws[b + WS_O + 1]
+        rz = x_p[2] - ws[b + WS_O + 2]
+        for k in range(3):
+            grasp[_G_COM + k] = (ws[b + WS_R + k] * rx + ws[b + WS_R + 3 + k] * ry
+                                 + ws[b + WS_R + 6 + k] * rz)
+            for c in range(3):
+                grasp[_G_ROT + 3 * k + c] = (ws[b + WS_R + k] * Rp[c]
+                                             + ws[b + WS_R + 3 + k] * Rp[3 + c]
+                                             + ws[b + WS_R + 6 + k] * Rp[6 + c])
+        # payload momentum: p = m v_p, L = R_p (I_p w_b) (about its COM)
+        px, py, pz = payload_mass * v_p[0], payload_mass * v_p[1], payload_mass * v_p[2]
+        hb0 = payload_inertia[0] * w_b[0]
+        hb1 = payload_inertia[1] * w_b[1]
+        hb2 = payload_inertia[2] * w_b[2]
+        Lx = Rp[0] * hb0 + Rp[1] * hb1 + Rp[2] * hb2
+        Ly = Rp[3] * hb0 + Rp[4] * hb1 + Rp[5] * hb2
+        Lz = Rp[6] * hb0 + Rp[7] * hb1 + Rp[8] * hb2
         for i in range(n):
             acc = 0.0
             for j in range(n):
                 acc += M[i, j] * qd[j]
-            v1[i] = acc                               # generalized momentum M qd-
-        mass_matrix(q, P_lat, ws, M2, tmp, bw)
-        cholesky_solve(M2, v1, qd)                    # M' qd+ = M qd-
+            # J_c column i: [J_v,i + J_w,i x r; J_w,i]
+            wx, wy, wz = Jw[3 * n + i], Jw[4 * n + i], Jw[5 * n + i]
+            cvx = Jw[i] + wy * rz - wz * ry
+            cvy = Jw[n + i] + wz * rx - wx * rz
+            cvz = Jw[2 * n + i] + wx * ry - wy * rx
+            v1[i] = acc + cvx * px + cvy * py + cvz * pz + wx * Lx + wy * Ly + wz * Lz
         attached[0] = 1.0
+        link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
+        mass_matrix(q, PP, ws, M2, tmp, bw)
+        cholesky_solve(M2, v1, qd)
 
 
 def _bind():
@@ -246,6 +436,62 @@ def _bind():
 
 
 forward_dynamics, mass_matrix, cholesky_solve, impact_projection = _bind()
+
+
+def _bind_body():
+    from ..multibody import rigid_body as B
+    return B.quat_to_rot, B.rot_to_quat, B.free_body_rates, B.merge_into_link
+
+
+quat_to_rot, rot_to_quat, free_body_rates, merge_into_link = _bind_body()
+
+
+def _link_table(P, attached, grasp, mass, inertia, PP):
+    """The link table in use: ``P``, with the payload merged into the last row while
+    attached (at its grasp: COM and axes in the flange frame)."""
+    n = P.shape[0]
+    for i in range(n - 1):
+        for k in range(16):
+            PP[i, k] = P[i, k]
+    if attached[0] > 0.5:
+        merge_into_link(P[n - 1], mass, grasp[_G_COM:_G_COM + 3], inertia,
+                        grasp[_G_ROT:_G_ROT + 9], PP[n - 1])
+    else:
+        for k in range(16):
+            PP[n - 1, k] = P[n - 1, k]
+
+
+def _payload_on_flange(ws, n, twist, grasp, pos, rot, V):
+    """Pose and twist of the attached payload from the flange's (after ``fk`` in ``ws``):
+    ``x_p = o_n + R_n c_rel``, ``R_p = R_n R_rel``, ``v_p = v_n + w_n x r``, ``w = w_n``."""
+    b = n * _WS
+    for r in range(3):
+        acc = ws[b + WS_O + r]
+        for k in range(3):
+            acc += ws[b + WS_R + 3 * r + k] * grasp[_G_COM + k]
+        pos[r] = acc
+        for c in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += ws[b + WS_R + 3 * r + k] * grasp[_G_ROT + 3 * k + c]
+            rot[3 * r + c] = acc
+    rx = pos[0] - ws[b + WS_O]
+    ry = pos[1] - ws[b + WS_O + 1]
+    rz = pos[2] - ws[b + WS_O + 2]
+    wx, wy, wz = twist[3], twist[4], twist[5]
+    V[0] = twist[0] + wy * rz - wz * ry
+    V[1] = twist[1] + wz * rx - wx * rz
+    V[2] = twist[2] + wx * ry - wy * rx
+    V[3], V[4], V[5] = wx, wy, wz
+
+
+def _jit(fn):
+    import numba
+    return numba.njit(cache=True, error_model="numpy")(fn)
+
+
+link_table = _jit(_link_table)
+payload_on_flange = _jit(_payload_on_flange)
 
 
 class CartesianLineIK(Block):

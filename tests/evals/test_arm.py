@@ -5,10 +5,12 @@
   z axis (joint 1 carries no torque) are conserved; the block's outputs are the Chain's
   (flange pose and twist, base wrench with the block's sign: arm on mounting);
 * gravity, holding torques: the arm stays at rest and pushes on its mounting with its weight;
-* payload latch (30 kg at 0.15 m along the flange z, a Step into ``arm.latch`` at 0.5 s): a
-  plastic capture, ``M'(q) qd+ = M(q) qd-`` with M, M' from Chain objects (M' with
-  ``spidersim.blocks.arm._with_payload``), ``M' - M`` positive semidefinite and equal to the
-  payload's own ``m Jv^T Jv + Jw^T I Jw``, kinetic energy lost (not gained), one event;
+* payload latch (30 kg at 0.15 m along the flange z, left at rest where the flange was at
+  t = 0, a Step into ``arm.latch`` at 0.5 s): a plastic capture where the payload is,
+  ``M'(q) qd+ = M(q) qd-`` with M, M' from Chain objects (M' with the payload merged into
+  the last link at its pose relative to the flange at the latch), ``M' - M`` positive
+  semidefinite and equal to the payload's own ``m Jv^T Jv + Jw^T I Jw``, kinetic energy
+  lost (not gained), one event (the moving payload: tests/evals/test_payload.py);
 * rest-to-rest move along a straight line at 2.5 cm/s (spider.yaml's case, 0.2 m, 30 kg
   payload latched, g = 0) with joint PD torques on CartesianLineIK references: the
   impulse of the base force over the run is ~0 against peak force x duration (the momentum
@@ -58,6 +60,34 @@ def _chains():
     return ch, chp
 
 
+def _chain_with_grasp(c_rel, R_rel):
+    """Chain (g = 0) with the payload merged into the last link at COM ``c_rel`` and axes
+    ``R_rel`` in the flange frame (parallel axes, plain numpy)."""
+    ch = Chain.from_yaml()
+    P = ch.P.copy()
+    row = P[-1]
+    m0, c0, I0 = row[3], row[4:7].copy(), row[7:16].reshape(3, 3)
+    mp, Ip = PAYLOAD["mass"], R_rel @ np.diag(PAYLOAD["inertia"]) @ R_rel.T
+    m = m0 + mp
+    c = (m0 * c0 + mp * c_rel) / m
+
+    def shift(mass, d):
+        return mass * (d @ d * np.eye(3) - np.outer(d, d))
+
+    row[3], row[4:7] = m, c
+    row[7:16] = (I0 + shift(m0, c0 - c) + Ip + shift(mp, c_rel - c)).ravel()
+    ch.P = P
+    ch._base = np.zeros(9)[:6]
+    return ch
+
+
+def _grasp(r, i):
+    """Payload COM and axes in the flange frame at sample i (from the logged poses)."""
+    Rf = r["arm.flange_rot"][i].reshape(3, 3)
+    return (Rf.T @ (r["arm.payload_pos"][i] - r["arm.flange_pos"][i]),
+            Rf.T @ r["arm.payload_rot"][i].reshape(3, 3))
+
+
 def _payload_yaml():
     return (f"payload_mass: {PAYLOAD['mass']}, payload_com: {_yl(PAYLOAD['com'])}, "
             f"payload_inertia: {_yl(PAYLOAD['inertia'])}")
@@ -79,7 +109,7 @@ blocks:
 connections:
   - tau.y -> arm.tau
 {con}log: [arm.q, arm.qd, arm.qdd, arm.flange_pos, arm.flange_rot, arm.flange_twist,
-      arm.base_force, arm.base_moment]
+      arm.base_force, arm.base_moment, arm.payload_pos, arm.payload_rot]
 """
 
 
@@ -177,7 +207,8 @@ def test_latch_conserves_generalized_momentum(latch_run):
     q = r["arm.q"][i0]
     np.testing.assert_array_equal(r["arm.q"][i1], q)        # positions do not jump
     qd_m, qd_p = r["arm.qd"][i0], r["arm.qd"][i1]
-    ch, chp = _chains()
+    ch, _ = _chains()
+    chp = _chain_with_grasp(*_grasp(r, i0))
     M, Mp = ch.mass_matrix(q), chp.mass_matrix(q)
     h = M @ qd_m
     assert np.linalg.norm(qd_p - qd_m) > 0.1 * np.linalg.norm(qd_m)     # a real jump
@@ -194,20 +225,23 @@ def test_latch_conserves_generalized_momentum(latch_run):
 
 def test_latch_mass_matrix_rises(latch_run):
     """M'(q) - M(q) is positive semidefinite, nonzero (rank <= 6), and equals the
-    payload's own m Jv^T Jv + Jw^T (R I R^T) Jw at its COM (flange + R [0, 0, 0.15])."""
+    payload's own m Jv^T Jv + Jw^T (R_p I R_p^T) Jw at its COM (its logged pose at the end:
+    attached where it was at the latch, not at the nominal grasp)."""
     r = _ok(latch_run)
     q = r["arm.q"][-1]
-    ch, chp = _chains()
+    ch, _ = _chains()
+    c_rel, R_rel = _grasp(r, -1)
+    assert np.linalg.norm(c_rel - PAYLOAD["com"]) > 0.05     # far from the nominal grasp
+    chp = _chain_with_grasp(c_rel, R_rel)
     dM = chp.mass_matrix(q) - ch.mass_matrix(q)
     ev = np.linalg.eigvalsh(dM)
     assert ev.min() > -1e-10 * ev.max()
     assert ev.max() > 1.0
-    T = ch.fk(q)
-    R = T[:3, :3]
-    rp = R @ np.array(PAYLOAD["com"])
+    rp = r["arm.payload_pos"][-1] - r["arm.flange_pos"][-1]
     J = ch.jacobian(q)
     skew = np.array([[0, -rp[2], rp[1]], [rp[2], 0, -rp[0]], [-rp[1], rp[0], 0]])
     Jv = J[:3] - skew @ J[3:]
+    R = r["arm.payload_rot"][-1].reshape(3, 3)
     Ip = R @ np.diag(PAYLOAD["inertia"]) @ R.T
     ref = PAYLOAD["mass"] * Jv.T @ Jv + J[3:].T @ Ip @ J[3:]
     assert np.abs(dM - ref).max() < 1e-10 * np.abs(ref).max()

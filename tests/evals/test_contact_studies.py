@@ -14,7 +14,9 @@
   directions the PD on unit task inertia lags a ramp by ``Kd v / Kp``.
 * ``impact_fault_joint1.yaml`` (Fig. 9, joint 1 alone from rest): peak force rises with V_ci and with K over the grid.
 * ``payload_capture_ideal.yaml`` (Fig. 6 on ideal torques): at rest before the motion (no force on the truss),
-  ramp following error ``Kd v / Kp`` while approaching, latch at t_latch; carrying the
+  ramp following error ``Kd v / Kp`` while approaching, the payload drifting on its
+  straight line (free body) until the latch at t_latch, met by the flange within 1 mm and
+  kept where it was on the flange afterwards; carrying the
   payload the controller (whose model lacks it) tracks worse than it does without it.
 """
 from __future__ import annotations
@@ -158,6 +160,20 @@ def test_capture_sequence(capture_runs):
     # at the grapple fixture when the latch closes
     k = np.searchsorted(r.t, 3.0)
     assert np.abs(r["perr.y"][k]).max() < 1e-3
+    # the payload drifts as a free body until then: its fixture (on its spin axis) moves
+    # along y at v_drift = 2 cm/s and meets the flange (within 1 mm) at the latch
+    free = r.t < 3.0
+    g = r["arm.grapple_pos"][free]
+    np.testing.assert_allclose(g[:, 1], -0.06 + 0.02 * r.t[free], atol=1e-9)
+    np.testing.assert_allclose(g[:, [0, 2]], np.tile(g[0, [0, 2]], (free.sum(), 1)),
+                               atol=1e-9)
+    assert np.linalg.norm(r["arm.flange_pos"][k] - r["arm.grapple_pos"][k]) < 1e-3
+    # captured where it is: afterwards the fixture stays where it was on the flange
+    d = r["arm.grapple_pos"] - r["arm.flange_pos"]
+    after = r.t > 3.0
+    Rf = r["arm.flange_rot"].reshape(-1, 3, 3)
+    d_f = np.einsum("kji,kj->ki", Rf, d)                # flange coordinates
+    assert np.abs(d_f[after] - d_f[k]).max() < 1e-9
 
 
 def test_the_unmodelled_payload_degrades_tracking(capture_runs):

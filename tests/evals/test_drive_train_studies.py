@@ -66,6 +66,15 @@ def test_capture_through_the_drive_trains(capture_run):
     cruise = (r.t > 1.5) & (r.t < 2.2)
     lag = -np.mean(r["perr.y"][cruise, 2])
     assert 0.01 < lag < 0.05
+    # the drifting payload (2 cm/s along y) is met at the latch within the approach lag,
+    # and captured where it is: its fixture then stays put on the flange
+    k = np.searchsorted(r.t, 3.0)
+    assert np.linalg.norm(r["arm.flange_pos"][k] - r["arm.grapple_pos"][k]) < 0.02
+    Rf = r["arm.flange_rot"].reshape(-1, 3, 3)
+    d_f = np.einsum("kji,kj->ki", Rf, r["arm.grapple_pos"] - r["arm.flange_pos"])
+    assert np.abs(d_f[r.t > 3.0] - d_f[k]).max() < 1e-9
+    assert r["arm.grapple_pos"][k, 1] - r["arm.grapple_pos"][0, 1] == pytest.approx(0.06,
+                                                                                  abs=1e-9)
     # the payload is carried: the flange ends 20 cm along x from its start
     assert r["arm.flange_pos"][-1, 0] - r["arm.flange_pos"][0, 0] == pytest.approx(0.2,
                                                                                   abs=0.02)
