@@ -68,17 +68,22 @@ def _cvode(f, y0, t_end, rtol, atol, method, tev=(), guard=None, jump=None):
         for t_seg in bounds:
             while t < t_seg:
                 sol = solver.solve(np.array([t, t_seg]), y)
-                steps += int(sol.nfev)      # see the note in _report: CVODE's counters
+                steps += int(sol.nfev)
                 if not sol.success:
                     raise RuntimeError(sol.message)
-                if sol.t_events is not None and len(sol.t_events) and guard is not None:
+                # the solver object keeps every event since its creation: a new one is
+                # an event of this call
+                n_ev = 0 if sol.t_events is None else len(sol.t_events)
+                if guard is not None and n_ev > len(hits) + run.before:
                     t = float(sol.t_events[-1])
                     y = np.array(sol.y_events[-1], float)
                     jump(y)
                     hits.append(t)
                 else:
                     t, y = float(sol.t[-1]), np.array(sol.y[-1], float)
+        run.before += len(hits)
         return steps, hits
+    run.before = 0
     return run
 
 
