@@ -56,8 +56,8 @@ add_reactions`). Unconnected, ``tau_r`` reads zero and the kernels skip it.
 Neglected: the rotor's gyroscopic moment ``J_m w_m omega_{i-1} x z_{i-1}`` when link
 ``i-1`` turns (and its transverse inertia): for SPIDER at the 2.5 cm/s cruise
 ``w_m <= N qd = 160 x 0.051 = 8 rad/s`` and ``|omega| <= 0.051 rad/s``: below
-``1e-4 x 8 x 0.051 = 4e-5 N.m``; with a motor at 955 rpm (100 rad/s) and the link at 0.1 rad/s, ``1e-3 N.m``:
-below the ripple reaction (the 1.5 % current-sensor offset alone gives
+``1e-4 x 8 x 0.051 = 4e-5 N.m``; with a motor at 955 rpm (100 rad/s) and the link at
+0.1 rad/s, ``1e-3 N.m``: below the ripple reaction (the 1.5 % current-sensor offset alone gives
 ``K_t x 0.03 A = 4.5e-3 N.m`` at the electrical frequency), and nearly constant in the
 cruise, where it changes slowly with the pose (no line above the gear resonance). The
 motor block integrates ``w_m`` relative to its stator, leaving out ``J_m z . alpha_{i-1}``
