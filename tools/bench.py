@@ -305,7 +305,7 @@ def bench_spider():
     rng = np.random.default_rng(0)
     q, qd, tau = rng.normal(size=7), rng.normal(size=7), rng.normal(size=7)
     qdd = np.zeros(7)
-    args = (q, qd, tau, arm.gravity, np.zeros(6), arm.P, arm._ws, arm._M, arm._tmp,
+    args = (q, qd, tau, arm.gravity, np.zeros(6), np.zeros(7), arm.P, arm._ws, arm._M, arm._tmp,
             arm._base, qdd, np.empty(0))            # no factor reuse: the full computation
     K.forward_dynamics(*args)                       # compile (or load) first
     fd = next(iter(K.forward_dynamics.overloads.values())).entry_point

@@ -49,7 +49,53 @@ angular acceleration ``J_w qdd + Jdot_w qd``) closes the rotational rows of such
 ``base_force`` and ``base_moment`` (about the base origin, base frame) are the wrench the
 arm applies to its mounting (the ISS truss): the opposite of the wrench the mounting
 applies to the arm. With ``gravity = 0`` they equal minus the rate of change of the arm's
-(and latched payload's) momentum.
+(and latched payload's, and the rotors') momentum.
+
+Rotor reactions (optional input ``tau_r``)
+------------------------------------------
+Drive ``i`` (motor stator, gear housing and circular spline) is fixed to link ``i-1``
+(joint 1's to the base); its rotor and wave generator (inertia ``J_m``, speed ``w_m``
+relative to link ``i-1``, positive in the sense of ``q_i``: the motor turns ``N > 0``
+times the output, ``delta = phi_m / N - phi_l``) spin about ``z_{i-1}``. Torques about
+that axis, gear massless, on the rotor: ``tau_em`` from the stator, ``-tau_s / N`` from the
+wave generator (``tau_m`` of the gearbox block, with motor-side friction ``+tau_f``),
+``-tau_b`` from a brake, ``-B w_m`` from the bearings::
+
+    J_m dw_m/dt = tau_em - tau_s / N - tau_b - B w_m                    (the motor block)
+
+The gear takes ``tau_s / N`` from the rotor and gives ``tau_s`` to link ``i`` (its output),
+so the circular spline takes ``tau_s - tau_s / N`` from the housing. The housing (link
+``i-1``) therefore receives ``-tau_em + tau_b + B w_m`` from the rotor and
+``-(tau_s - tau_s / N)`` from the gear, in total::
+
+    -tau_s - (tau_em - tau_s / N - tau_b - B w_m)  =  -tau_s - J_m dw_m/dt
+
+The first term is the joint torque the arm already applies between links ``i-1`` and ``i``
+(``tau``); the second, ``tau_r = -J_m dw_m/dt``, is the reaction: a moment
+``tau_r z_{i-1}`` on link ``i-1`` (the same with friction on either side of the gear, an
+efficiency below 1 or a brake: every torque on the rotor other than its inertia reacts on
+the housing). Expressed with the rotor angle in output units ``q_m = phi_m / N`` it is
+``-J_m N d^2 q_m/dt^2``: the ``J_m N dw/dt`` of issue 13 when its ``w`` is the motor speed
+seen at the output, ``N`` times smaller than the reflected-inertia torque ``J_m N^2 qdd``
+(which is part of ``tau``, through the gear). Below the gear resonance (rigid gear,
+``w_m = N qd_i``) it adds ``J_m N qdd_i`` about the axis; above it the rotor moves alone
+and the motor's torque ripple reaches link ``i-1`` (for joint 1 the base) as
+``-J_m dw_m/dt``, no longer filtered by the gear.
+
+The kernels add these moments in the inverse dynamics (link dynamics and base wrench),
+``M qdd + b = tau + Q_r`` with ``Q_r,j = z_{j-1} . sum_{i > j} tau_r,i z_{i-1}``, and the
+base moment gains ``sum_i tau_r,i z_{i-1}`` (:func:`spidersim.multibody.kernels.
+add_reactions`). Unconnected, ``tau_r`` reads zero and the kernels skip it.
+
+Neglected: the rotor's gyroscopic moment ``J_m w_m omega_{i-1} x z_{i-1}`` when link
+``i-1`` turns (and its transverse inertia): for SPIDER at the 2.5 cm/s cruise
+``w_m <= N qd = 160 x 0.051 = 8 rad/s`` and ``|omega| <= 0.051 rad/s``: below
+``1e-4 x 8 x 0.051 = 4e-5 N.m``; with a motor at 955 rpm (100 rad/s) and the link at
+0.1 rad/s, ``1e-3 N.m``: below the ripple reaction (the 1.5 % current-sensor offset alone gives
+``K_t x 0.03 A = 4.5e-3 N.m`` at the electrical frequency), and nearly constant in the
+cruise, where it changes slowly with the pose (no line above the gear resonance). The
+motor block integrates ``w_m`` relative to its stator, leaving out ``J_m z . alpha_{i-1}``
+(the link's angular acceleration, ``1/N`` of the rotor's in a rigid drive).
 """
 import os
 
@@ -190,21 +236,25 @@ class Arm(Block):
                                      "plastic impact when it engages"),
               "constraint6": Port("*", size=15, optional=True,
                                   doc="[engaged per direction (6), R_c row-major (9)] from a "
-                                      "RigidContact6: plastic impact when one engages")}
+                                      "RigidContact6: plastic impact when one engages"),
+              "tau_r": Port("N.m", size=_N, optional=True,
+                            doc="drive reactions -J_m dw_m/dt: joint i's on link i-1 "
+                                "(joint 1's on the base), about joint i's axis")}
     outputs = {
         "q": Port("rad", size=_N, doc="joint angles (link side)"),
         "qd": Port("rad/s", size=_N, doc="joint speeds"),
-        "qdd": Port("rad/s2", size=_N, feedthrough=("tau", "f_ext"), doc="joint accelerations"),
+        "qdd": Port("rad/s2", size=_N, feedthrough=("tau", "f_ext", "tau_r"),
+                    doc="joint accelerations"),
         "flange_pos": Port("m", size=3, doc="flange origin, base frame"),
         "flange_rot": Port("1", size=9, doc="flange rotation matrix, row-major"),
         "flange_twist": Port("*", size=6, doc="flange linear [m/s] and angular [rad/s] velocity"),
-        "flange_acc": Port("m/s2", size=3, feedthrough=("tau", "f_ext"),
+        "flange_acc": Port("m/s2", size=3, feedthrough=("tau", "f_ext", "tau_r"),
                            doc="flange origin acceleration, J qdd + Jdot qd"),
-        "flange_alpha": Port("rad/s2", size=3, feedthrough=("tau", "f_ext"),
+        "flange_alpha": Port("rad/s2", size=3, feedthrough=("tau", "f_ext", "tau_r"),
                              doc="flange angular acceleration, J_w qdd + Jdot_w qd"),
-        "base_force": Port("N", size=3, feedthrough=("tau", "f_ext"),
+        "base_force": Port("N", size=3, feedthrough=("tau", "f_ext", "tau_r"),
                            doc="force the arm applies to its mounting"),
-        "base_moment": Port("N.m", size=3, feedthrough=("tau", "f_ext"),
+        "base_moment": Port("N.m", size=3, feedthrough=("tau", "f_ext", "tau_r"),
                             doc="moment about the base origin the arm applies to its mounting"),
         "payload_pos": Port("m", size=3, doc="payload COM, base frame"),
         "payload_rot": Port("1", size=9, doc="payload axes in the base frame, row-major"),
@@ -260,7 +310,7 @@ class Arm(Block):
         return {"P": _chain(params["model"]).P}
 
     @staticmethod
-    def output(t, q, qd, x_p, Q_p, v_p, w_b, tau, f_ext, gravity, P, payload_mass,
+    def output(t, q, qd, x_p, Q_p, v_p, w_b, tau, f_ext, tau_r, gravity, P, payload_mass,
                payload_com, payload_inertia, attached, grasp, ws, Mw, tmp, bw, Jw, key, Pw, pw,
                qdd, flange_pos, flange_rot, flange_twist, flange_acc, flange_alpha,
                base_force, base_moment, payload_pos, payload_rot, payload_twist, grapple_pos):
@@ -270,7 +320,7 @@ class Arm(Block):
         link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
         # key: the factor of M(q) in Mw is reused while q is unchanged (Newton iterations
         # of a contact loop change f_ext only)
-        forward_dynamics(q, qd, tau, gravity, f_ext, PP, ws, M, tmp, bw, qdd, key)
+        forward_dynamics(q, qd, tau, gravity, f_ext, tau_r, PP, ws, M, tmp, bw, qdd, key)
         for k in range(3):
             base_force[k] = -bw[k]
             base_moment[k] = -bw[3 + k]

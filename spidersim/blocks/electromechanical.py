@@ -86,6 +86,11 @@ class BrushlessMotor(Block):
     ``v.i = R |i|^2 + d/dt(L |i|^2 / 2) + (tau - cogging) w``.
 
     Sign convention: positive torque accelerates positively; ``tau_load`` opposes.
+
+    ``dw`` is the rotor's acceleration ``dw/dt`` [rad/s2] (direct feedthrough of
+    ``tau_load`` only, so it closes no loop through a gearbox fed by the motor's states):
+    ``-J dw/dt`` is the reaction torque a drive mounted on a moving body applies to it
+    beyond its output torque (see :class:`spidersim.blocks.arm.Arm`).
     """
 
     category = "electromechanical"
@@ -111,14 +116,16 @@ class BrushlessMotor(Block):
                "theta_e": Port("rad", doc="electrical angle p theta"),
                "tau": Port("N.m", doc="electromagnetic torque (with cogging)"),
                "bemf_a": Port("V", doc="phase a back EMF K_a w f_a"),
-               "bemf_b": Port("V", doc="phase b back EMF K_b w f_b")}
+               "bemf_b": Port("V", doc="phase b back EMF K_b w f_b"),
+               "dw": Port("rad/s2", feedthrough=("tau_load",),
+                          doc="rotor acceleration (tau - B w - tau_load) / J")}
     states = {"i_a": State("A", doc="phase a current"), "i_b": State("A", doc="phase b current"),
               "w": State("rad/s", initial="w0", doc="rotor speed"),
               "theta": State("rad", initial="theta0", doc="rotor angle")}
 
     @staticmethod
-    def output(t, i_a, i_b, w, theta, p, K_t, h3, unbalance, tau_cog, theta_e, tau, bemf_a,
-               bemf_b):
+    def output(t, i_a, i_b, w, theta, tau_load, p, K_t, J, B, h3, unbalance, tau_cog,
+               theta_e, tau, bemf_a, bemf_b, dw):
         te = p * theta[0]
         fa = -math.sin(te) - h3 * math.sin(3.0 * te)
         fb = math.cos(te) - h3 * math.cos(3.0 * te)
@@ -128,6 +135,7 @@ class BrushlessMotor(Block):
         tau[0] = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
         bemf_a[0] = ka * w[0] * fa
         bemf_b[0] = kb * w[0] * fb
+        dw[0] = (tau[0] - B * w[0] - tau_load[0]) / J
 
     @staticmethod
     def derivative(t, i_a, i_b, w, theta, v_a, v_b, tau_load, p, R, L, K_t, J, B, h3,

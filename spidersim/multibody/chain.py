@@ -133,29 +133,37 @@ class Chain:
         return J
 
     # ---------------------------------------------------------------- dynamics
-    def rnea(self, q, qd, qdd, f_ext=None):
-        """Joint torques for the motion (inverse dynamics), gravity included."""
+    def rnea(self, q, qd, qdd, f_ext=None, tau_r=None):
+        """Joint torques for the motion (inverse dynamics), gravity included.
+
+        ``tau_r`` (n, optional): the drives' reaction torques, drive i's applied to link
+        i-1 about joint i's axis (``-J_m dw_m/dt``; see :func:`kernels.add_reactions`).
+        """
         tau = np.zeros(self.n)
         K.rnea(np.asarray(q, float), np.asarray(qd, float), np.asarray(qdd, float),
                self.gravity, np.zeros(6) if f_ext is None else np.asarray(f_ext, float),
                self.P, self._ws, tau, self._base)
+        if tau_r is not None:
+            K.add_reactions(self.n, self._ws, np.asarray(tau_r, float), tau, self._base)
         return tau
 
-    def base_wrench(self, q, qd, qdd, f_ext=None):
+    def base_wrench(self, q, qd, qdd, f_ext=None, tau_r=None):
         """(force, moment about the base origin) the mounting applies to the arm."""
-        self.rnea(q, qd, qdd, f_ext)
+        self.rnea(q, qd, qdd, f_ext, tau_r)
         return self._base[:3].copy(), self._base[3:].copy()
 
     def mass_matrix(self, q):
         K.mass_matrix(np.asarray(q, float), self.P, self._ws, self._M, self._tmp, self._base)
         return self._M.copy()
 
-    def forward_dynamics(self, q, qd, tau, f_ext=None):
-        """Joint accelerations for the torques ``tau``."""
+    def forward_dynamics(self, q, qd, tau, f_ext=None, tau_r=None):
+        """Joint accelerations for the torques ``tau`` (and reactions ``tau_r``, see
+        :meth:`rnea`)."""
         qdd = np.zeros(self.n)
         K.forward_dynamics(np.asarray(q, float), np.asarray(qd, float),
                            np.asarray(tau, float), self.gravity,
                            np.zeros(6) if f_ext is None else np.asarray(f_ext, float),
+                           np.zeros(0) if tau_r is None else np.asarray(tau_r, float),
                            self.P, self._ws, self._M, self._tmp, self._base, qdd,
                            np.empty(0))
         return qdd

@@ -158,6 +158,37 @@ def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
     base[3], base[4], base[5] = nx_, ny_, nz_
 
 
+def add_reactions(n, ws, tau_r, tau, base):
+    """Add the drives' reaction torques to the result of :func:`rnea` (frames in ``ws``).
+
+    Drive ``i`` (stator, gear housing) sits on link ``i-1`` (the base for joint 1) and its
+    rotor spins about ``z_{i-1}``. Beyond the joint torque ``tau_i`` it passes to link
+    ``i``, it applies the moment ``tau_r[i] z_{i-1}`` to link ``i-1``, with
+    ``tau_r = -J_m dw_m/dt`` (see :class:`spidersim.blocks.arm.Arm`). These are external
+    moments on the links, so by the backward recursion the moment link ``i-1`` applies to
+    link ``i`` loses the sum of the reactions on links ``i..n-1`` and the base moment all of
+    them (the force is unchanged)::
+
+        tau_j  -=  z_{j-1} . sum_{i > j} tau_r[i] z_{i-1}     (1-based joints)
+        n_0    -=  sum_{i >= 1} tau_r[i] z_{i-1}
+
+    so that ``rnea(...) + add_reactions`` is the inverse dynamics of the arm loaded by the
+    reactions: ``M qdd + b = tau + Q_r`` with ``Q_r,j = z_{j-1} . sum_{i > j} tau_r[i]
+    z_{i-1}``, the generalized force of those moments. O(n), nothing allocated.
+    """
+    sx = sy = sz = 0.0
+    for j in range(n - 1, -1, -1):
+        b = j * WS_PER_LINK
+        zx, zy, zz = ws[b + 2], ws[b + 5], ws[b + 8]                 # z_{j-1}
+        tau[j] -= zx * sx + zy * sy + zz * sz
+        sx += tau_r[j] * zx
+        sy += tau_r[j] * zy
+        sz += tau_r[j] * zz
+    base[3] -= sx
+    base[4] -= sy
+    base[5] -= sz
+
+
 def mass_matrix(q, P, ws, M, tmp, base):
     """Joint-space inertia ``M(q)``: column j is the RNEA torque for ``qdd = e_j`` with
     ``qd = 0``, no gravity and no external wrench (n passes; ``tmp`` holds 3 n floats)."""
@@ -328,9 +359,11 @@ def impact_projection(n, qd, c, M, J, Jc, Y, A, r, x):
         qd[i] -= acc
 
 
-def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd, key):
-    """``qdd`` from ``M(q) qdd = tau - b(q, qd)`` (``b``: RNEA with ``qdd = 0``), then the
-    base wrench of the resulting motion into ``base``.
+def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key):
+    """``qdd`` from ``M(q) qdd = tau - b(q, qd) + Q_r`` (``b``: RNEA with ``qdd = 0``;
+    ``Q_r``: the generalized force of the drives' reaction torques ``tau_r``, see
+    :func:`add_reactions`; ``tau_r`` all zero, or empty, skips them), then the base wrench
+    of the resulting motion, reactions included, into ``base``.
 
     ``key`` (``n + 2`` floats, or empty: no reuse) lets a caller that evaluates the same
     ``q`` several times (an algebraic loop through ``f_ext``: Newton iterations) reuse the
@@ -362,11 +395,20 @@ def forward_dynamics(q, qd, tau, g, f_ext, P, ws, M, tmp, base, qdd, key):
                 key[k] = q[k]
             key[n] = check
             key[n + 1] = 1.0
+    react = False
+    if tau_r.size == n:
+        for k in range(n):
+            if tau_r[k] != 0.0:
+                react = True
     rnea(q, qd, zero, g, f_ext, P, ws, bias, base)
+    if react:
+        add_reactions(n, ws, tau_r, bias, base)
     for k in range(n):
         rhs[k] = tau[k] - bias[k]
     cholesky_subst(M, rhs, qdd)
     rnea(q, qd, qdd, g, f_ext, P, ws, bias, base)
+    if react:
+        add_reactions(n, ws, tau_r, bias, base)
 
 
 def _jit(fn):
@@ -380,6 +422,7 @@ _cross = _jit(_cross)
 fk = _jit(fk)
 flange_jacobian = _jit(flange_jacobian)
 rnea = _jit(rnea)
+add_reactions = _jit(add_reactions)
 mass_matrix = _jit(mass_matrix)
 cholesky_factor = _jit(cholesky_factor)
 cholesky_subst = _jit(cholesky_subst)

@@ -366,7 +366,7 @@ def test_mass_matrix_factor_reused_only_while_valid():
                       "payload_mass": PAYLOAD["mass"], "payload_com": PAYLOAD["com"],
                       "payload_inertia": PAYLOAD["inertia"]},
               sizes={"tau": N, "f_ext": 6, "latch": 1, "constraint": 4,
-                     "constraint6": 15})
+                     "constraint6": 15, "tau_r": N})
     rng = np.random.default_rng(7)
     tau = rng.normal(0.0, 5.0, N)
     p.set_input("tau", tau)
