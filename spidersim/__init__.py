@@ -7,7 +7,10 @@ Quick use::
     r = d.simulate(t_end=0.5)
     r.t, r["motor.w"], r.stats
 """
-from . import blocks  # noqa: F401  (registers the block library)
+from .solver.compiled import refresh_kernel_caches
+
+refresh_kernel_caches()  # before any kernel loads machine code that a source edit outdated
+from . import blocks  # noqa: E402,F401  (registers the block library)
 from .diagram.analysis import AnalysisError, OperatingPoint, linearize, loop_transfer, trim
 from .diagram.model import Diagram, load, loads
 from .errors import (AlgebraicLoopError, BlockTypeError, DiagramError, IntegrationError,

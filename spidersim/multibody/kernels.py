@@ -14,8 +14,6 @@ origin that the mounting applies to the arm; the arm applies the opposite to the
 """
 import math
 
-import numpy as np
-
 ROW = 16
 WS_PER_LINK = 48
 # workspace layout per link k (0 = base): R 0..8, o 9..11, w 12..14, al 15..17, ap 18..20,

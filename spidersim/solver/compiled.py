@@ -89,6 +89,43 @@ COUNTS = {"written": 0, "imported": 0}
 PREFIX = "spidersim_gen_"
 
 
+def refresh_kernel_caches(root=None) -> bool:
+    """Drop numba's machine code of spidersim's own kernels when any source file changed;
+    return True when it did.
+
+    numba keys a cached function by its own file's time stamp and size only: after an edit
+    of ``multibody/kernels.py``, the Arm block's kernels (in ``blocks/arm.py``), which have
+    the forward dynamics compiled into them, would still load the old machine code. A stamp
+    holding :func:`package_hash` beside the caches detects any change of any source file (or
+    of numba's version); then every ``*.nbi``/``*.nbc`` under the package is removed and
+    numba compiles again on first use. A package folder that is not writable is left alone
+    (numba cannot cache there either: it then caches in the user's cache folder, keyed by
+    file time stamps: a known limit, see the README). ``root``: the package folder (tests).
+    """
+    root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    stamp = os.path.join(root, "__pycache__", "numba-kernels.stamp")
+    h = package_hash()
+    try:
+        with open(stamp) as fh:
+            if fh.read() == h:
+                return False
+    except OSError:
+        pass
+    if not os.access(root, os.W_OK):
+        return False
+    for dirpath, _dirs, files in os.walk(root):
+        if os.path.basename(dirpath) == "__pycache__":
+            for f in files:
+                if f.endswith((".nbi", ".nbc")):
+                    _remove(os.path.join(dirpath, f))
+    try:
+        os.makedirs(os.path.dirname(stamp), exist_ok=True)
+        _write_atomic(stamp, h)
+    except OSError:
+        pass
+    return True
+
+
 def _sha(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 

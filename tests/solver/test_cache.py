@@ -246,3 +246,31 @@ def test_cache_info_lists_folder_entries_and_size(tmp_path):
     assert "entries: 2 " in full.stdout
     size = sum(os.path.getsize(p) for p in glob.glob(os.path.join(cache, "spidersim_gen_*")))
     assert f"{size / 1e6:.1f} MB" in full.stdout
+
+
+def test_kernel_caches_are_dropped_when_a_source_changes(tmp_path):
+    """numba keys a cached kernel by its own file only, so an edit of a function it calls
+    (multibody/kernels.py under the Arm's kernels) would load stale machine code: a stamp
+    of spidersim's source hash beside the caches drops every .nbi/.nbc when it differs,
+    and leaves them when it matches."""
+    from spidersim.solver.compiled import package_hash, refresh_kernel_caches
+    root = tmp_path / "pkg"
+    cache = root / "blocks" / "__pycache__"
+    cache.mkdir(parents=True)
+    (root / "__pycache__").mkdir()
+    stamp = root / "__pycache__" / "numba-kernels.stamp"
+    kept = cache / "arm.Arm.output-1.py311.pyc"
+    kept.write_text("not numba's")
+
+    def fill():
+        for f in ("arm.Arm.output-1.py311.nbi", "arm.Arm.output-1.py311.1.nbc"):
+            (cache / f).write_text("machine code")
+
+    fill()
+    stamp.write_text("an older source hash")
+    assert refresh_kernel_caches(str(root)) is True
+    assert not list(cache.glob("*.nb*")) and kept.exists()
+    assert stamp.read_text() == package_hash()
+    fill()                                   # same sources: nothing is dropped
+    assert refresh_kernel_caches(str(root)) is False
+    assert len(list(cache.glob("*.nb*"))) == 2
