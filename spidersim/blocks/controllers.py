@@ -248,9 +248,10 @@ _clamp_init_jit = _jit_helper(_clamp_init)
 
 class JointCascade(Block):
     """SPIDER's independent joint controller: outer P on the load position (load resolver),
-    inner PI on the motor speed (motor resolver), references scaled by the ratio ``N``::
+    inner PI on the motor speed (motor resolver), references scaled by the gear ratio
+    ``ratio`` (``N`` before spidersim 0.1)::
 
-        w_ref = N (kp_q (q_ref - q) + ff qd_ref)                (motor-side speed reference)
+        w_ref = ratio (kp_q (q_ref - q) + ff qd_ref)                (motor-side speed reference)
         e = w_ref - w_m,   v = kp_w e + I,   i_cmd = sat(v, +-I_max)
         dI/dt = ki_w e + kb (i_cmd - v)                         (back-calculation)
 
@@ -259,7 +260,7 @@ class JointCascade(Block):
 
     category = "control"
     parameters = {
-        "N": Param(160.0, "1", "gear ratio", gt=0.0),
+        "ratio": Param(160.0, "1", "gear ratio", gt=0.0),
         "kp_q": Param(20.0, "1/s", "position gain (load side)", ge=0.0),
         "kp_w": Param(0.05, "A.s/rad", "speed proportional gain (motor side)", ge=0.0),
         "ki_w": Param(1.0, "A/rad", "speed integral gain", ge=0.0),
@@ -267,6 +268,7 @@ class JointCascade(Block):
         "I_max": Param(4.0, "A", "current command limit", gt=0.0),
         "kb": Param(100.0, "1/s", "anti-windup back-calculation gain", ge=0.0),
     }
+    renamed = {"N": "ratio"}
     inputs = {"q_ref": Port("rad", doc="load position reference"),
               "qd_ref": Port("rad/s", optional=True, doc="load speed reference (feed-forward)"),
               "q": Port("rad", doc="measured load position"),
@@ -277,14 +279,14 @@ class JointCascade(Block):
     states = {"I": State("A", doc="speed-loop integral term")}
 
     @staticmethod
-    def output(t, I, q_ref, qd_ref, q, w_m, N, kp_q, kp_w, ff, I_max, i_cmd, w_ref):
-        wr = N * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0])
+    def output(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ff, I_max, i_cmd, w_ref):
+        wr = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0])
         v = kp_w * (wr - w_m[0]) + I[0]
         i_cmd[0] = min(max(v, -I_max), I_max)
         w_ref[0] = wr
 
     @staticmethod
-    def derivative(t, I, q_ref, qd_ref, q, w_m, N, kp_q, kp_w, ki_w, ff, I_max, kb, der_I):
-        e = N * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0]) - w_m[0]
+    def derivative(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ki_w, ff, I_max, kb, der_I):
+        e = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0]) - w_m[0]
         v = kp_w * e + I[0]
         der_I[0] = ki_w * e + kb * (min(max(v, -I_max), I_max) - v)

@@ -72,7 +72,7 @@ class BrushlessMotor(Block):
         K_a = K_t (1 + unbalance / 2),             K_b = K_t (1 - unbalance / 2)
         L di_a/dt = v_a - R i_a - K_a w f_a        (phase b alike)
         tau = K_a f_a i_a + K_b f_b i_b + tau_cog sin(2 theta_e)
-        J dw/dt = tau - B w - tau_load,   dtheta/dt = w
+        J dw/dt = tau - b w - tau_load,   dtheta/dt = w
 
     Imperfections, each a fraction: ``h3`` is the amplitude of the third BEMF harmonic
     relative to the fundamental (0.008 in the paper); ``unbalance`` is the relative
@@ -85,7 +85,8 @@ class BrushlessMotor(Block):
     both the torque and the BEMF, so electrical power balances mechanical power:
     ``v.i = R |i|^2 + d/dt(L |i|^2 / 2) + (tau - cogging) w``.
 
-    Sign convention: positive torque accelerates positively; ``tau_load`` opposes.
+    Sign convention: positive torque accelerates positively; ``tau_load`` opposes. The
+    viscous friction ``b`` was ``B`` before spidersim 0.1 (still accepted with a warning).
 
     ``dw`` is the rotor's acceleration ``dw/dt`` [rad/s2] (direct feedthrough of
     ``tau_load`` only, so it closes no loop through a gearbox fed by the motor's states):
@@ -101,7 +102,7 @@ class BrushlessMotor(Block):
         "K_t": Param(0.15, "N.m/A", "torque constant = BEMF constant [V.s/rad], phase "
                                     "amplitude convention", gt=0.0),
         "J": Param(1.0e-4, "kg.m2", "rotor inertia (with the wave generator)", gt=0.0),
-        "B": Param(0.0, "N.m.s/rad", "viscous friction", ge=0.0),
+        "b": Param(0.0, "N.m.s/rad", "viscous friction", ge=0.0),
         "h3": Param(0.0, "1", "third BEMF harmonic relative to the fundamental"),
         "unbalance": Param(0.0, "1", "(K_a - K_b) / K_t, phase torque-constant unbalance",
                            gt=-2.0, lt=2.0),
@@ -109,6 +110,7 @@ class BrushlessMotor(Block):
         "w0": Param(0.0, "rad/s", "initial speed"),
         "theta0": Param(0.0, "rad", "initial rotor angle"),
     }
+    renamed = {"B": "b"}
     inputs = {"v_a": Port("V", doc="phase a voltage"), "v_b": Port("V", doc="phase b voltage"),
               "tau_load": Port("N.m", optional=True, doc="load torque opposing the rotor")}
     outputs = {"i_a": Port("A", doc="phase a current"), "i_b": Port("A", doc="phase b current"),
@@ -118,13 +120,13 @@ class BrushlessMotor(Block):
                "bemf_a": Port("V", doc="phase a back EMF K_a w f_a"),
                "bemf_b": Port("V", doc="phase b back EMF K_b w f_b"),
                "dw": Port("rad/s2", feedthrough=("tau_load",),
-                          doc="rotor acceleration (tau - B w - tau_load) / J")}
+                          doc="rotor acceleration (tau - b w - tau_load) / J")}
     states = {"i_a": State("A", doc="phase a current"), "i_b": State("A", doc="phase b current"),
               "w": State("rad/s", initial="w0", doc="rotor speed"),
               "theta": State("rad", initial="theta0", doc="rotor angle")}
 
     @staticmethod
-    def output(t, i_a, i_b, w, theta, tau_load, p, K_t, J, B, h3, unbalance, tau_cog,
+    def output(t, i_a, i_b, w, theta, tau_load, p, K_t, J, b, h3, unbalance, tau_cog,
                theta_e, tau, bemf_a, bemf_b, dw):
         te = p * theta[0]
         fa = -math.sin(te) - h3 * math.sin(3.0 * te)
@@ -135,10 +137,10 @@ class BrushlessMotor(Block):
         tau[0] = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
         bemf_a[0] = ka * w[0] * fa
         bemf_b[0] = kb * w[0] * fb
-        dw[0] = (tau[0] - B * w[0] - tau_load[0]) / J
+        dw[0] = (tau[0] - b * w[0] - tau_load[0]) / J
 
     @staticmethod
-    def derivative(t, i_a, i_b, w, theta, v_a, v_b, tau_load, p, R, L, K_t, J, B, h3,
+    def derivative(t, i_a, i_b, w, theta, v_a, v_b, tau_load, p, R, L, K_t, J, b, h3,
                    unbalance, tau_cog, der_i_a, der_i_b, der_w, der_theta):
         te = p * theta[0]
         fa = -math.sin(te) - h3 * math.sin(3.0 * te)
@@ -148,7 +150,7 @@ class BrushlessMotor(Block):
         der_i_a[0] = (v_a[0] - R * i_a[0] - ka * w[0] * fa) / L
         der_i_b[0] = (v_b[0] - R * i_b[0] - kb * w[0] * fb) / L
         tau = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
-        der_w[0] = (tau - B * w[0] - tau_load[0]) / J
+        der_w[0] = (tau - b * w[0] - tau_load[0]) / J
         der_theta[0] = w[0]
 
 

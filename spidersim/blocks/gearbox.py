@@ -2,7 +2,8 @@
 three-slope law) with damping, backlash with contact events, LuGre friction on the motor side.
 
 Angles: ``phi_m`` motor (wave generator) side, ``phi_l`` load (output) side; the motor turns
-``N`` times the output. Deflection at the output ``delta = phi_m / N - phi_l``. With total
+``ratio`` times the output (``N`` before spidersim 0.1, still accepted with a warning).
+Deflection at the output ``delta = phi_m / ratio - phi_l``. With total
 backlash ``b`` the teeth are in contact when ``|delta| >= b/2``; the transmitted torque::
 
     tau_s = k(delta_e) + d d(delta)/dt     in contact (delta_e = delta -+ b/2), 0 in the gap
@@ -18,8 +19,8 @@ pull (``tau_s`` changes sign): both are events. Outputs: ``tau_l`` drives the lo
 ``tau_m`` is the torque the gearbox applies against the motor (connect it to the motor's
 ``tau_load``), ``tau_f`` is the LuGre friction (zero with ``friction: false``)::
 
-    friction_side = motor:  tau_l = tau_s,        tau_m = tau_s / (N e) + tau_f(w_m)
-    friction_side = load:   tau_l = tau_s - tau_f(w_l),  tau_m = tau_s / (N e)
+    friction_side = motor:  tau_l = tau_s,        tau_m = tau_s / (ratio e) + tau_f(w_m)
+    friction_side = load:   tau_l = tau_s - tau_f(w_l),  tau_m = tau_s / (ratio e)
 
 with the mesh efficiency ``e = efficiency`` while the motor drives the load
 (``tau_s w_l >= 0``) and ``e = 1 / efficiency`` while the load back-drives the motor: the
@@ -71,7 +72,7 @@ class HarmonicDrive(Block):
 
     category = "mechanics"
     parameters = dict({
-        "N": Param(160.0, "1", "ratio: motor angle / output angle", gt=0.0),
+        "ratio": Param(160.0, "1", "ratio: motor angle / output angle", gt=0.0),
         "stiffness": Param("linear", kind="str", choices=("linear", "three_slope"),
                            doc="linear K1 spring or the catalogue's three-slope law"),
         "K1": Param(5.4e4, "N.m/rad", "stiffness below T1 (the linear spring)", gt=0.0),
@@ -86,6 +87,7 @@ class HarmonicDrive(Block):
                                doc="where the LuGre friction acts (speed it sees)"),
         "efficiency": Param(1.0, "1", "mesh efficiency", gt=0.0, le=1.0),
     }, **LUGRE_PARAMS)
+    renamed = {"N": "ratio"}
     inputs = {"phi_m": Port("rad", doc="motor-side angle"),
               "w_m": Port("rad/s", doc="motor-side speed"),
               "phi_l": Port("rad", doc="output (load) angle"),
@@ -95,7 +97,7 @@ class HarmonicDrive(Block):
                "tau_f": Port("N.m", doc="LuGre friction", feedthrough=lambda p: (
                    "w_l",) if p["friction_side"] == "load" else ("w_m",)),
                "deflection": Port("rad", feedthrough=("phi_m", "phi_l"),
-                                  doc="phi_m / N - phi_l")}
+                                  doc="phi_m / ratio - phi_l")}
     states = {"z": State("rad", doc="LuGre bristle deflection")}
     modes = {"contact": Mode(doc="-1 / +1 teeth in contact on either side, 0 in the gap")}
     events = {"contact_pos": Event(1, "deflection reaches +b/2"),
@@ -116,11 +118,11 @@ class HarmonicDrive(Block):
                 "load_side": float(params["friction_side"] == "load")}
 
     @staticmethod
-    def output(t, z, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear,
+    def output(t, z, phi_m, w_m, phi_l, w_l, ratio, K1, K2, K3, T1, T2, d, half, linear,
                friction, load_side, efficiency, T_c, T_s, v_s, delta, sigma0, sigma1, D,
                contact, tau_l, tau_m, tau_f, deflection):
-        de = phi_m[0] / N - phi_l[0]
-        ts = spring_jit(de, w_m[0] / N - w_l[0], contact[0], half, linear > 0.5, K1, K2, K3,
+        de = phi_m[0] / ratio - phi_l[0]
+        ts = spring_jit(de, w_m[0] / ratio - w_l[0], contact[0], half, linear > 0.5, K1, K2, K3,
                         T1, T2, d)
         f = 0.0
         if friction:
@@ -129,10 +131,10 @@ class HarmonicDrive(Block):
         e = efficiency if ts * w_l[0] >= 0.0 else 1.0 / efficiency
         if load_side > 0.5:
             tau_l[0] = ts - f
-            tau_m[0] = ts / (N * e)
+            tau_m[0] = ts / (ratio * e)
         else:
             tau_l[0] = ts
-            tau_m[0] = ts / (N * e) + f
+            tau_m[0] = ts / (ratio * e) + f
         tau_f[0] = f
         deflection[0] = de
 
@@ -147,13 +149,13 @@ class HarmonicDrive(Block):
             der_z[0] = 0.0
 
     @staticmethod
-    def initialize(t, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear,
+    def initialize(t, phi_m, w_m, phi_l, w_l, ratio, K1, K2, K3, T1, T2, d, half, linear,
                    contact):
         # in contact only where the contact torque would push: just after a separation the
         # deflection is still beyond b/2 (by d |d delta/dt| / K1) while the teeth part
         if half > 0.0 and contact[0] == 0.0:
-            de = phi_m[0] / N - phi_l[0]
-            wr = w_m[0] / N - w_l[0]
+            de = phi_m[0] / ratio - phi_l[0]
+            wr = w_m[0] / ratio - w_l[0]
             if de > half and spring_jit(de, wr, 1.0, half, linear > 0.5, K1, K2, K3, T1, T2,
                                         d) > 0.0:
                 contact[0] = 1.0
@@ -162,17 +164,17 @@ class HarmonicDrive(Block):
                 contact[0] = -1.0
 
     @staticmethod
-    def guard(t, phi_m, w_m, phi_l, w_l, N, K1, K2, K3, T1, T2, d, half, linear, contact, zc):
+    def guard(t, phi_m, w_m, phi_l, w_l, ratio, K1, K2, K3, T1, T2, d, half, linear, contact, zc):
         zc[0] = -1.0
         zc[1] = 1.0
         zc[2] = 1.0
         if half > 0.0:
-            de = phi_m[0] / N - phi_l[0]
+            de = phi_m[0] / ratio - phi_l[0]
             if contact[0] == 0.0:
                 zc[0] = de - half
                 zc[1] = de + half
             else:
-                zc[2] = contact[0] * spring_jit(de, w_m[0] / N - w_l[0], contact[0], half,
+                zc[2] = contact[0] * spring_jit(de, w_m[0] / ratio - w_l[0], contact[0], half,
                                                 linear > 0.5, K1, K2, K3, T1, T2, d)
 
     @staticmethod

@@ -159,7 +159,7 @@ EXAMPLES = {
                      dict(params={"frame": "flange", "bias": [1, 2, 3, 0, 0, 0]},
                           sizes={"wrench": 6, "rot": 9})],
     "Jacobian": [dict(params={}, sizes={"q": 7}, lo=-2.0, hi=2.0)],
-    "JointCascade": [dict(params={"N": 100.0, "kp_q": 5.0, "kp_w": 0.1, "ki_w": 0.5,
+    "JointCascade": [dict(params={"ratio": 100.0, "kp_q": 5.0, "kp_w": 0.1, "ki_w": 0.5,
                                   "I_max": 1e4}, lo=-0.1, hi=0.1, moves=True)],
 }
 

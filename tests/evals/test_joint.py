@@ -296,7 +296,7 @@ blocks:
   cmd:    {{type: Constant, value: {I_CMD}}}
   driver: {{type: NRPIDriver, kp: {KP}, ki: {KI}, offset_a: 0.03, offset_b: -0.01,
            gain_a: 0.02}}
-  motor:  {{type: BrushlessMotor, p: {P}, R: {R}, L: {L}, K_t: {K_T}, J: 2.0e-3, B: 1e-4,
+  motor:  {{type: BrushlessMotor, p: {P}, R: {R}, L: {L}, K_t: {K_T}, J: 2.0e-3, b: 1e-4,
            h3: 0.008, unbalance: 0.015, tau_cog: {tau_cog}}}
   load:   {{type: Constant, value: 0.1}}
   pa:     {{type: Product}}
@@ -481,7 +481,7 @@ def test_breakaway_force_decreases_with_force_rate():
 
 
 # ============================================================================= gearbox
-GEAR = dict(N=160.0, K1=5.4e4, K2=7.8e4, K3=1.1e5, T1=29.0, T2=108.0, d=20.0)
+GEAR = dict(ratio=160.0, K1=5.4e4, K2=7.8e4, K3=1.1e5, T1=29.0, T2=108.0, d=20.0)
 
 
 def _gear_probe(**kw):
@@ -491,7 +491,7 @@ def _gear_probe(**kw):
 
 
 def _gear_out(p, phi, phi_l=0.0, w_m=0.0, w_l=0.0):
-    p.set_input("phi_m", GEAR["N"] * phi)
+    p.set_input("phi_m", GEAR["ratio"] * phi)
     p.set_input("phi_l", phi_l)
     p.set_input("w_m", w_m)
     p.set_input("w_l", w_l)
@@ -506,7 +506,7 @@ def test_linear_static_stiffness():
     for phi in (-3e-3, -1e-4, 0.0, 2e-5, 1e-3, 5e-3):
         o = _gear_out(p, phi)
         assert o["tau_l"] == pytest.approx(GEAR["K1"] * phi, rel=1e-12, abs=1e-12)
-        assert o["tau_m"] == pytest.approx(o["tau_l"] / GEAR["N"], rel=1e-12, abs=1e-14)
+        assert o["tau_m"] == pytest.approx(o["tau_l"] / GEAR["ratio"], rel=1e-12, abs=1e-14)
         assert o["deflection"] == pytest.approx(phi, rel=1e-12, abs=1e-18)
         assert o["tau_f"] == 0.0
     o = _gear_out(p, 1e-3, phi_l=4e-4, w_m=160.0 * 0.3, w_l=0.1)
@@ -570,7 +570,7 @@ blocks:
   wm:   {{type: Sine, amplitude: {wamp}, f: {f}, phase: {wphase}}}
   phi0: {{type: Constant, value: 0}}
   w0:   {{type: Constant, value: 0}}
-  gear: {{type: HarmonicDrive, N: {N}, K1: {K1}, d: {d}, backlash: {b}, friction: false}}
+  gear: {{type: HarmonicDrive, ratio: {N}, K1: {K1}, d: {d}, backlash: {b}, friction: false}}
 connections:
   - pm.y -> gear.phi_m
   - wm.y -> gear.w_m
@@ -584,7 +584,7 @@ F_SWEEP = 0.5
 
 def _sweep(phase, t_end):
     """phi_m / N = A sin(w t + phase) against a fixed load (phi_l = w_l = 0)."""
-    N, w = GEAR["N"], 2 * math.pi * F_SWEEP
+    N, w = GEAR["ratio"], 2 * math.pi * F_SWEEP
     text = BACKLASH_SWEEP.format(amp=N * A_SWEEP, f=F_SWEEP, phase=phase,
                                  wamp=N * A_SWEEP * w, wphase=phase + math.pi / 2, N=N,
                                  K1=GEAR["K1"], d=GEAR["d"], b=B_GAP)
