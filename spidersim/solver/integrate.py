@@ -24,11 +24,11 @@ from .events import crossed, crossings, locate  # noqa: F401 (part of this modul
 from .result import Result
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
-           "BDF": BDF, "DP54": RK45}
+           "BDF": BDF, "DP54": RK45, "ROS34PW2": Radau}
 #: methods integrated by the compiled loop (:mod:`spidersim.solver.loop`) when the system
 #: has one (numba-compiled diagrams); interpreted diagrams run them through the SciPy
-#: stepper of the same tableau and controller
-COMPILED = ("DP54",)
+#: stepper of the same tableau and controller (DP54) or SciPy's Radau (ROS34PW2)
+COMPILED = ("DP54", "ROS34PW2")
 IMPLICIT = ("Radau", "BDF")
 MAX_EVENTS_AT_ONE_TIME = 1000
 #: a run stalls when this many consecutive accepted steps are each shorter than
@@ -133,7 +133,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     method : str
         ``LSODA`` (default), ``RK45``, ``RK23``, ``DOP853``, ``Radau`` or ``BDF`` (SciPy's
         steppers driven by this loop), or ``DP54``: Dormand-Prince 5(4) in the compiled loop
-        of :mod:`spidersim.solver.loop` (stepping, events and recording in machine code).
+        of :mod:`spidersim.solver.loop` (stepping, events and recording in machine code), or
+        ``ROS34PW2``: the stiff Rosenbrock-W method of :mod:`spidersim.solver.rosenbrock` in
+        the same loop (finite-difference Jacobian over coloured column groups); interpreted
+        diagrams run SciPy's Radau for it.
     rtol, atol, max_step, first_step : float
         Passed to the SciPy solver.
     output_interval : float, optional
@@ -167,7 +170,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         return integrate_dp54(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
                               max_step=max_step, first_step=first_step,
                               output_interval=output_interval, progress=progress,
-                              stats=stats, should_stop=should_stop)
+                              stats=stats, should_stop=should_stop, method=method)
     wall0 = time.perf_counter()
     if system.n_x == 0:
         system = _Clock(system)
@@ -177,7 +180,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     kw = dict(rtol=rtol, atol=atol, max_step=max_step)
     if first_step is not None:
         kw["first_step"] = first_step
-    if method in IMPLICIT and system.jac_sparsity is not None and system.n_x > 1:
+    if METHODS[method] in (Radau, BDF) and system.jac_sparsity is not None and system.n_x > 1:
         kw["jac_sparsity"] = csr_matrix(system.jac_sparsity)
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end, steps=0,
