@@ -29,7 +29,8 @@ METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau"
 #: has one (numba-compiled diagrams); interpreted diagrams run them through the SciPy
 #: stepper of the same tableau and controller (DP54) or SciPy's Radau (ROS34PW2)
 COMPILED = ("DP54", "ROS34PW2")
-IMPLICIT = ("Radau", "BDF")
+#: methods given the structural Jacobian pattern (ROS34PW2 runs SciPy's Radau here)
+IMPLICIT = ("Radau", "BDF", "ROS34PW2")
 MAX_EVENTS_AT_ONE_TIME = 1000
 #: a run stalls when this many consecutive accepted steps are each shorter than
 #: STALL_STEP * max(1, |t|): the solution is running into a singularity
@@ -180,7 +181,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     kw = dict(rtol=rtol, atol=atol, max_step=max_step)
     if first_step is not None:
         kw["first_step"] = first_step
-    if METHODS[method] in (Radau, BDF) and system.jac_sparsity is not None and system.n_x > 1:
+    if method in IMPLICIT and system.jac_sparsity is not None and system.n_x > 1:
         kw["jac_sparsity"] = csr_matrix(system.jac_sparsity)
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end, steps=0,
