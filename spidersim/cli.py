@@ -619,7 +619,8 @@ def build_parser():
                    help="override a parameter (name, block.param or sub.block.param)")
     r.add_argument("--t-end", type=float, help="simulated time [s]")
     r.add_argument("--out", help="results folder (default results/<diagram name>)")
-    r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF")
+    r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF; "
+                   "DP54, ROS34PW2 (stiff): the compiled loop")
     r.add_argument("--no-jit", action="store_true", help="interpreted mode (no numba)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--show", action="store_true",

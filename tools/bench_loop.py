@@ -1,6 +1,6 @@
 """The compiled integration loop (method DP54) against hand-written baselines, one run.
 
-    python tools/bench_loop.py [servo|ball|loop]
+    python tools/bench_loop.py [servo|ball|loop|lugre|servo_stiff|spider]
 
 For each problem, interleaved in one process (best of 7):
 
@@ -11,6 +11,11 @@ For each problem, interleaved in one process (best of 7):
 * **numba RHS + LSODA**: the same equations as one numba function driven by SciPy's LSODA
   step by step (events located with brentq on its dense output), the usual Python way;
 * **spidersim LSODA**: the diagram with SciPy's LSODA in spidersim's Python loop.
+
+``lugre``, ``servo_stiff`` and ``spider`` time the stiff method instead: spidersim
+``ROS34PW2`` against the same equations as one hand-written numba function driven by SciPy's
+LSODA (LuGre, servo; none for spider.yaml) and spidersim LSODA, interleaved, with steps, RHS calls, Jacobians and LU
+factorisations (``spider`` is not in the default set: it takes minutes).
 
 The ratio printed is spidersim DP54 / hand DP54 (target <= 1.3) and LSODA / spidersim DP54.
 Steps and RHS calls are printed: the hand-written servo clips its voltage with min/max, while
@@ -343,11 +348,89 @@ def bench_loop():
              [0.0], [], 2.0, 1e-9, 1e-12, 100000)
 
 
-BENCHES = {"servo": bench_servo, "ball": bench_ball, "loop": bench_loop}
+# --- the stiff method ------------------------------------------------------------------------
+
+@njit
+def lugre_f(t, y, out):
+    """lugre_stick_slip.yaml by hand: y = (position, velocity, bristle deflection)."""
+    phi, w, z = y[0], y[1], y[2]
+    g = 1.0 + 0.5 * math.exp(-(w / 1e-3) ** 2)
+    dz = w - 1e5 * abs(w) * z / g
+    fric = 1e5 * z + math.sqrt(1e5) * dz + 0.4 * w
+    out[0] = w
+    out[1] = 2.0 * (0.1 * t - phi) - fric
+    out[2] = dz
+
+
+def _stiff(title, path, t_end, rtol, atol, repeat=5, dp54=True, hand=None):
+    """spidersim ROS34PW2 vs numba RHS + SciPy LSODA (``hand = (f, y0, tev)``: the same
+    equations written by hand, time events at ``tev``) vs spidersim LSODA (and spidersim
+    DP54), interleaved in one process: best and median wall times, steps, RHS calls,
+    Jacobians, LU factorisations."""
+    import spidersim
+    d = spidersim.load(os.path.join(ROOT, path))
+    kw = dict(t_end=t_end, rtol=rtol, atol=atol)
+    variants = [("spidersim ROS34PW2", lambda: d.simulate(method="ROS34PW2", **kw))]
+    if dp54:
+        variants.append(("spidersim DP54", lambda: d.simulate(method="DP54", **kw)))
+    if hand is not None:
+        f, y0, tev = hand
+        variants.append(("numba RHS + SciPy LSODA",
+                         _lsoda_hand(f, no_guard, no_jump, np.array(y0, float),
+                                     np.array(tev, float), t_end, rtol, atol)))
+    variants.append(("spidersim LSODA", lambda: d.simulate(method="LSODA", **kw)))
+    for _name, fn in variants:
+        fn()                                         # compile or load, warm up
+    res = {name: [] for name, _ in variants}
+    outs = {}
+    for _ in range(repeat):                          # interleaved
+        for name, fn in variants:
+            t0 = time.perf_counter()
+            outs[name] = fn()
+            res[name].append(time.perf_counter() - t0)
+    print(f"== {title} ==")
+    print(f"{'variant':26s} {'best [ms]':>10s} {'median [ms]':>12s} {'steps':>7s} "
+          f"{'RHS':>8s} {'Jac':>6s} {'LU':>6s} {'x real time':>12s}")
+    for name, _fn in variants:
+        o = outs[name]
+        if isinstance(o, tuple):                     # (rows, steps) of _lsoda_hand
+            steps, nfev, njev, nlu = o[1], -1, -1, -1
+        else:
+            st = o.stats
+            steps, nfev = st["steps"], st["rhs_calls"]
+            njev, nlu = st["jacobian_calls"], st["lu_decompositions"]
+        b, m = min(res[name]), statistics.median(res[name])
+        print(f"{name:26s} {1e3 * b:10.2f} {1e3 * m:12.2f} {steps:7d} {nfev:8d} {njev:6d} "
+              f"{nlu:6d} {t_end / b:12.1f}")
+    sp = min(res["spidersim ROS34PW2"])
+    print(f"spidersim LSODA / ROS34PW2: {min(res['spidersim LSODA']) / sp:.2f}x"
+          + (f"; numba RHS + LSODA / spidersim ROS34PW2: "
+             f"{min(res['numba RHS + SciPy LSODA']) / sp:.2f}x" if hand else "")
+          + (f"; DP54 / ROS34PW2: {min(res['spidersim DP54']) / sp:.2f}x" if dp54 else ""))
+    print()
+
+
+def bench_lugre():
+    _stiff("LuGre stick-slip: diagrams/lugre_stick_slip.yaml, 20 s, 1e-7/1e-10",
+           "diagrams/lugre_stick_slip.yaml", 20.0, 1e-7, 1e-10, hand=(lugre_f, [0, 0, 0], []))
+
+
+def bench_servo_stiff():
+    _stiff("servo (stiff method): diagrams/servo.yaml, 1 s, 1e-6/1e-8", "diagrams/servo.yaml",
+           1.0, 1e-6, 1e-8, hand=(servo_f, [0, 0, 0, 0, 0], [0.01]))
+
+
+def bench_spider():
+    _stiff("spider.yaml, 10 s, 1e-6/1e-8", "spider.yaml", 10.0, 1e-6, 1e-8, repeat=2,
+           dp54=False)
+
+
+BENCHES = {"servo": bench_servo, "ball": bench_ball, "loop": bench_loop, "lugre": bench_lugre,
+           "servo_stiff": bench_servo_stiff, "spider": bench_spider}
 
 
 def main(argv):
-    for n in argv or list(BENCHES):
+    for n in argv or [b for b in BENCHES if b != "spider"]:
         if n not in BENCHES:
             sys.exit(f"unknown benchmark '{n}'; choose from {', '.join(BENCHES)}")
         BENCHES[n]()

@@ -239,12 +239,12 @@ def is_cached(text: str, loop: bool = False) -> bool:
     if name in _LOADED:
         if not loop:
             return True
-        e = getattr(_LOADED[name], "run_dp54", None)
+        e = getattr(_LOADED[name], "run_loop", None)
         if e is not None and getattr(e, "overloads", None):
             return True
     files = [os.path.basename(f) for f in _numba_files(os.path.dirname(path), name)]
     return os.path.exists(path) and _verified(path, text, key) and bool(files) and (
-        not loop or any(f.startswith(name + ".run_dp54-") for f in files))
+        not loop or any(f.startswith(name + ".run_loop-") for f in files))
 
 
 def _import(name, path):

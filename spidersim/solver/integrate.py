@@ -22,12 +22,13 @@ from ..errors import SpidersimError
 from .scipy_loop import SciPyLoop
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
-           "BDF": BDF, "DP54": RK45}
+           "BDF": BDF, "DP54": RK45, "ROS34PW2": Radau}
 #: methods integrated by the compiled loop (:mod:`spidersim.solver.loop`) when the system
 #: has one (numba-compiled diagrams); interpreted diagrams run them through the SciPy
-#: stepper of the same tableau and controller
-COMPILED = ("DP54",)
-IMPLICIT = ("Radau", "BDF")
+#: stepper of the same tableau and controller (DP54) or SciPy's Radau (ROS34PW2)
+COMPILED = ("DP54", "ROS34PW2")
+#: methods given the structural Jacobian pattern (ROS34PW2 runs SciPy's Radau here)
+IMPLICIT = ("Radau", "BDF", "ROS34PW2")
 
 
 class _Clock:
@@ -88,7 +89,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     method : str
         ``LSODA`` (default), ``RK45``, ``RK23``, ``DOP853``, ``Radau`` or ``BDF`` (SciPy's
         steppers driven by this loop), or ``DP54``: Dormand-Prince 5(4) in the compiled loop
-        of :mod:`spidersim.solver.loop` (stepping, events and recording in machine code).
+        of :mod:`spidersim.solver.loop` (stepping, events and recording in machine code), or
+        ``ROS34PW2``: the stiff Rosenbrock-W method of :mod:`spidersim.solver.rosenbrock` in
+        the same loop (finite-difference Jacobian over coloured column groups); interpreted
+        diagrams run SciPy's Radau for it.
     rtol, atol, max_step, first_step : float
         Passed to the SciPy solver.
     output_interval : float, optional
@@ -122,7 +126,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         return integrate_dp54(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
                               max_step=max_step, first_step=first_step,
                               output_interval=output_interval, progress=progress,
-                              stats=stats, should_stop=should_stop)
+                              stats=stats, should_stop=should_stop, method=method)
     clock = system.n_x == 0
     if clock:
         system = _Clock(system)

@@ -10,7 +10,8 @@ The loop is made of named parts, each a small compiled function:
 =================  ===========================================================================
 part               what it does
 =================  ===========================================================================
-``advance``        one accepted step: trial steps of :mod:`.dp54` until the error norm is
+``advance``        one accepted step: trial steps of :mod:`.dp54` or :mod:`.rosenbrock` (the
+                   run's method, ``ist[I_METHOD]``) until the error norm is
                    <= 1, never past the end of the segment (the next time event or ``t_end``)
 ``detect``         guards at the step end, crossings against the step start
                    (:func:`.events.crossings`)
@@ -25,7 +26,7 @@ The state of the run lives in arrays (``ist`` integers, ``fst`` floats, ``x``, `
 the buffers), so that the loop can return to Python and resume exactly where it stopped.
 Its contract with the generated module is the one of :mod:`spidersim.solver.system`
 (``derivatives``, ``outputs``, ``guards``, ``record``, ``record_guards``, ``next_time``,
-``time_events``, ``initialize``, ``apply_event``); :func:`run_dp54` takes them as arguments,
+``time_events``, ``initialize``, ``apply_event``); the module's ``run_loop`` calls them by name,
 so it is tested on hand-written functions as well as on generated modules.
 
 Semantics are those of the SciPy-stepper loop (:mod:`spidersim.solver.integrate`): the same
@@ -39,11 +40,17 @@ import math
 
 import numpy as np
 
-from . import dp54
+from . import dp54, rosenbrock
 from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME,  # noqa: F401 (read by loop_body)
                      STALL_COUNT, STALL_STEP)
 
-# return codes of run_dp54
+# integration methods of the compiled loop (``ist[I_METHOD]``)
+METHOD_DP54, METHOD_ROS34PW2 = 0, 1
+METHODS = {"DP54": METHOD_DP54, "ROS34PW2": METHOD_ROS34PW2}
+# both methods leave f(t + h, x1) in the same row of K, copied to row 0 for the next step
+assert rosenbrock.ROW_END == 6 and rosenbrock.K_ROWS >= dp54.K_ROWS
+
+# return codes of run_loop
 DONE, ROWS_FULL, EVENTS_FULL, PAUSE = 0, 1, 2, 3
 FAIL_NONFINITE, FAIL_STALL, FAIL_SMALL_STEP, FAIL_CHATTER = 10, 11, 12, 13
 FAIL_TIME_EVENTS, FAIL_SETTLE, FAIL_START = 14, 15, 16
@@ -51,11 +58,17 @@ FAIL_TIME_EVENTS, FAIL_SETTLE, FAIL_START = 14, 15, 16
 # integer state ``ist``
 I_ROWS, I_EVENTS, I_GRID, I_TINY, I_STEPS, I_NFEV, I_STARTED, I_REJECTED = range(8)
 I_SEGMENTS, I_TIMED, I_BLOCK, I_FRESH, I_NG, I_OVERFLOW, I_NEW_STEPS = range(8, 15)
-N_IST = 16
+# the method, Jacobians and LU factorisations made, accepted steps since the last Jacobian
+# (-1: none valid)
+I_METHOD, I_NJAC, I_NLU, I_JAGE = range(15, 19)
+N_IST = 20
 # float state ``fst``
 F_T, F_H, F_TEND, F_RTOL, F_ATOL, F_MAXSTEP, F_FIRST, F_DT, F_T0, F_CHATTER_WINDOW = range(10)
 F_TFAIL = 10
-N_FST = 12
+F_HLU = 11            # the step size of the LU factors in JW[1] (0: none)
+# Jacobian and LU reuse of ROS34PW2 (see rosenbrock.JAC_MAX_AGE, JAC_REJECTIONS, HOLD_MAX)
+F_JAC_MAX_AGE, F_JAC_REJECTIONS, F_HOLD_MAX = 12, 13, 14
+N_FST = 16
 # rows of the guard work array ``G``
 G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE = range(7)
 N_G_ROWS = 7
@@ -84,26 +97,35 @@ _FAILURES = {
 
 
 class CompiledLoop:
-    """The arrays of one run of :func:`run_dp54` and the calls that resume it.
+    """The arrays of one run of the compiled loop and the calls that resume it.
 
     Parameters
     ----------
     entry : callable
-        ``entry(ist, fst, x, K, x1, xs, G, g_dir, g_block, timed_block, fired, bmask, hit,
-        chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes, pause_steps) -> code``:
-        :func:`run_dp54` bound to a system's functions (the generated module's ``run_dp54``).
+        ``entry(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block, fired,
+        bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes, pause_steps)
+        -> code``: the generated module's ``run_loop`` (bound to its system's functions).
     system : CompiledSystem or compatible
         Supplies ``x0``, ``sig``, ``p``, ``modes``, ``event_table``, ``timed``,
-        ``record_size`` and the record index arrays ``_s_idx``, ``_x_idx``.
+        ``record_size``, the record index arrays ``_s_idx``, ``_x_idx`` and optionally
+        ``jac_sparsity`` (the structural pattern; dense without it).
+    method : str
+        ``DP54`` or ``ROS34PW2``.
     """
 
     def __init__(self, entry, system, t0, t_end, rtol, atol, max_step, first_step,
-                 output_interval, capacity=1024):
+                 output_interval, capacity=1024, method="DP54"):
         s = system
         self.entry, self.system = entry, s
         n = s.n_x
         self.x = np.array(s.x0, dtype=float)
-        self.K = dp54.work_array(n)
+        self.K = rosenbrock.work_array(n)      # rows enough for either method
+        if method == "ROS34PW2":
+            self.JW = rosenbrock.jacobian_work(n)
+            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n)
+        else:
+            self.JW = np.zeros((2, 0, 0))
+            self.jpat = np.zeros(0, dtype=np.int64)
         self.x1 = np.zeros(n)
         self.xs = np.zeros(n)
         ng = s.n_g
@@ -124,6 +146,8 @@ class CompiledLoop:
         self.ev_i = np.zeros((capacity, 3), dtype=np.int64)
         self.ist = np.zeros(N_IST, dtype=np.int64)
         self.ist[I_NG] = ng
+        self.ist[I_METHOD] = METHODS[method]
+        self.ist[I_JAGE] = -1
         self.fst = np.zeros(N_FST)
         f = self.fst
         f[F_T], f[F_T0], f[F_TEND] = t0, t0, t_end
@@ -131,11 +155,15 @@ class CompiledLoop:
         f[F_FIRST] = first_step or 0.0
         f[F_DT] = output_interval or 0.0
         f[F_CHATTER_WINDOW] = max(1e-9, 1e-6 * (t_end - t0))
+        f[F_JAC_MAX_AGE] = rosenbrock.JAC_MAX_AGE
+        f[F_JAC_REJECTIONS] = rosenbrock.JAC_REJECTIONS
+        f[F_HOLD_MAX] = rosenbrock.HOLD_MAX
 
     def arguments(self, pause_steps=PAUSE_STEPS):
         """The entry's arguments, in order."""
         s = self.system
-        return (self.ist, self.fst, self.x, self.K, self.x1, self.xs, self.G, self.g_dir,
+        return (self.ist, self.fst, self.x, self.K, self.x1, self.xs, self.JW, self.jpat,
+                self.G, self.g_dir,
                 self.g_block, self.timed_block, self.fired, self.bmask, self.hit, self.chat,
                 self.tbuf, self.buf, self.ev_t, self.ev_i, s._s_idx, s._x_idx, s.sig, s.p,
                 s.modes, pause_steps)
@@ -185,18 +213,20 @@ class CompiledLoop:
 
     def stats(self):
         i = self.ist
-        return dict(steps=int(i[I_STEPS]), rhs_calls=int(i[I_NFEV]), jacobian_calls=0,
-                    lu_decompositions=0, segments=int(i[I_SEGMENTS]),
+        return dict(steps=int(i[I_STEPS]), rhs_calls=int(i[I_NFEV]),
+                    jacobian_calls=int(i[I_NJAC]), lu_decompositions=int(i[I_NLU]),
+                    jacobian_groups=int(rosenbrock.n_groups(self.jpat)), segments=int(i[I_SEGMENTS]),
                     time_events=int(i[I_TIMED]), rejected_steps=int(i[I_REJECTED]))
 
 
 def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=math.inf,
                    first_step=None, output_interval=None, progress=None, stats=None,
-                   should_stop=None):
-    """Integrate ``system`` with the compiled Dormand-Prince loop; return a ``Result``.
+                   should_stop=None, method="DP54"):
+    """Integrate ``system`` with the compiled loop (Dormand-Prince 5(4), or ROS34PW2 with
+    ``method="ROS34PW2"``); return a ``Result``.
 
     Arguments as :func:`spidersim.solver.integrate.integrate` (already validated there);
-    ``entry`` is :func:`run_dp54` bound to the system's functions. Failures raise
+    ``entry`` is the generated module's ``run_loop``. Failures raise
     :class:`~spidersim.errors.IntegrationError` (or ``AlgebraicLoopError``) with the partial
     result, exactly as the SciPy-stepper loop does.
     """
@@ -206,9 +236,9 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
     if system.n_x == 0 and max_step == math.inf:
         max_step = (t_end - t0) / 200
     run = CompiledLoop(entry, system, t0, t_end, rtol, atol, max_step, first_step,
-                       output_interval)
+                       output_interval, method=method)
     st = dict(stats or {})
-    st.update(method="DP54", rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
+    st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
     status, message = "ok", ""
     while True:
         code = run.call()

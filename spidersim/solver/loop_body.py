@@ -13,14 +13,17 @@ The parts, their order and their state arrays are described in :mod:`spidersim.s
 """
 # --- body (appended from here) ---
 from spidersim.solver import dp54 as _dp54
+from spidersim.solver import newton as _newton
 from spidersim.solver import events as _events
+from spidersim.solver import rosenbrock as _ros
 from spidersim.solver.loop import (  # noqa: F401
     CHATTER_COUNT, DONE, EVENTS_FULL, FAIL_CHATTER, FAIL_NONFINITE, FAIL_SETTLE,
     FAIL_SMALL_STEP, FAIL_STALL, FAIL_START, FAIL_TIME_EVENTS, F_ATOL, F_CHATTER_WINDOW,
     F_DT, F_FIRST, F_H, F_MAXSTEP, F_RTOL, F_T, F_T0, F_TEND, F_TFAIL, G_ARMED, G_BEFORE,
     G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
     I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
-    I_TINY, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE, ROW_RESERVE, ROWS_FULL,
+    I_TINY, I_METHOD, I_NJAC, I_NLU, I_JAGE, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
+    F_HOLD_MAX, METHOD_ROS34PW2, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE, ROW_RESERVE, ROWS_FULL,
     STALL_COUNT, STALL_STEP)
 
 
@@ -50,7 +53,16 @@ def _first_step(t, x, f0, span, rtol, atol, K, sig, p, modes):
 
 
 @_jit
-def _locate(i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
+def _dense(meth, t, h, x, x1, K, s, out):
+    """The dense output of the step ``(t, x) -> (t + h, x1)`` of method ``meth`` at ``s``."""
+    if meth == METHOD_ROS34PW2:
+        _ros.dense(t, h, x, x1, K, s, out)
+    else:
+        _dp54.dense(t, h, x, x1, K, s, out)
+
+
+@_jit
+def _locate(meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
     """Crossing time of guard ``i`` in ``(t, t + h]`` on the step's dense output, on the far
     side (see :func:`spidersim.solver.events.bracket_trial`)."""
     a = t
@@ -62,7 +74,7 @@ def _locate(i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
         if _events.bracket_done(a, b, xtol):
             break
         s = _events.bracket_trial(a, b, fa, fb, it, xtol)
-        _dp54.dense(t, h, x, x1, K, s, xs)
+        _dense(meth, t, h, x, x1, K, s, xs)
         guards(s, xs, sig, p, modes, g)
         fs = g[i]
         if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
@@ -118,7 +130,7 @@ def _record_grid(t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx
     k = ist[I_GRID]
     tk = t0 + k * dt
     while tk < t_b - _tol(t_b) and ist[I_ROWS] < tbuf.size:
-        _dp54.dense(t, h, x, x1, K, tk, xs)
+        _dense(ist[I_METHOD], t, h, x, x1, K, tk, xs)
         _row(tk, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
         k += 1
         tk = t0 + k * dt
@@ -193,7 +205,107 @@ def _fire_due(t, x, G,
 
 
 @_jit
-def _advance(t, t_seg, x, K, x1, ist, fst, sig, p, modes):
+def _advance(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
+    """One accepted step of the run's method (``ist[I_METHOD]``) from ``(t, x)``; see
+    :func:`_advance_dp54` and :func:`_advance_ros34pw2`."""
+    if ist[I_METHOD] == METHOD_ROS34PW2:
+        return _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
+    return _advance_dp54(t, t_seg, x, K, x1, ist, fst, sig, p, modes)
+
+
+@_jit
+def _jacobian(t, x, K, J, jpat, ist, sig, p, modes):
+    """``J`` = the finite-difference Jacobian at ``(t, x)`` (``K[0] = f(t, x)``), one
+    evaluation per column group (see :mod:`spidersim.solver.rosenbrock`)."""
+    y = K[_ros.ROW_TRIAL]
+    fp = K[_ros.ROW_FPERT]
+    d = K[_ros.ROW_SCRATCH]
+    ng = _ros.n_groups(jpat)
+    for g in range(ng):
+        _ros.perturb_group(g, x, jpat, y, d)
+        derivatives(t, y, sig, p, modes, fp)
+        _ros.store_group(g, K[0], fp, d, jpat, J)
+    ist[I_NFEV] += ng
+    ist[I_NJAC] += 1
+    ist[I_JAGE] = 0
+
+
+@_jit
+def _step_ros34pw2(t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
+    """One ROS34PW2 trial step (see :mod:`spidersim.solver.rosenbrock`) with ``LU`` the
+    factors of ``I / (h gamma) - J``; returns the error norm."""
+    piv = K[_ros.ROW_PIV]
+    y = K[_ros.ROW_TRIAL]
+    K[1, :] = K[0]
+    _newton.lu_solve(LU, piv, K[1])
+    for s in range(1, 4):
+        _ros.stage_state(s, x, K, y)
+        derivatives(t + _ros.alpha_of(s) * h, y, sig, p, modes, K[s + 1])
+        _ros.stage_rhs(s, K, h, K[s + 1])
+        _newton.lu_solve(LU, piv, K[s + 1])
+    _ros.solution(x, K, x1)
+    return _ros.error_norm(x, x1, K, rtol, atol)
+
+
+@_jit
+def _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
+    """One accepted ROS34PW2 step from ``(t, x)`` (``K[0] = f(t, x)``), never past
+    ``t_seg``; returns ``(h, factor)`` as :func:`_advance_dp54` and leaves
+    ``f(t + h, x1)`` in ``K[ROW_END]``.
+
+    The Jacobian ``JW[0]`` is computed when it is marked stale (``ist[I_JAGE] < 0``: a new
+    segment, i.e. the start or after an event), after ``fst[F_JAC_MAX_AGE]`` accepted
+    steps, and after ``fst[F_JAC_REJECTIONS]`` consecutive rejections of this step unless it
+    was computed at this step's start. The LU factors ``JW[1]`` of ``I / (h gamma) - J`` are
+    reused while ``h`` (``fst[F_HLU]``) and ``J`` are unchanged; to make that happen, a
+    step-size factor in ``[1, fst[F_HOLD_MAX]]`` is taken as 1.
+    """
+    rtol = fst[F_RTOL]
+    atol = fst[F_ATOL]
+    J = JW[0]
+    LU = JW[1]
+    h_min = 10.0 * (np.nextafter(t, math.inf) - t)
+    h = min(fst[F_H], fst[F_MAXSTEP])
+    if h < h_min:
+        h = h_min
+    if ist[I_JAGE] < 0 or ist[I_JAGE] >= fst[F_JAC_MAX_AGE]:
+        _jacobian(t, x, K, J, jpat, ist, sig, p, modes)
+        fst[F_HLU] = 0.0
+    rejected = False
+    n_rej = 0
+    while True:
+        if h < h_min:
+            return 0.0, 1.0
+        if t + h > t_seg:
+            h = t_seg - t
+        ok = True
+        if h != fst[F_HLU]:
+            ok = _ros.factor_matrix(J, LU, K[_ros.ROW_PIV], h)
+            ist[I_NLU] += 1
+            fst[F_HLU] = h if ok else 0.0
+        err = math.inf
+        if ok:
+            err = _step_ros34pw2(t, x, h, K, x1, LU, rtol, atol, sig, p, modes)
+            ist[I_NFEV] += 3
+        if err <= 1.0:
+            derivatives(t + h, x1, sig, p, modes, K[_ros.ROW_END])
+            ist[I_NFEV] += 1
+            ist[I_JAGE] += 1
+            fac = _ros.factor(err, rejected)
+            if 1.0 <= fac <= fst[F_HOLD_MAX]:
+                fac = 1.0
+            return h, fac
+        n_rej += 1
+        if ist[I_JAGE] > 0 and n_rej >= fst[F_JAC_REJECTIONS]:   # an older Jacobian
+            _jacobian(t, x, K, J, jpat, ist, sig, p, modes)
+            fst[F_HLU] = 0.0
+        h *= _ros.factor(err, rejected)
+        rejected = True
+        ist[I_REJECTED] += 1
+
+
+@_jit
+def _advance_dp54(t, t_seg, x, K, x1, ist, fst, sig, p, modes):
     """One accepted step from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg``.
 
     Returns ``(h, factor)``: the step taken (``x1``, ``K`` hold its end state and stages)
@@ -236,12 +348,12 @@ def _state_events(t, h, x, x1, K, xs, G, g_dir,
         if G[G_OLD, i] == 0.0:           # left zero at the start of the step
             ti = t
         else:
-            ti = _locate(i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, xs,
+            ti = _locate(ist[I_METHOD], i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, xs,
                               G[G_TMP], xtol, sig, p, modes)
         G[G_TIMES, j] = ti
         t_ev = min(t_ev, ti)
     if t_ev < t_end_step:
-        _dp54.dense(t, h, x, x1, K, t_ev, xs)
+        _dense(ist[I_METHOD], t, h, x, x1, K, t_ev, xs)
     else:
         xs[:] = x1
     if fst[F_DT] > 0.0:
@@ -292,10 +404,12 @@ def _grid_to(t_a, t_b, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig, p
 
 
 @_jit
-def run_dp54(ist, fst, x, K, x1, xs, G, g_dir, g_block, timed_block,
+def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
              pause_steps):
-    """Integrate from ``fst[F_T]`` to ``fst[F_TEND]``; return a code (module constants).
+    """Integrate from ``fst[F_T]`` to ``fst[F_TEND]`` with the method ``ist[I_METHOD]``;
+    return a code (module constants). ``JW`` and ``jpat`` are the Jacobian work and pattern
+    arrays of :mod:`spidersim.solver.rosenbrock` (size 0 for DP54).
 
     Resumable: on ``ROWS_FULL``, ``EVENTS_FULL`` and ``PAUSE`` every quantity needed to go
     on is in the arrays, and the caller calls again (with grown buffers). On a failure,
@@ -367,10 +481,11 @@ def run_dp54(ist, fst, x, K, x1, xs, G, g_dir, g_block, timed_block,
                                            fst[F_RTOL], fst[F_ATOL], K, sig, p, modes)
                 ist[I_NFEV] += 1
             ist[I_FRESH] = 0
+            ist[I_JAGE] = -1              # modes may have changed: a new Jacobian
         if grid:                          # the rows of one step must fit in the buffer
             room = tbuf.size - ist[I_ROWS] - ROW_RESERVE
             fst[F_H] = min(fst[F_H], max(room, 1) * fst[F_DT])
-        h, fac = _advance(t, t_seg, x, K, x1, ist, fst, sig, p, modes)
+        h, fac = _advance(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
         if h == 0.0:
             fst[F_T] = t
             xs[:] = x

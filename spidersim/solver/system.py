@@ -104,8 +104,8 @@ class CompiledSystem:
         self._guards = m.guards
         self._record_guards = m.record_guards
         #: the compiled integration loop bound to this module (numba-compiled modules only)
-        self.compiled_entry = m.run_dp54 if getattr(m, "JIT", False) and hasattr(
-            m, "run_dp54") else None
+        self.compiled_entry = m.run_loop if getattr(m, "JIT", False) and hasattr(
+            m, "run_loop") else None
 
     def outputs(self, t, x):
         self._outputs(t, x, self.sig, self.p, self.modes)

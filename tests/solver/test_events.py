@@ -13,12 +13,15 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 BALL = os.path.join(ROOT, "diagrams", "bouncing_ball.yaml")
 
 
-@pytest.fixture(params=["scipy-loop", "compiled-loop"])
+@pytest.fixture(params=["scipy-loop", "compiled-loop", "compiled-ros34pw2"])
 def engine(request):
     """Each event test runs on both loops: SciPy's steppers driven from Python
-    (interpreted diagram, the file's method) and the compiled Dormand-Prince loop."""
+    (interpreted diagram, the file's method) and the compiled loop, with the Dormand-Prince
+    method and with the stiff ROS34PW2 method (same event semantics, its own dense output)."""
     if request.param == "scipy-loop":
         return {"jit": False}
+    if request.param == "compiled-ros34pw2":
+        return {"jit": True, "method": "ROS34PW2"}
     return {"jit": True, "method": "DP54"}
 
 

@@ -136,7 +136,7 @@ class HandSystem:
         self.units = {k: "1" for k in self.record_slices}
         self._s_idx = np.zeros(0, np.int64)
         self._x_idx = np.arange(self.n_x)
-        self.compiled_entry = module.run_dp54
+        self.compiled_entry = module.run_loop
 
     def record_row(self, t, x, buf, row):
         return self.module.record(t, x, self.sig, self.p, self.modes, self._s_idx,
@@ -179,10 +179,16 @@ def ball(tmp_path_factory):
     return build("hand_ball", BALL, tmp_path_factory.mktemp("ball"))
 
 
-def test_bouncing_ball_impacts_at_the_closed_form_times(ball):
+@pytest.fixture(params=["DP54", "ROS34PW2"])
+def method(request):
+    """The closed-form tests run with both methods of the compiled loop."""
+    return request.param
+
+
+def test_bouncing_ball_impacts_at_the_closed_form_times(ball, method):
     s = HandSystem(ball, [10.0, 0.0], [9.81, 0.8, 0.05], [0.0],
                    events=[("ball", "impact", -1.0)])
-    r = run(s, 15.0, rtol=1e-10, atol=1e-12)
+    r = run(s, 15.0, rtol=1e-10, atol=1e-12, method=method)
     t_imp = np.array([t for t, _b, _e in r.events])
     assert np.max(np.abs(t_imp[:10] - impact_times(10.0, 0.8, 9.81, 10))) < 1e-9
     assert r["x0"][-1] == 0.0 and r["x1"][-1] == 0.0 and np.min(r["x0"]) > -1e-9
@@ -192,31 +198,34 @@ def test_bouncing_ball_impacts_at_the_closed_form_times(ball):
     assert np.allclose(np.diff(np.log(v_after)), math.log(0.8), atol=1e-7)
 
 
-def test_bouncing_ball_zeno_is_chattering_at_the_accumulation_time(ball):
+def test_bouncing_ball_zeno_is_chattering_at_the_accumulation_time(ball, method):
     s = HandSystem(ball, [10.0, 0.0], [9.81, 0.8, 0.0], [0.0],
                    events=[("ball", "impact", -1.0)])
     with pytest.raises(IntegrationError) as ei:
-        run(s, 30.0, rtol=1e-10, atol=1e-12)
+        run(s, 30.0, rtol=1e-10, atol=1e-12, method=method)
     t_zeno = math.sqrt(2 * 10 / 9.81) * (1 + 2 * 0.8 / 0.2)
     assert "chattering" in str(ei.value) and abs(ei.value.partial.t[-1] - t_zeno) < 1e-3
 
 
-def test_grid_output_resumes_across_full_buffers(ball):
+def test_grid_output_resumes_across_full_buffers(ball, method):
     s = HandSystem(ball, [10.0, 0.0], [9.81, 0.8, 0.05], [0.0],
                    events=[("ball", "impact", -1.0)])
-    r = run(s, 15.0, rtol=1e-10, atol=1e-12, output_interval=1e-3)   # 15001 rows > 1024
+    r = run(s, 15.0, rtol=1e-10, atol=1e-12, output_interval=1e-3,   # 15001 rows > 1024
+            method=method)
     assert len(r.t) == 15001 and np.allclose(np.diff(r.t), 1e-3)
     t1 = math.sqrt(2 * 10 / 9.81)
     pre = r.t < t1
     assert np.allclose(r["x0"][pre], 10 - 0.5 * 9.81 * r.t[pre] ** 2, atol=1e-9)
 
 
-def test_pause_and_resume_give_the_same_result(ball):
+def test_pause_and_resume_give_the_same_result(ball, method):
+    """Returning to Python every 3 steps changes nothing: the whole state of the run (the
+    Jacobian, its age and the LU factors of ROS34PW2 too) lives in the arrays."""
     def go(pause):
         s = HandSystem(ball, [10.0, 0.0], [9.81, 0.8, 0.05], [0.0],
                        events=[("ball", "impact", -1.0)])
         run_ = L.CompiledLoop(s.compiled_entry, s, 0.0, 15.0, 1e-8, 1e-10, math.inf, None,
-                              None)
+                              None, method=method)
         while True:
             code = run_.call(pause)
             if code == L.ROWS_FULL:
@@ -229,11 +238,11 @@ def test_pause_and_resume_give_the_same_result(ball):
     assert np.array_equal(ta, tb) and np.array_equal(xa, xb)
 
 
-def test_sampled_integrator_fires_at_every_sample(tmp_path):
+def test_sampled_integrator_fires_at_every_sample(tmp_path, method):
     mod = build("hand_sampled", SAMPLED, tmp_path)
     Ts = 0.1
     s = HandSystem(mod, [0.0], [Ts], [0.0, 0.0], timed=["zoh"])
-    r = run(s, 1.0, rtol=1e-8, atol=1e-10)
+    r = run(s, 1.0, rtol=1e-8, atol=1e-10, method=method)
     times = [t for t, b, e in r.events]
     assert [b for _t, b, _e in r.events] == ["zoh"] * 11
     assert np.allclose(times, np.arange(11) * Ts, atol=1e-12)
