@@ -24,7 +24,9 @@ from .graph import Layout
 
 
 def _slice(arr, a, b):
-    return f"{arr}[{a}:{b}]"
+    """The view ``arr[a:b]`` passed to a kernel, borrowed (:mod:`spidersim.diagram.views`:
+    no reference counting per call)."""
+    return f"_v({arr}, {a}, {b})"
 
 
 def _param_expr(slot):
@@ -32,8 +34,8 @@ def _param_expr(slot):
     if shape == "scalar":
         return f"p[{a}]"
     if len(shape) == 1:
-        return f"p[{a}:{b}]"
-    return f"p[{a}:{b}].reshape(({shape[0]}, {shape[1]}))"
+        return _slice("p", a, b)
+    return f"{_slice('p', a, b)}.reshape(({shape[0]}, {shape[1]}))"
 
 
 def _arg_expr(bl, kernel, name):
@@ -41,7 +43,7 @@ def _arg_expr(bl, kernel, name):
         return name
     if name == "zc":
         a, b = bl.guard_slice
-        return f"g[{a}:{b}]"
+        return _slice("g", a, b)
     if name == "which":
         return f"k - {bl.guard_slice[0]}"
     if name.startswith("der_") and name[4:] in bl.states:
@@ -229,9 +231,13 @@ JIT = {jit!r}
 if JIT:
     from numba import njit
 
+    from spidersim.diagram.views import view as _v
+
     def _jit(f):
         return njit(cache=True, nogil=True, error_model="numpy")(f)
 else:
+    from spidersim.diagram.views import _view_py as _v
+
     def _jit(f):
         return f
 
