@@ -92,11 +92,19 @@ def test_views_touch_no_reference_count():
 
 def test_generated_kernel_arguments_are_borrowed_views():
     """Every port, state, mode and vector parameter a generated module hands a kernel is a
-    borrowed view (``_v(arr, a, b)``), never a slice ``arr[a:b]`` of the flat arrays, and the
-    interpreted module (JIT = False) gets plain slices under the same name."""
+    borrowed view (``_v(arr, a, b)``), never a slice ``arr[a:b]`` of the flat arrays; every
+    generated function that calls kernels or ``outputs`` first rebinds its array arguments
+    to borrowed views of themselves; the interpreted module (JIT = False) gets plain slices
+    under the same name."""
     d = spidersim.load(os.path.join(ROOT, "diagrams", "servo.yaml"))
     src = d.source()
     body = src[src.index("def outputs"):src.index("def rhs")]
     assert "_v(x, 2, 3)" in body and "_v(xdot, " in body
     assert not re.search(r"\b(x|sig|modes|xdot|p|g)\[\d+:\d+\]", body)
+    for fn in ("outputs", "derivatives", "record", "time_events", "initialize", "guards",
+               "record_guards", "apply_event"):
+        head = src[src.index(f"def {fn}("):]
+        head = head[:head.index("\n\n")]
+        assert all(f"    {a} = _v({a}, 0, {a}.size)\n" in head
+                   for a in ("x", "sig", "p", "modes")), fn
     assert "_view_py as _v" in d.source(jit=False)
