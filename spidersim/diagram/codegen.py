@@ -24,7 +24,21 @@ from .graph import Layout
 
 
 def _slice(arr, a, b):
-    return f"{arr}[{a}:{b}]"
+    """The view ``arr[a:b]`` passed to a kernel, borrowed (:mod:`spidersim.diagram.views`:
+    no reference counting per call)."""
+    return f"_v({arr}, {a}, {b})"
+
+
+def _borrow(*arrays):
+    """Lines that rebind a generated function's array arguments to borrowed views of
+    themselves (:mod:`spidersim.diagram.views`), at its top: numba's reference count of an
+    argument taken on entry is then given back in the same basic block (and pruned), and
+    the functions and kernels it calls receive arrays without a memory owner, so no call
+    below touches a reference count. The arrays are the caller's and outlive the call."""
+    return "".join(f"    {a} = _v({a}, 0, {a}.size)\n" for a in arrays)
+
+
+_XSPM = _borrow("x", "sig", "p", "modes")
 
 
 def _param_expr(slot):
@@ -32,8 +46,8 @@ def _param_expr(slot):
     if shape == "scalar":
         return f"p[{a}]"
     if len(shape) == 1:
-        return f"p[{a}:{b}]"
-    return f"p[{a}:{b}].reshape(({shape[0]}, {shape[1]}))"
+        return _slice("p", a, b)
+    return f"{_slice('p', a, b)}.reshape(({shape[0]}, {shape[1]}))"
 
 
 def _arg_expr(bl, kernel, name):
@@ -41,7 +55,7 @@ def _arg_expr(bl, kernel, name):
         return name
     if name == "zc":
         a, b = bl.guard_slice
-        return f"g[{a}:{b}]"
+        return _slice("g", a, b)
     if name == "which":
         return f"k - {bl.guard_slice[0]}"
     if name.startswith("der_") and name[4:] in bl.states:
@@ -151,7 +165,8 @@ class Generator:
         say when to evaluate). Only integers of the layout enter this text.
         """
         lines = [f"@_jit", f"def _loop{lp.index}_res(t, x, sig, p, modes, r):",
-                 f'    """Residual of algebraic loop {lp.index}."""']
+                 f'    """Residual of algebraic loop {lp.index}."""',
+                 _borrow("x", "sig", "p", "modes", "r").rstrip("\n")]
         lines += [self.call(self.layout.blocks[path], "output") for path in lp.calls
                   if self.layout.blocks[path].cls.has_kernel("output")]
         for k, (kind, a, o) in enumerate(lp.residual):
@@ -168,7 +183,7 @@ class Generator:
 def _loop{lp.index}_solve(t, x, sig, p, modes):
     \"\"\"Newton solve of algebraic loop {lp.index} ({n} unknowns), by reverse
     communication with spidersim.solver.newton: this driver evaluates the residual.\"\"\"
-    ws = sig[{lp.ws0}:{lp.ws0 + ws.size}]
+{_XSPM}    ws = sig[{lp.ws0}:{lp.ws0 + ws.size}]
     zi = {zidx}
     z = _newton.unknowns(ws, {n})
     r = _newton.evaluation(ws, {n})
@@ -229,9 +244,13 @@ JIT = {jit!r}
 if JIT:
     from numba import njit
 
+    from spidersim.diagram.views import view as _v
+
     def _jit(f):
         return njit(cache=True, nogil=True, error_model="numpy")(f)
 else:
+    from spidersim.diagram.views import _view_py as _v
+
     def _jit(f):
         return f
 
@@ -245,12 +264,12 @@ N_EVENTS = {sum(bl.guard_slice[1] - bl.guard_slice[0] for bl in evb)}
 
 @_jit
 def outputs(t, x, sig, p, modes):
-{body(out_lines) or "    pass"}
+{_XSPM}{body(out_lines) or "    pass"}
 
 
 @_jit
 def derivatives(t, x, sig, p, modes, xdot):
-    outputs(t, x, sig, p, modes)
+{_XSPM}{_borrow("xdot")}    outputs(t, x, sig, p, modes)
 {body(der_lines) or "    pass"}
 
 
@@ -265,7 +284,7 @@ def rhs(t, x, sig, p, modes):
 def record(t, x, sig, p, modes, s_idx, x_idx, buf, row):
     """Outputs at (t, x) into row ``row`` of ``buf``; False if x or a logged value is not
     finite."""
-    outputs(t, x, sig, p, modes)
+{_XSPM}    outputs(t, x, sig, p, modes)
     ok = True
     for i in range(x.size):
         if not math.isfinite(x[i]):
@@ -292,33 +311,33 @@ def next_time(t, p, modes):
 
 @_jit
 def time_events(t, x, sig, p, modes, tol, fired):
-{body(te_lines) or "    pass"}
+{_XSPM}{body(te_lines) or "    pass"}
     return 0
 
 
 @_jit
 def initialize(t, x, sig, p, modes):
-{body(init_lines) or "    pass"}
+{_XSPM}{body(init_lines) or "    pass"}
     outputs(t, x, sig, p, modes)
 
 
 @_jit
 def guards(t, x, sig, p, modes, g):
-    outputs(t, x, sig, p, modes)
+{_XSPM}{_borrow("g")}    outputs(t, x, sig, p, modes)
 {body(g_lines) or "    pass"}
 
 
 @_jit
 def record_guards(t, x, sig, p, modes, s_idx, x_idx, buf, row, g):
     """record() and guards() from one evaluation of the outputs."""
-    ok = record(t, x, sig, p, modes, s_idx, x_idx, buf, row)
+{_XSPM}{_borrow("g")}    ok = record(t, x, sig, p, modes, s_idx, x_idx, buf, row)
 {body(g_lines) or "    pass"}
     return ok
 
 
 @_jit
 def apply_event(t, x, sig, p, modes, k, direction):
-    outputs(t, x, sig, p, modes)
+{_XSPM}    outputs(t, x, sig, p, modes)
 {body(ev_lines) or "    pass"}
 
 '''
