@@ -23,25 +23,12 @@ import os
 import sys
 
 import numpy as np
-from numba import njit
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_loop import (_best, _lsoda_hand, ball_f, ball_guard, ball_jump,  # noqa: E402
-                        no_guard, no_jump, servo_f)
+                        lugre_f, no_guard, no_jump, servo_f)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-@njit
-def lugre_f(t, y, out):
-    """lugre_stick_slip.yaml by hand: unit mass, spring k = 2 pulled at 0.1 m/s, LuGre."""
-    x, v, z = y[0], y[1], y[2]
-    g = 1.0 + 0.5 * math.exp(-(v / 1e-3) ** 2)
-    dz = v - 1e5 * abs(v) * z / g
-    f = 1e5 * z + math.sqrt(1e5) * dz + 0.4 * v
-    out[0] = v
-    out[1] = 2.0 * (0.1 * t - x) - f
-    out[2] = dz
 
 
 def _cvode(f, y0, t_end, rtol, atol, method, tev=(), guard=None, jump=None):

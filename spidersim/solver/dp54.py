@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 from ._jit import njit
+from .stepsize import factor as _factor
 
 C2, C3, C4, C5 = 1 / 5, 3 / 10, 4 / 5, 8 / 9
 A21 = 1 / 5
@@ -133,17 +134,9 @@ def step(fun, t, x, h, K, x1, rtol, atol, sig=None, p=None, modes=None):
 
 @njit
 def factor(err, rejected):
-    """Step-size factor after a trial step with error norm ``err``."""
-    if err == 0.0:
-        f = MAX_FACTOR
-    else:
-        f = SAFETY * err ** (-1.0 / (ORDER + 1))
-    if err <= 1.0:
-        f = min(MAX_FACTOR, f)
-        if rejected:
-            f = min(1.0, f)
-        return f
-    return max(MIN_FACTOR, f)
+    """Step-size factor after a trial step with error norm ``err`` (this method's constants
+    in :func:`spidersim.solver.stepsize.factor`)."""
+    return _factor(err, rejected, ORDER, SAFETY, MIN_FACTOR, MAX_FACTOR)
 
 
 @njit

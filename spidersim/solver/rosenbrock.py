@@ -48,6 +48,7 @@ import math
 import numpy as np
 
 from ._jit import njit
+from .stepsize import factor as _factor
 from .newton import lu_factor, lu_solve
 
 # --- the published coefficients (Rang & Angermann 2005, ROS34PW2) -------------------------
@@ -302,17 +303,9 @@ def step(fun, t, x, h, K, x1, LU, rtol, atol, sig=None, p=None, modes=None):
 
 @njit
 def factor(err, rejected):
-    """Step-size factor after a trial step with error norm ``err``."""
-    if err == 0.0:
-        f = MAX_FACTOR
-    else:
-        f = SAFETY * err ** (-1.0 / (ORDER + 1))
-    if err <= 1.0:
-        f = min(MAX_FACTOR, f)
-        if rejected:
-            f = min(1.0, f)
-        return f
-    return max(MIN_FACTOR, f)
+    """Step-size factor after a trial step with error norm ``err`` (this method's constants
+    in :func:`spidersim.solver.stepsize.factor`)."""
+    return _factor(err, rejected, ORDER, SAFETY, MIN_FACTOR, MAX_FACTOR)
 
 
 @njit
