@@ -297,7 +297,9 @@ class PlainSystem:
         self.units = {"x": ""}
 
     def rhs(self, t, x):
-        raise NotImplementedError
+        """``xdot`` at (t, x): every hand-written system defines it."""
+        raise TypeError(f"{type(self).__name__} does not define rhs(t, x), the state "
+                        f"derivative (item 2 of the System contract)")
 
     def outputs(self, t, x):
         """No signals besides the state."""

@@ -190,3 +190,10 @@ def test_a_jump_at_a_time_event_fires_the_crossing_it_causes():
     r = integrate(s, 1.0, method="RK45")
     flips = [t for t, blk, name in r.events if name == "flip"]
     assert flips == [0.5] and s.modes[1] == 1
+
+
+def test_a_system_without_rhs_is_a_clear_error():
+    """PlainSystem has no default right-hand side: integrating one says which method is
+    missing instead of failing somewhere inside SciPy."""
+    with pytest.raises(TypeError, match="Empty does not define rhs"):
+        integrate(type("Empty", (PlainSystem,), {})([0.0]), 1.0, method="RK45")
