@@ -103,6 +103,7 @@ import numpy as np
 
 from ..multibody.kernels import WS_ACC, WS_ALPHA, WS_O, WS_R, WS_W
 from ..multibody.kernels import WS_PER_LINK as _WS
+from ..multibody.kernels import jit_kernel
 from .base import Block, Dim, Event, Mode, Param, Port, State, unit_vector
 
 # grasp mode layout: COM in the flange frame (3), payload axes in the flange frame R_rel
@@ -535,13 +536,8 @@ def _payload_on_flange(ws, n, twist, grasp, pos, rot, V):
     V[3], V[4], V[5] = wx, wy, wz
 
 
-def _jit(fn):
-    import numba
-    return numba.njit(cache=True, error_model="numpy")(fn)
-
-
-link_table = _jit(_link_table)
-payload_on_flange = _jit(_payload_on_flange)
+link_table = jit_kernel(_link_table)
+payload_on_flange = jit_kernel(_payload_on_flange)
 
 
 class CartesianLineIK(Block):

@@ -178,9 +178,7 @@ class Chain:
             m = self.P[i, 3]
             c = self._ws[b + K.WS_COM:b + K.WS_COM + 3]
             w = self._ws[b + K.WS_W:b + K.WS_W + 3]
-            o_prev = self._ws[i * K.WS_PER_LINK + 9:i * K.WS_PER_LINK + 12]
-            # velocity of the COM from the joint origin velocity; recompute by the Jacobian
-            v = self._point_velocity(q, qd, i, c)
+            v = self._point_velocity(q, qd, i, c)      # COM velocity, J_i(c) qd
             Iw = self._ws[b + K.WS_IW:b + K.WS_IW + 9].reshape(3, 3)
             p += m * v
             L += m * np.cross(c, v) + Iw @ w

@@ -409,24 +409,27 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
         add_reactions(n, ws, tau_r, bias, base)
 
 
-def _jit(fn):
+def jit_kernel(fn):
+    """``fn`` compiled by numba for the hot path: cached machine code, numpy's error model
+    (a division by zero gives inf/nan, reported by name, instead of an exception). Shared by
+    the multibody kernels and the blocks built on them."""
     import numba
     return numba.njit(cache=True, error_model="numpy")(fn)
 
 
 # the kernels call each other: rebind every name to its compiled version (numba resolves
 # the globals when a function is first compiled)
-_cross = _jit(_cross)
-fk = _jit(fk)
-flange_jacobian = _jit(flange_jacobian)
-rnea = _jit(rnea)
-add_reactions = _jit(add_reactions)
-mass_matrix = _jit(mass_matrix)
-cholesky_factor = _jit(cholesky_factor)
-cholesky_subst = _jit(cholesky_subst)
-cholesky_solve = _jit(cholesky_solve)
-task_inertia_factor = _jit(task_inertia_factor)
-orientation_error = _jit(orientation_error)
-impact_projection = _jit(impact_projection)
-relative_rotation = _jit(relative_rotation)
-forward_dynamics = _jit(forward_dynamics)
+_cross = jit_kernel(_cross)
+fk = jit_kernel(fk)
+flange_jacobian = jit_kernel(flange_jacobian)
+rnea = jit_kernel(rnea)
+add_reactions = jit_kernel(add_reactions)
+mass_matrix = jit_kernel(mass_matrix)
+cholesky_factor = jit_kernel(cholesky_factor)
+cholesky_subst = jit_kernel(cholesky_subst)
+cholesky_solve = jit_kernel(cholesky_solve)
+task_inertia_factor = jit_kernel(task_inertia_factor)
+orientation_error = jit_kernel(orientation_error)
+impact_projection = jit_kernel(impact_projection)
+relative_rotation = jit_kernel(relative_rotation)
+forward_dynamics = jit_kernel(forward_dynamics)

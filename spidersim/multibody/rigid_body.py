@@ -15,6 +15,8 @@ A zero principal moment (a point mass, a thin rod) leaves that component constan
 """
 import math
 
+from .kernels import jit_kernel
+
 
 def quat_to_rot(Q, R):
     """Rotation matrix (row-major 9) of the quaternion ``Q`` (normalised here)."""
@@ -107,12 +109,9 @@ def merge_into_link(row, mass, com, inertia, R_rel, out):
                                   + mass * (sp * e - dpa * dpb))
 
 
-def _jit(fn):
-    import numba
-    return numba.njit(cache=True, error_model="numpy")(fn)
 
 
-quat_to_rot = _jit(quat_to_rot)
-rot_to_quat = _jit(rot_to_quat)
-free_body_rates = _jit(free_body_rates)
-merge_into_link = _jit(merge_into_link)
+quat_to_rot = jit_kernel(quat_to_rot)
+rot_to_quat = jit_kernel(rot_to_quat)
+free_body_rates = jit_kernel(free_body_rates)
+merge_into_link = jit_kernel(merge_into_link)
