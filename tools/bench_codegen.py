@@ -2,17 +2,20 @@
 
     python tools/bench_codegen.py [rhs|compile|size] [servo|ripple|spider ...]
 
-* **rhs**: nanoseconds per call of the generated ``derivatives(t, x, sig, p, modes, xdot)``
-  of servo.yaml, joint_ripple.yaml and spider.yaml, timed inside a compiled loop of 2e5
+* **rhs**: nanoseconds per evaluation of the state derivative of servo.yaml,
+  joint_ripple.yaml and spider.yaml through the system function, as the compiled loop calls
+  it (``sysfn.derivatives(fn, t, x, sig, p, modes, xdot)``), timed inside a compiled loop of 2e5
   calls (no Python per call; best of 5, in CPU time of the process), against the same equations written by hand as one
   numba function (servo: ``tools/bench_loop.servo_f``; ripple: the equations of
   ``tools/bench._ripple_hand_written`` writing into ``out``; spider has no hand-written
   counterpart);
-* **compile**: seconds to ``load`` + ``compile`` in a fresh process with an empty
-  ``SPIDERSIM_CACHE`` and ``NUMBA_CACHE_DIR`` (cold), then again from that cache; the
-  compile's CPU time too (on a shared machine the wall time is inflated by other load);
-* **size**: lines of the generated module (the appended compiled loop, a fixed text of
-  spidersim's, counted apart).
+* **compile**: seconds to ``load`` + ``compile`` (with the integration loop) in a fresh
+  process: *new diagram* (an empty ``SPIDERSIM_CACHE``, spidersim's own kernels and loop
+  already in numba's cache: what a user pays for a new structure), *all cold* (an empty
+  ``NUMBA_CACHE_DIR`` too: the first run after installing), then *cached* (again, from both
+  caches); the compile's CPU time too (on a shared machine the wall time is inflated by
+  other load);
+* **size**: lines of the generated module.
 """
 from __future__ import annotations
 
@@ -25,6 +28,8 @@ import time
 
 import numpy as np
 from numba import njit
+
+from spidersim.solver import sysfn
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools"))
@@ -59,14 +64,18 @@ def ripple_f(t, y, out):
     out[5] = ki * eb + kb * (vb - vb_u)
 
 
+@njit
+def _generated_loop(n, fn, x, sig, p, modes, xdot):
+    """``n`` evaluations of a system function's derivatives, as the compiled loop does."""
+    for k in range(n):
+        sysfn.derivatives(fn, 1e-9 * k, x, sig, p, modes, xdot)
+    return xdot[0]
+
+
 def _timer(f, generated):
     """A compiled loop of ``n`` calls of ``f`` (time moving by 1 ns per call)."""
     if generated:
-        @njit
-        def loop(n, x, sig, p, modes, xdot):
-            for k in range(n):
-                f(1e-9 * k, x, sig, p, modes, xdot)
-            return xdot[0]
+        return _generated_loop
     else:
         @njit
         def loop(n, x, out):
@@ -97,8 +106,7 @@ def bench_rhs(names):
         s = d.compile(jit=True)
         x = s.x0.copy()
         xdot = np.zeros_like(x)
-        gen = _per_call(_timer(s.module.derivatives, True),
-                        (x, s.sig, s.p, s.modes.copy(), xdot))
+        gen = _per_call(_timer(None, True), (s.fn, x, s.sig, s.p, s.modes.copy(), xdot))
         if name in hand:
             y = x if name != "servo" else np.zeros(5)
             h = _per_call(_timer(hand[name], False), (y.copy(), np.zeros(y.size)))
@@ -113,38 +121,37 @@ t0, c0 = time.perf_counter(), time.process_time()
 import spidersim
 d = spidersim.load(sys.argv[1])
 t1, c1 = time.perf_counter(), time.process_time()
-d.compile(jit=True)
+d.compile(jit=True, loop=True)
 t2, c2 = time.perf_counter(), time.process_time()
 print(f"{t1 - t0:.3f} {t2 - t1:.3f} {c2 - c1:.3f}")
 """
 
 
 def bench_compile(names):
-    print("== compile in a fresh process: import + load [s], compile [s]; cold (empty caches) "
-          "then from the cache")
+    print("== compile with the integration loop, in a fresh process: import + load [s], "
+          "compile [s]")
     for name in names:
         with tempfile.TemporaryDirectory() as tmp:
-            env = dict(os.environ, SPIDERSIM_CACHE=os.path.join(tmp, "spidersim"),
-                       NUMBA_CACHE_DIR=os.path.join(tmp, "numba"),
-                       PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+            base = dict(os.environ, SPIDERSIM_CACHE=os.path.join(tmp, "spidersim"),
+                        PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+            cold = dict(base, NUMBA_CACHE_DIR=os.path.join(tmp, "numba"))
+            cold["SPIDERSIM_CACHE"] = os.path.join(tmp, "spidersim-cold")
             row = []
-            for _ in range(2):
+            for env in (base, cold, cold):
                 res = subprocess.run([sys.executable, "-c", _COMPILE, PATHS[name]], env=env,
                                      capture_output=True, text=True, check=True)
                 row.append([float(v) for v in res.stdout.split()])
-        (l0, c0, p0), (l1, c1, p1) = row
-        print(f"{name:8s} cold: load {l0:.2f} + compile {c0:.2f} s (CPU {p0:.2f} s); "
-              f"cached: load {l1:.2f} + compile {c1:.2f} s (CPU {p1:.2f} s)")
+        for label, (lo, co, pu) in zip(("new diagram", "all cold", "cached"), row):
+            print(f"{name:8s} {label:12s} load {lo:5.2f} + compile {co:6.2f} s "
+                  f"(CPU {pu:6.2f} s)")
 
 
 def bench_size(names):
     import spidersim
-    from spidersim.diagram.codegen import loop_body
-    n_loop = loop_body().count("\n")
-    print(f"== generated module size in lines (plus {n_loop} lines of the fixed compiled loop)")
+    print("== generated module size in lines")
     for name in names:
         src = spidersim.load(PATHS[name]).source()
-        n = src.count("\n") - n_loop
+        n = src.count("\n")
         print(f"{name:8s} {n:6d} lines, {len(src) // 1024:5d} kB in all")
 
 

@@ -231,20 +231,31 @@ def _remove(f):
 
 def is_cached(text: str, loop: bool = False) -> bool:
     """Whether the module ``text`` is already compiled in the cache (verified), i.e. the
-    next :func:`load_module` loads machine code instead of compiling; with ``loop``, its
-    compiled integration loop too."""
+    next :func:`load_module` loads machine code instead of compiling; with ``loop``, the
+    compiled integration loop too (compiled once for every diagram, cached by numba with
+    spidersim's own kernels)."""
     key = _sha(package_hash() + text)[:20]
     name = f"{PREFIX}{key}"
     path = os.path.join(cache_dir(), name + ".py")
+    if loop and not loop_cached():
+        return False
     if name in _LOADED:
-        if not loop:
-            return True
-        e = getattr(_LOADED[name], "run_loop", None)
-        if e is not None and getattr(e, "overloads", None):
-            return True
-    files = [os.path.basename(f) for f in _numba_files(os.path.dirname(path), name)]
-    return os.path.exists(path) and _verified(path, text, key) and bool(files) and (
-        not loop or any(f.startswith(name + ".run_loop-") for f in files))
+        return True
+    files = _numba_files(os.path.dirname(path), name)
+    return os.path.exists(path) and _verified(path, text, key) and bool(files)
+
+
+def loop_cached() -> bool:
+    """Whether the integration loop's machine code is loaded or in numba's cache."""
+    from .loop_body import run_loop
+    if run_loop.overloads:
+        return True
+    try:
+        cache_path = run_loop._cache._cache_path
+        return any(f.startswith("loop_body.run_loop-") and f.endswith(".nbi")
+                   for f in os.listdir(cache_path))
+    except (AttributeError, OSError):
+        return False
 
 
 def _import(name, path):

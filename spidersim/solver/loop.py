@@ -24,10 +24,10 @@ part               what it does
 
 The state of the run lives in arrays (``ist`` integers, ``fst`` floats, ``x``, ``K``, ``G``,
 the buffers), so that the loop can return to Python and resume exactly where it stopped.
-Its contract with the generated module is the one of :mod:`spidersim.solver.system`
-(``derivatives``, ``outputs``, ``guards``, ``record``, ``record_guards``, ``next_time``,
-``time_events``, ``initialize``, ``apply_event``); the module's ``run_loop`` calls them by name,
-so it is tested on hand-written functions as well as on generated modules.
+The parts are compiled once for every diagram (:mod:`.loop_body`): they call the system only
+through its system function (:mod:`spidersim.solver.sysfn`, one C-callable function per
+diagram, passed by address), so a new diagram compiles its own function and nothing of the
+loop; the loop is tested on hand-written system functions as well as on generated modules.
 
 Semantics are those of the SciPy-stepper loop (:mod:`spidersim.solver.integrate`): the same
 event rules (direction, re-arming, settling, chattering, at most ``MAX_EVENTS_AT_ONE_TIME``
@@ -40,43 +40,18 @@ import math
 
 import numpy as np
 
-from . import dp54, rosenbrock
-from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME,  # noqa: F401 (read by loop_body)
-                     STALL_COUNT, STALL_STEP)
-
-# integration methods of the compiled loop (``ist[I_METHOD]``)
-METHOD_DP54, METHOD_ROS34PW2 = 0, 1
-METHODS = {"DP54": METHOD_DP54, "ROS34PW2": METHOD_ROS34PW2}
-# both methods leave f(t + h, x1) in the same row of K, copied to row 0 for the next step
-assert rosenbrock.ROW_END == 6 and rosenbrock.K_ROWS >= dp54.K_ROWS
-
-# return codes of run_loop
-DONE, ROWS_FULL, EVENTS_FULL, PAUSE = 0, 1, 2, 3
-FAIL_NONFINITE, FAIL_STALL, FAIL_SMALL_STEP, FAIL_CHATTER = 10, 11, 12, 13
-FAIL_TIME_EVENTS, FAIL_SETTLE, FAIL_START = 14, 15, 16
-
-# integer state ``ist``
-I_ROWS, I_EVENTS, I_GRID, I_TINY, I_STEPS, I_NFEV, I_STARTED, I_REJECTED = range(8)
-I_SEGMENTS, I_TIMED, I_BLOCK, I_FRESH, I_NG, I_OVERFLOW, I_NEW_STEPS = range(8, 15)
-# the method, Jacobians and LU factorisations made, accepted steps since the last Jacobian
-# (-1: none valid)
-I_METHOD, I_NJAC, I_NLU, I_JAGE = range(15, 19)
-N_IST = 20
-# float state ``fst``
-F_T, F_H, F_TEND, F_RTOL, F_ATOL, F_MAXSTEP, F_FIRST, F_DT, F_T0, F_CHATTER_WINDOW = range(10)
-F_TFAIL = 10
-F_HLU = 11            # the step size of the LU factors in JW[1] (0: none)
-# Jacobian and LU reuse of ROS34PW2 (see rosenbrock.JAC_MAX_AGE, JAC_REJECTIONS, HOLD_MAX)
-F_JAC_MAX_AGE, F_JAC_REJECTIONS, F_HOLD_MAX = 12, 13, 14
-N_FST = 16
-# rows of the guard work array ``G``
-G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE = range(7)
-N_G_ROWS = 7
-# columns of the event log ``ev_i``: guard or timed-block index, kind, direction
-KIND_STATE, KIND_TIME = 0, 1
-
-#: rows kept free in the record buffer at the start of every step (pre/post event rows)
-ROW_RESERVE = 4
+from . import rosenbrock
+from .loop_body import run_loop
+from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
+    METHOD_DP54, METHOD_ROS34PW2, METHODS, DONE, ROWS_FULL, EVENTS_FULL, PAUSE,
+    FAIL_NONFINITE, FAIL_STALL, FAIL_SMALL_STEP, FAIL_CHATTER, FAIL_TIME_EVENTS,
+    FAIL_SETTLE, FAIL_START, I_ROWS, I_EVENTS, I_GRID, I_TINY, I_STEPS, I_NFEV, I_STARTED,
+    I_REJECTED, I_SEGMENTS, I_TIMED, I_BLOCK, I_FRESH, I_NG, I_OVERFLOW, I_NEW_STEPS,
+    I_METHOD, I_NJAC, I_NLU, I_JAGE, N_IST, F_T, F_H, F_TEND, F_RTOL, F_ATOL, F_MAXSTEP,
+    F_FIRST, F_DT, F_T0, F_CHATTER_WINDOW, F_TFAIL, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
+    F_HOLD_MAX, N_FST, G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE, N_G_ROWS,
+    KIND_STATE, KIND_TIME, ROW_RESERVE, CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT,
+    STALL_STEP)
 
 
 # ---------------------------------------------------------------------------------------
@@ -101,10 +76,9 @@ class CompiledLoop:
 
     Parameters
     ----------
-    entry : callable
-        ``entry(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block, fired,
-        bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes, pause_steps)
-        -> code``: the generated module's ``run_loop`` (bound to its system's functions).
+    entry : int
+        The system function's address (:mod:`spidersim.solver.sysfn`), handed to the
+        compiled :func:`spidersim.solver.loop_body.run_loop` with the arrays of the run.
     system : CompiledSystem or compatible
         Supplies ``x0``, ``sig``, ``p``, ``modes``, ``event_table``, ``timed``,
         ``record_size``, the record index arrays ``_s_idx``, ``_x_idx`` and optionally
@@ -136,7 +110,7 @@ class CompiledLoop:
         self.g_dir = np.array([d for _b, _e, d in s.event_table], dtype=float)
         self.g_block = np.array([bid[b] for b, _e, _d in s.event_table], dtype=np.int64)
         self.timed_block = np.array([bid[b] for b in s.timed], dtype=np.int64)
-        self.fired = np.zeros(max(1, len(s.timed)), dtype=np.int64)
+        self.fired = np.zeros(max(1, len(s.timed)))
         self.bmask = np.zeros(max(1, len(names)), dtype=np.int64)
         self.hit = np.zeros(max(1, ng), dtype=np.int64)
         self.chat = np.zeros((max(1, len(names)), CHATTER_COUNT + 1))
@@ -160,7 +134,8 @@ class CompiledLoop:
         f[F_HOLD_MAX] = rosenbrock.HOLD_MAX
 
     def arguments(self, pause_steps=PAUSE_STEPS):
-        """The entry's arguments, in order."""
+        """The arguments of :func:`~spidersim.solver.loop_body.run_loop` after the system
+        function, in order."""
         s = self.system
         return (self.ist, self.fst, self.x, self.K, self.x1, self.xs, self.JW, self.jpat,
                 self.G, self.g_dir,
@@ -169,7 +144,7 @@ class CompiledLoop:
                 s.modes, pause_steps)
 
     def call(self, pause_steps=PAUSE_STEPS):
-        return int(self.entry(*self.arguments(pause_steps)))
+        return int(run_loop(self.entry, *self.arguments(pause_steps)))
 
     def grow_rows(self):
         self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
@@ -226,7 +201,7 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
     ``method="ROS34PW2"``); return a ``Result``.
 
     Arguments as :func:`spidersim.solver.integrate.integrate` (already validated there);
-    ``entry`` is the generated module's ``run_loop``. Failures raise
+    ``entry`` is the system function's address (``system.compiled_entry``). Failures raise
     :class:`~spidersim.errors.IntegrationError` (or ``AlgebraicLoopError``) with the partial
     result, exactly as the SciPy-stepper loop does.
     """

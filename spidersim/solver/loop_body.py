@@ -1,58 +1,60 @@
-"""The compiled integration loop's body: appended to every generated diagram module.
+"""The compiled integration loop's parts, compiled once for every diagram.
 
-This file is not imported. :func:`spidersim.diagram.codegen.generate` appends its text (a
-fixed text of spidersim's, never built from a diagram) to each generated module, after the
-module's own functions ``derivatives``, ``outputs``, ``guards``, ``record``,
-``record_guards``, ``next_time``, ``time_events``, ``initialize`` and ``apply_event``, which
-the parts below call by name. Each part is then compiled and cached with its module, and
-calls the system's functions directly: numba can cache a function that hands a compiled
-function to a helper, not one that hands it on through a second level, so the helpers of
-:mod:`.dp54` and :mod:`.events` receive them from here and call them themselves.
+Each part is a small compiled function whose first argument ``fn`` is the system function of
+the diagram being integrated (its address; see :mod:`spidersim.solver.sysfn`): the parts call
+the system only through :mod:`.sysfn`'s task functions, so their machine code does not depend
+on the diagram and is compiled once and cached with spidersim itself. The helpers of
+:mod:`.dp54`, :mod:`.rosenbrock` and :mod:`.events` are pure functions on arrays.
 
 The parts, their order and their state arrays are described in :mod:`spidersim.solver.loop`.
 """
-# --- body (appended from here) ---
-from spidersim.solver import dp54 as _dp54
-from spidersim.solver import newton as _newton
-from spidersim.solver import events as _events
-from spidersim.solver import rosenbrock as _ros
-from spidersim.solver.loop import (  # noqa: F401
+import math
+
+import numpy as np
+
+from ._jit import njit
+from . import dp54 as _dp54
+from . import newton as _newton
+from . import events as _events
+from . import rosenbrock as _ros
+from . import sysfn as _sf
+from .loop_state import (  # noqa: F401
     CHATTER_COUNT, DONE, EVENTS_FULL, FAIL_CHATTER, FAIL_NONFINITE, FAIL_SETTLE,
     FAIL_SMALL_STEP, FAIL_STALL, FAIL_START, FAIL_TIME_EVENTS, F_ATOL, F_CHATTER_WINDOW,
     F_DT, F_FIRST, F_H, F_MAXSTEP, F_RTOL, F_T, F_T0, F_TEND, F_TFAIL, G_ARMED, G_BEFORE,
     G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
     I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
     I_TINY, I_METHOD, I_NJAC, I_NLU, I_JAGE, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
-    F_HOLD_MAX, METHOD_ROS34PW2, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE, ROW_RESERVE, ROWS_FULL,
-    STALL_COUNT, STALL_STEP)
+    F_HOLD_MAX, METHOD_ROS34PW2, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE,
+    ROW_RESERVE, ROWS_FULL, STALL_COUNT, STALL_STEP)
 
 
-@_jit
-def _step(t, x, h, K, x1, rtol, atol, sig, p, modes):
+@njit
+def _step(fn, t, x, h, K, x1, rtol, atol, sig, p, modes):
     """One Dormand-Prince trial step (see :mod:`spidersim.solver.dp54`); returns the error
     norm."""
     y = K[_dp54.ROW_TRIAL]
     for s in range(1, 6):
         _dp54.stage_state(s, x, K, h, y)
-        derivatives(t + _dp54.c_of(s) * h, y, sig, p, modes, K[s])
+        _sf.derivatives(fn, t + _dp54.c_of(s) * h, y, sig, p, modes, K[s])
     _dp54.stage_state(6, x, K, h, x1)
-    derivatives(t + h, x1, sig, p, modes, K[6])
+    _sf.derivatives(fn, t + h, x1, sig, p, modes, K[6])
     return _dp54.error_norm(x, x1, K, h, rtol, atol)
 
 
-@_jit
-def _first_step(t, x, f0, span, rtol, atol, K, sig, p, modes):
+@njit
+def _first_step(fn, t, x, f0, span, rtol, atol, K, sig, p, modes):
     """Initial step size at a segment start (see :func:`spidersim.solver.dp54.initial_h0`)."""
     y = K[_dp54.ROW_TRIAL]
     f1 = K[_dp54.ROW_SCRATCH]
     h0 = _dp54.initial_h0(x, f0, rtol, atol, span, y)
     if x.size == 0:
         return h0
-    derivatives(t + h0, y, sig, p, modes, f1)
+    _sf.derivatives(fn, t + h0, y, sig, p, modes, f1)
     return _dp54.initial_step(x, f0, f1, h0, rtol, atol, span)
 
 
-@_jit
+@njit
 def _dense(meth, t, h, x, x1, K, s, out):
     """The dense output of the step ``(t, x) -> (t + h, x1)`` of method ``meth`` at ``s``."""
     if meth == METHOD_ROS34PW2:
@@ -61,8 +63,8 @@ def _dense(meth, t, h, x, x1, K, s, out):
         _dp54.dense(t, h, x, x1, K, s, out)
 
 
-@_jit
-def _locate(meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
+@njit
+def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
     """Crossing time of guard ``i`` in ``(t, t + h]`` on the step's dense output, on the far
     side (see :func:`spidersim.solver.events.bracket_trial`)."""
     a = t
@@ -75,7 +77,7 @@ def _locate(meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
             break
         s = _events.bracket_trial(a, b, fa, fb, it, xtol)
         _dense(meth, t, h, x, x1, K, s, xs)
-        guards(s, xs, sig, p, modes, g)
+        _sf.guards(fn, s, xs, sig, p, modes, g)
         fs = g[i]
         if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
             b = s
@@ -92,12 +94,12 @@ def _locate(meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
     return b
 
 
-@_jit
+@njit
 def _tol(t):
     return 1e-12 * max(1.0, abs(t))
 
 
-@_jit
+@njit
 def _log(ev_t, ev_i, ist, t, index, kind, direction):
     n = ist[I_EVENTS]
     if n < ev_t.size:
@@ -110,18 +112,18 @@ def _log(ev_t, ev_i, ist, t, index, kind, direction):
         ist[I_OVERFLOW] += 1
 
 
-@_jit
-def _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+@njit
+def _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
     """Record the outputs at (t, x) as the next row; False if something is not finite."""
     r = ist[I_ROWS]
-    ok = record(t, x, sig, p, modes, s_idx, x_idx, buf, r)
+    ok = _sf.record(fn, t, x, sig, p, modes, s_idx, x_idx, buf, r)
     tbuf[r] = t
     ist[I_ROWS] = r + 1
     return ok
 
 
-@_jit
-def _record_grid(t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
+@njit
+def _record_grid(fn, t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
                 sig, p, modes):
     """Rows at the grid times in ``[t_a, t_b)`` of the step ``(t, x) -> (t + h, x1)``; a
     grid point at an event time is recorded after the event (signals are right-continuous)."""
@@ -131,14 +133,14 @@ def _record_grid(t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx
     tk = t0 + k * dt
     while tk < t_b - _tol(t_b) and ist[I_ROWS] < tbuf.size:
         _dense(ist[I_METHOD], t, h, x, x1, K, tk, xs)
-        _row(tk, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+        _row(fn, tk, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
         k += 1
         tk = t0 + k * dt
     ist[I_GRID] = k
 
 
-@_jit
-def _settle(t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
+@njit
+def _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
            hit, sig, p, modes):
     """Fire the crossings caused by a jump at an event instant.
 
@@ -151,7 +153,7 @@ def _settle(t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
     if ng == 0:
         return 0
     for _ in range(MAX_EVENTS_AT_ONE_TIME):
-        guards(t, x, sig, p, modes, G[G_TMP])
+        _sf.guards(fn, t, x, sig, p, modes, G[G_TMP])
         nh = _events.crossings(G[G_BEFORE, :ng], G[G_TMP, :ng], g_dir, G[G_NONE, :ng], hit)
         m = 0
         for j in range(nh):
@@ -164,29 +166,29 @@ def _settle(t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
             i = hit[j]
             d = math.copysign(1.0, G[G_TMP, i] - G[G_BEFORE, i]) \
                 if G[G_TMP, i] != G[G_BEFORE, i] else 1.0
-            apply_event(t, x, sig, p, modes, i, d)
+            _sf.apply_event(fn, t, x, sig, p, modes, i, d)
             _log(ev_t, ev_i, ist, t, i, KIND_STATE, int(d))
         for j in range(m):
             bmask[g_block[hit[j]]] = 1
-        initialize(t, x, sig, p, modes)
-        guards(t, x, sig, p, modes, G[G_BEFORE])
+        _sf.initialize(fn, t, x, sig, p, modes)
+        _sf.guards(fn, t, x, sig, p, modes, G[G_BEFORE])
     return FAIL_SETTLE
 
 
-@_jit
-def _fire_due(t, x, G,
+@njit
+def _fire_due(fn, t, x, G,
              g_dir, g_block, timed_block, fired, bmask, ev_t, ev_i, ist, hit, sig, p, modes):
     """Apply every time event due at ``t`` (then settle); returns 0 or a failure code."""
     ng = ist[I_NG]
     tol = _tol(t)
     if ng:
-        guards(t, x, sig, p, modes, G[G_BEFORE])
+        _sf.guards(fn, t, x, sig, p, modes, G[G_BEFORE])
     bmask[:] = 0
     rounds = 0
-    while next_time(t, p, modes) <= t + tol:
+    while _sf.next_time(fn, t, p, modes) <= t + tol:
         fired[:] = 0
-        outputs(t, x, sig, p, modes)
-        time_events(t, x, sig, p, modes, tol, fired)
+        _sf.outputs(fn, t, x, sig, p, modes)
+        _sf.time_events(fn, t, x, sig, p, modes, tol, fired)
         n = 0
         for k in range(timed_block.size):
             if fired[k]:
@@ -194,27 +196,27 @@ def _fire_due(t, x, G,
                 bmask[timed_block[k]] = 1
                 n += 1
         ist[I_TIMED] += n
-        initialize(t, x, sig, p, modes)
+        _sf.initialize(fn, t, x, sig, p, modes)
         rounds += 1
         if rounds > MAX_EVENTS_AT_ONE_TIME or n == 0:
             return FAIL_TIME_EVENTS
     if rounds:
-        return _settle(t, x, G, g_dir, g_block, bmask, ev_t,
+        return _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t,
                       ev_i, ist, hit, sig, p, modes)
     return 0
 
 
-@_jit
-def _advance(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
+@njit
+def _advance(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
     """One accepted step of the run's method (``ist[I_METHOD]``) from ``(t, x)``; see
     :func:`_advance_dp54` and :func:`_advance_ros34pw2`."""
     if ist[I_METHOD] == METHOD_ROS34PW2:
-        return _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
-    return _advance_dp54(t, t_seg, x, K, x1, ist, fst, sig, p, modes)
+        return _advance_ros34pw2(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
+    return _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)
 
 
-@_jit
-def _jacobian(t, x, K, J, jpat, ist, sig, p, modes):
+@njit
+def _jacobian(fn, t, x, K, J, jpat, ist, sig, p, modes):
     """``J`` = the finite-difference Jacobian at ``(t, x)`` (``K[0] = f(t, x)``), one
     evaluation per column group (see :mod:`spidersim.solver.rosenbrock`)."""
     y = K[_ros.ROW_TRIAL]
@@ -223,15 +225,15 @@ def _jacobian(t, x, K, J, jpat, ist, sig, p, modes):
     ng = _ros.n_groups(jpat)
     for g in range(ng):
         _ros.perturb_group(g, x, jpat, y, d)
-        derivatives(t, y, sig, p, modes, fp)
+        _sf.derivatives(fn, t, y, sig, p, modes, fp)
         _ros.store_group(g, K[0], fp, d, jpat, J)
     ist[I_NFEV] += ng
     ist[I_NJAC] += 1
     ist[I_JAGE] = 0
 
 
-@_jit
-def _step_ros34pw2(t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
+@njit
+def _step_ros34pw2(fn, t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
     """One ROS34PW2 trial step (see :mod:`spidersim.solver.rosenbrock`) with ``LU`` the
     factors of ``I / (h gamma) - J``; returns the error norm."""
     piv = K[_ros.ROW_PIV]
@@ -240,15 +242,15 @@ def _step_ros34pw2(t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
     _newton.lu_solve(LU, piv, K[1])
     for s in range(1, 4):
         _ros.stage_state(s, x, K, y)
-        derivatives(t + _ros.alpha_of(s) * h, y, sig, p, modes, K[s + 1])
+        _sf.derivatives(fn, t + _ros.alpha_of(s) * h, y, sig, p, modes, K[s + 1])
         _ros.stage_rhs(s, K, h, K[s + 1])
         _newton.lu_solve(LU, piv, K[s + 1])
     _ros.solution(x, K, x1)
     return _ros.error_norm(x, x1, K, rtol, atol)
 
 
-@_jit
-def _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
+@njit
+def _advance_ros34pw2(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
     """One accepted ROS34PW2 step from ``(t, x)`` (``K[0] = f(t, x)``), never past
     ``t_seg``; returns ``(h, factor)`` as :func:`_advance_dp54` and leaves
     ``f(t + h, x1)`` in ``K[ROW_END]``.
@@ -269,7 +271,7 @@ def _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
     if h < h_min:
         h = h_min
     if ist[I_JAGE] < 0 or ist[I_JAGE] >= fst[F_JAC_MAX_AGE]:
-        _jacobian(t, x, K, J, jpat, ist, sig, p, modes)
+        _jacobian(fn, t, x, K, J, jpat, ist, sig, p, modes)
         fst[F_HLU] = 0.0
     rejected = False
     n_rej = 0
@@ -285,10 +287,10 @@ def _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
             fst[F_HLU] = h if ok else 0.0
         err = math.inf
         if ok:
-            err = _step_ros34pw2(t, x, h, K, x1, LU, rtol, atol, sig, p, modes)
+            err = _step_ros34pw2(fn, t, x, h, K, x1, LU, rtol, atol, sig, p, modes)
             ist[I_NFEV] += 3
         if err <= 1.0:
-            derivatives(t + h, x1, sig, p, modes, K[_ros.ROW_END])
+            _sf.derivatives(fn, t + h, x1, sig, p, modes, K[_ros.ROW_END])
             ist[I_NFEV] += 1
             ist[I_JAGE] += 1
             fac = _ros.factor(err, rejected)
@@ -297,15 +299,15 @@ def _advance_ros34pw2(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
             return h, fac
         n_rej += 1
         if ist[I_JAGE] > 0 and n_rej >= fst[F_JAC_REJECTIONS]:   # an older Jacobian
-            _jacobian(t, x, K, J, jpat, ist, sig, p, modes)
+            _jacobian(fn, t, x, K, J, jpat, ist, sig, p, modes)
             fst[F_HLU] = 0.0
         h *= _ros.factor(err, rejected)
         rejected = True
         ist[I_REJECTED] += 1
 
 
-@_jit
-def _advance_dp54(t, t_seg, x, K, x1, ist, fst, sig, p, modes):
+@njit
+def _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes):
     """One accepted step from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg``.
 
     Returns ``(h, factor)``: the step taken (``x1``, ``K`` hold its end state and stages)
@@ -324,7 +326,7 @@ def _advance_dp54(t, t_seg, x, K, x1, ist, fst, sig, p, modes):
             return 0.0, 1.0
         if t + h > t_seg:              # never past the segment end (as SciPy's t_bound)
             h = t_seg - t
-        err = _step(t, x, h, K, x1, rtol, atol, sig, p, modes)
+        err = _step(fn, t, x, h, K, x1, rtol, atol, sig, p, modes)
         ist[I_NFEV] += 6
         if err <= 1.0:
             return h, _dp54.factor(err, rejected)
@@ -333,8 +335,8 @@ def _advance_dp54(t, t_seg, x, K, x1, ist, fst, sig, p, modes):
         ist[I_REJECTED] += 1
 
 
-@_jit
-def _state_events(t, h, x, x1, K, xs, G, g_dir,
+@njit
+def _state_events(fn, t, h, x, x1, K, xs, G, g_dir,
                  g_block, bmask, chat, hit, nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx,
                  x_idx, sig, p, modes):
     """Locate the crossings ``hit[:nh]`` of the step ``(t, x) -> (t + h, x1)``, apply the
@@ -348,7 +350,7 @@ def _state_events(t, h, x, x1, K, xs, G, g_dir,
         if G[G_OLD, i] == 0.0:           # left zero at the start of the step
             ti = t
         else:
-            ti = _locate(ist[I_METHOD], i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, xs,
+            ti = _locate(fn, ist[I_METHOD], i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, xs,
                               G[G_TMP], xtol, sig, p, modes)
         G[G_TIMES, j] = ti
         t_ev = min(t_ev, ti)
@@ -357,11 +359,11 @@ def _state_events(t, h, x, x1, K, xs, G, g_dir,
     else:
         xs[:] = x1
     if fst[F_DT] > 0.0:
-        _grid_to(t, t_ev, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig,
+        _grid_to(fn, t, t_ev, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig,
                  p, modes)
     else:
-        _row(t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
-    guards(t_ev, xs, sig, p, modes, G[G_BEFORE])
+        _row(fn, t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+    _sf.guards(fn, t_ev, xs, sig, p, modes, G[G_BEFORE])
     bmask[:] = 0
     window = fst[F_CHATTER_WINDOW]
     for j in range(nh):
@@ -370,7 +372,7 @@ def _state_events(t, h, x, x1, K, xs, G, g_dir,
         i = hit[j]
         d = math.copysign(1.0, G[G_NEW, i] - G[G_OLD, i]) \
             if G[G_NEW, i] != G[G_OLD, i] else 1.0
-        apply_event(t_ev, xs, sig, p, modes, i, d)
+        _sf.apply_event(fn, t_ev, xs, sig, p, modes, i, d)
         _log(ev_t, ev_i, ist, t_ev, i, KIND_STATE, int(d))
         b = g_block[i]
         c = int(chat[b, CHATTER_COUNT])
@@ -379,15 +381,15 @@ def _state_events(t, h, x, x1, K, xs, G, g_dir,
             if t_ev - oldest <= window:
                 ist[I_BLOCK] = i
                 fst[F_TFAIL] = t_ev - oldest
-                _row(t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+                _row(fn, t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
                 return t_ev, FAIL_CHATTER
         chat[b, c % CHATTER_COUNT] = t_ev
         chat[b, CHATTER_COUNT] = c + 1
     for j in range(nh):
         if G[G_TIMES, j] <= t_ev + 2 * xtol:
             bmask[g_block[hit[j]]] = 1
-    initialize(t_ev, xs, sig, p, modes)
-    code = _settle(t_ev, xs, G, g_dir, g_block, bmask, ev_t,
+    _sf.initialize(fn, t_ev, xs, sig, p, modes)
+    code = _settle(fn, t_ev, xs, G, g_dir, g_block, bmask, ev_t,
                   ev_i, ist, hit, sig, p, modes)
     for i in range(ng):                  # blocks that fired: their guards must leave zero
         if bmask[g_block[i]]:
@@ -395,16 +397,16 @@ def _state_events(t, h, x, x1, K, xs, G, g_dir,
     return t_ev, code
 
 
-@_jit
-def _grid_to(t_a, t_b, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
+@njit
+def _grid_to(fn, t_a, t_b, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
              modes):
     xs = K[_dp54.ROW_SCRATCH]
-    _record_grid(t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
+    _record_grid(fn, t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
                 sig, p, modes)
 
 
-@_jit
-def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
+@njit
+def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
              pause_steps):
     """Integrate from ``fst[F_T]`` to ``fst[F_TEND]`` with the method ``ist[I_METHOD]``;
@@ -421,26 +423,26 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
     grid = fst[F_DT] > 0.0
     ev_reserve = 4 * (ng + timed_block.size) + 64
     if ist[I_STARTED] == 0:
-        initialize(t, x, sig, p, modes)
-        if next_time(t, p, modes) <= t + _tol(t):
-            code = _fire_due(t, x, G, g_dir, g_block, timed_block, fired, bmask,
+        _sf.initialize(fn, t, x, sig, p, modes)
+        if _sf.next_time(fn, t, p, modes) <= t + _tol(t):
+            code = _fire_due(fn, t, x, G, g_dir, g_block, timed_block, fired, bmask,
                             ev_t, ev_i, ist, hit, sig, p, modes)
             if code:
                 return code
-        if not _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+        if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
             xs[:] = x
             return FAIL_START
         ist[I_GRID] = 1
-        derivatives(t, x, sig, p, modes, K[0])
+        _sf.derivatives(fn, t, x, sig, p, modes, K[0])
         ist[I_NFEV] += 1
         if ng:
-            guards(t, x, sig, p, modes, G[G_OLD])
+            _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
         ist[I_STARTED] = 1
         ist[I_FRESH] = 1
     ist[I_NEW_STEPS] = 0
     while True:
         tol = _tol(t)
-        t_next = next_time(t, p, modes)
+        t_next = _sf.next_time(fn, t, p, modes)
         if t >= t_end and t_next > t + tol:
             break
         if ist[I_ROWS] + ROW_RESERVE > tbuf.size:
@@ -453,7 +455,7 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
             fst[F_T] = t
             return PAUSE
         if t_next <= t + tol:            # time events due now
-            code = _fire_due(t, x, G, g_dir, g_block, timed_block, fired, bmask,
+            code = _fire_due(fn, t, x, G, g_dir, g_block, timed_block, fired, bmask,
                             ev_t, ev_i, ist, hit, sig, p, modes)
             if code:
                 fst[F_T] = t
@@ -461,14 +463,14 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
                 return code
             if grid:
                 if abs(fst[F_T0] + ist[I_GRID] * fst[F_DT] - t) <= tol:
-                    _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+                    _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
                     ist[I_GRID] += 1
             else:
-                _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
-            derivatives(t, x, sig, p, modes, K[0])
+                _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+            _sf.derivatives(fn, t, x, sig, p, modes, K[0])
             ist[I_NFEV] += 1
             if ng:
-                guards(t, x, sig, p, modes, G[G_OLD])
+                _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
             ist[I_FRESH] = 1
             continue
         t_seg = min(t_next, t_end)
@@ -477,7 +479,7 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
             if fst[F_FIRST] > 0.0:
                 fst[F_H] = min(fst[F_FIRST], t_seg - t)
             else:
-                fst[F_H] = _first_step(t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
+                fst[F_H] = _first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
                                            fst[F_RTOL], fst[F_ATOL], K, sig, p, modes)
                 ist[I_NFEV] += 1
             ist[I_FRESH] = 0
@@ -485,7 +487,7 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
         if grid:                          # the rows of one step must fit in the buffer
             room = tbuf.size - ist[I_ROWS] - ROW_RESERVE
             fst[F_H] = min(fst[F_H], max(room, 1) * fst[F_DT])
-        h, fac = _advance(t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
+        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
         if h == 0.0:
             fst[F_T] = t
             xs[:] = x
@@ -505,16 +507,16 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
         row0 = ist[I_ROWS]
         if ng:
             if grid:
-                guards(t_new, x1, sig, p, modes, G[G_NEW])
+                _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
             else:
-                ok = record_guards(t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
+                ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
                                    G[G_NEW])
                 tbuf[row0] = t_new
                 ist[I_ROWS] = row0 + 1
             nh = _events.crossings(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng], hit)
             if nh:
                 ist[I_ROWS] = row0           # the step's end lies beyond the event
-                t_ev, code = _state_events(t, h, x,
+                t_ev, code = _state_events(fn, t, h, x,
                                           x1, K, xs, G, g_dir, g_block, bmask, chat, hit,
                                           nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx,
                                           sig, p, modes)
@@ -524,13 +526,13 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
                 t = t_ev
                 x[:] = xs
                 if not grid:
-                    if not _row(t, x, tbuf, buf, ist, s_idx, x_idx, sig, p,
+                    if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p,
                                 modes):
                         fst[F_T] = t
                         return FAIL_NONFINITE
-                derivatives(t, x, sig, p, modes, K[0])
+                _sf.derivatives(fn, t, x, sig, p, modes, K[0])
                 ist[I_NFEV] += 1
-                guards(t, x, sig, p, modes, G[G_OLD])
+                _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
                 ist[I_FRESH] = 1
                 fst[F_T] = t
                 continue
@@ -539,13 +541,13 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
                 if G[G_NEW, i] != 0.0:
                     G[G_ARMED, i] = 1.0      # re-armed once it has left zero
         elif not grid:
-            ok = _row(t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+            ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
         if grid:
             for i in range(x1.size):
                 if not math.isfinite(x1[i]):
                     ok = False
             if ok:
-                _grid_to(t, t_new, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx,
+                _grid_to(fn, t, t_new, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx,
                          x_idx, sig, p, modes)
         if not ok:
             fst[F_T] = t_new
@@ -557,7 +559,7 @@ def run_loop(ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
         K[0, :] = K[6]
         fst[F_T] = t
     if grid and (ist[I_ROWS] == 0 or tbuf[ist[I_ROWS] - 1] < t_end * (1 - 1e-12)):
-        _row(t_end, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+        _row(fn, t_end, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
     fst[F_T] = t
     return DONE
 

@@ -29,6 +29,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import sysfn
+
+#: the Python-side calls of a compiled system, compiled once for every diagram
+_OPS = {name: getattr(sysfn, name) for name in (
+    "rhs", "outputs", "record", "record_guards", "guards", "next_time", "time_events",
+    "initialize", "apply_event")}
+
 
 class CompiledSystem:
     """A diagram compiled into a generated module (see :mod:`spidersim.diagram.codegen`).
@@ -36,8 +43,9 @@ class CompiledSystem:
     Parameters
     ----------
     module : module
-        Generated module with ``outputs``, ``rhs``, ``derivatives``, ``next_time`` and
-        ``time_events``.
+        Generated module with the sizes ``N_X``, ``N_SIG``, ``N_P``, ``N_MODES``,
+        ``N_TIMED``, ``N_EVENTS`` and the system function ``SYSTEM`` (its address under
+        numba, else the Python function; see :mod:`spidersim.solver.sysfn`).
     x0, p, modes0 : ndarray
         Initial state, parameters, initial modes.
     n_sig : int
@@ -70,8 +78,6 @@ class CompiledSystem:
         if len(self.timed) != module.N_TIMED or len(self.event_table) != module.N_EVENTS:
             raise RuntimeError("generated module does not match its diagram's event tables")
         self.n_g = len(self.event_table)
-        self._g = np.zeros(max(1, self.n_g))
-        self._fired = np.zeros(max(1, len(self.timed)), dtype=np.int64)
         x_idx, s_idx, names, slices, units = [], [], [], {}, {}
         k = 0
         for name, arr, a, b, unit in log:
@@ -96,53 +102,63 @@ class CompiledSystem:
         self.record_size = k
         self.units = units
         m = module
-        sig, p_, modes = self.sig, self.p, self.modes
-        rhs = m.rhs
-        self.rhs = lambda t, x: rhs(t, x, sig, p_, modes)
-        self._outputs = m.outputs
-        self._record = m.record
-        self._guards = m.guards
-        self._record_guards = m.record_guards
-        #: the compiled integration loop bound to this module (numba-compiled modules only)
-        self.compiled_entry = m.run_loop if getattr(m, "JIT", False) and hasattr(
-            m, "run_loop") else None
+        for name, arr in (("N_X", self.x0), ("N_SIG", self.sig), ("N_P", self.p),
+                          ("N_MODES", self.modes)):
+            if getattr(m, name) != arr.size:    # the system function trusts these sizes
+                raise RuntimeError(f"generated module's {name} = {getattr(m, name)} does "
+                                   f"not match its array of size {arr.size}")
+        self._fired = np.zeros(max(1, len(self.timed)))
+        self._g = np.zeros(max(1, self.n_g))
+        #: the system function (:mod:`.sysfn`): its address, or the Python function
+        self.fn = m.SYSTEM
+        self.jit = bool(getattr(m, "JIT", False))
+        self._ops = {name: (f if self.jit else f.py_func) for name, f in _OPS.items()}
+        fn, sig, p_, modes = self.fn, self.sig, self.p, self.modes
+        rhs = self._ops["rhs"]
+        self.rhs = lambda t, x: rhs(fn, t, x, sig, p_, modes)
+        #: the compiled integration loop's system function (numba-compiled modules only)
+        self.compiled_entry = self.fn if self.jit else None
+
+    def _call(self, name, *args):
+        return self._ops[name](self.fn, *args)
 
     def outputs(self, t, x):
-        self._outputs(t, x, self.sig, self.p, self.modes)
+        self._call("outputs", t, x, self.sig, self.p, self.modes)
 
     def record_row(self, t, x, buf, row):
-        return self._record(t, x, self.sig, self.p, self.modes, self._s_idx, self._x_idx,
-                            buf, row)
+        return self._call("record", t, x, self.sig, self.p, self.modes, self._s_idx,
+                          self._x_idx, buf, row)
 
     def next_time(self, t):
-        return self.module.next_time(t, self.p, self.modes)
+        return self._call("next_time", t, self.p, self.modes)
 
     def time_events(self, t, x, tol):
-        self._fired[:] = 0
-        self.module.outputs(t, x, self.sig, self.p, self.modes)
-        self.module.time_events(t, x, self.sig, self.p, self.modes, tol, self._fired)
+        self._fired[:] = 0.0
+        self._call("outputs", t, x, self.sig, self.p, self.modes)
+        self._call("time_events", t, x, self.sig, self.p, self.modes, tol, self._fired)
         return [self.timed[k] for k in np.flatnonzero(self._fired[:len(self.timed)])]
 
     def guards(self, t, x):
-        self._guards(t, x, self.sig, self.p, self.modes, self._g)
+        self._call("guards", t, x, self.sig, self.p, self.modes, self._g)
         return self._g[:self.n_g].copy()
 
     def record_row_guards(self, t, x, buf, row, g):
         """``record_row`` and the guards into ``g`` from one evaluation of the outputs."""
-        ok = self._record_guards(t, x, self.sig, self.p, self.modes, self._s_idx,
-                                 self._x_idx, buf, row, self._g)
+        ok = self._call("record_guards", t, x, self.sig, self.p, self.modes, self._s_idx,
+                        self._x_idx, buf, row, self._g)
         g[:] = self._g[:self.n_g]
         return ok
 
     def initialize(self, t, x):
         """Let blocks make their modes consistent with their inputs (start, after events)."""
-        self.module.initialize(t, x, self.sig, self.p, self.modes)
+        self._call("initialize", t, x, self.sig, self.p, self.modes)
 
     def apply_event(self, t, x, k, direction):
-        self.module.apply_event(t, x, self.sig, self.p, self.modes, k, float(direction))
+        self._call("apply_event", t, x, self.sig, self.p, self.modes, k, float(direction))
 
     def warm_up(self):
-        """Call every compiled function once (this is when numba compiles or loads)."""
+        """Call the system function for every task once (numba compiles or loads the
+        diagram's function when its module is imported; this loads spidersim's callers)."""
         x = self.x0.copy()
         modes = self.modes.copy()
         self.rhs(0.0, x)
@@ -151,48 +167,52 @@ class CompiledSystem:
         self.record_row(0.0, x, np.zeros((1, self.record_size)), 0)
         self.record_row_guards(0.0, x, np.zeros((1, self.record_size)), 0,
                                np.zeros(self.n_g))
-        self._bind_entry_points()
         fired = np.zeros_like(self._fired)
-        self.module.time_events(-np.inf, x, self.sig, self.p, self.modes, 0.0, fired)
+        self._call("time_events", -np.inf, x, self.sig, self.p, self.modes, 0.0, fired)
         self.guards(0.0, x)
         self.initialize(0.0, x)
-        self.module.apply_event(0.0, x, self.sig, self.p, self.modes, -1, 1.0)
+        self._call("apply_event", 0.0, x, self.sig, self.p, self.modes, -1, 1.0)
         self.modes[:] = modes
+        self._bind_entry_points()
 
     def loop_ready(self) -> bool:
         """Whether the compiled integration loop has machine code (compiled or loaded)."""
-        e = self.compiled_entry
-        return e is not None and (not hasattr(e, "overloads") or len(e.overloads) > 0)
+        from .loop_body import run_loop
+        return self.compiled_entry is not None and len(run_loop.overloads) > 0
 
     def warm_up_loop(self):
-        """Compile the integration loop for this system's argument types (or load it from
-        numba's cache) without running it; then call its machine code directly."""
-        e = self.compiled_entry
-        if e is None or not hasattr(e, "overloads"):
+        """Compile the integration loop (once for every diagram) or load it from numba's
+        cache, without running it."""
+        from .loop_body import run_loop
+        if self.compiled_entry is None or run_loop.overloads:
             return
-        if not e.overloads:
-            import numba
-            from .loop import CompiledLoop
-            args = CompiledLoop(e, self, 0.0, 1.0, 1e-6, 1e-8, np.inf, None, None,
-                                capacity=1).arguments(1)
-            e.compile(tuple(numba.typeof(a) for a in args))
+        import numba
+        from .loop import CompiledLoop
+        args = (self.fn,) + CompiledLoop(self.fn, self, 0.0, 1.0, 1e-6, 1e-8, np.inf, None,
+                                         None, capacity=1).arguments(1)
+        run_loop.compile(tuple(numba.typeof(a) for a in args))
 
     def _bind_entry_points(self):
-        """Once compiled for these argument types, call the machine code directly: numba's
-        dispatcher re-checks every argument type on each call (about 0.4 us of 2 us here)."""
-        m = self.module
-        if not hasattr(m.rhs, "overloads") or len(m.rhs.overloads) != 1 or \
-                len(m.record.overloads) != 1:
+        """Call the machine code of the hot Python-side calls directly: numba's dispatcher
+        re-checks every argument type on each call (about 0.4 us of 1 us here)."""
+        if not self.jit:
             return
-        rhs = next(iter(m.rhs.overloads.values())).entry_point
-        rec = next(iter(m.record.overloads.values())).entry_point
-        sig, p_, modes = self.sig, self.p, self.modes
-        self.rhs = lambda t, x: rhs(t, x, sig, p_, modes)
-        self._record = rec
-        for name in ("guards", "record_guards"):
-            f = getattr(m, name)
-            if len(f.overloads) == 1:
-                setattr(self, "_" + name, next(iter(f.overloads.values())).entry_point)
+        import numba
+        x = self.x0.copy()
+        fn, sig, p_, modes = self.fn, self.sig, self.p, self.modes
+        for name, args in (("rhs", (fn, 0.0, x, sig, p_, modes)),
+                           ("record", (fn, 0.0, x, sig, p_, modes, self._s_idx, self._x_idx,
+                                       np.zeros((1, self.record_size)), 0)),
+                           ("guards", (fn, 0.0, x, sig, p_, modes, self._g)),
+                           ("record_guards", (fn, 0.0, x, sig, p_, modes, self._s_idx,
+                                              self._x_idx, np.zeros((1, self.record_size)),
+                                              0, self._g))):
+            disp = _OPS[name]
+            over = disp.overloads.get(tuple(numba.typeof(a) for a in args))
+            if over is not None:
+                self._ops[name] = over.entry_point
+        rhs = self._ops["rhs"]
+        self.rhs = lambda t, x: rhs(fn, t, x, sig, p_, modes)
 
     def newton_iterations(self):
         """Newton iterations over all loops since the start (0 without loops)."""

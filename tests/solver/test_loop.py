@@ -1,8 +1,8 @@
 """The compiled integration loop on hand-written systems (no YAML, no code generator).
 
-Each system is a dozen lines implementing the contract of :mod:`spidersim.solver.system`;
-the loop body of :mod:`spidersim.solver.loop_body` is appended as the generator does, and the
-module is compiled by numba.
+Each system is a dozen lines implementing the contract of :mod:`spidersim.solver.system`,
+turned into a system function (:mod:`spidersim.solver.sysfn`) by a fixed dispatcher and
+compiled by numba; the loop is spidersim's, compiled once for every system.
 """
 import importlib.util
 import math
@@ -11,35 +11,50 @@ import sys
 import numpy as np
 import pytest
 
-from spidersim.diagram.codegen import loop_body
 from spidersim.errors import IntegrationError
 from spidersim.solver import loop as L
+from spidersim.solver import sysfn
 
 HEADER = '''
 import math
 import numpy as np
-from numba import njit
+from numba import carray, cfunc, njit
+
+from spidersim.solver.sysfn import SYSTEM_SIG
 
 
 def _jit(f):
     return njit(cache=False, error_model="numpy")(f)
+'''
 
-
+# the system function (spidersim.solver.sysfn) over the hand-written functions
+DISPATCH = '''
 @_jit
-def record(t, x, sig, p, modes, s_idx, x_idx, buf, row):
-    outputs(t, x, sig, p, modes)
-    ok = True
-    for i in range(x.size):
-        buf[row, i] = x[i]
-        ok = ok and math.isfinite(x[i])
-    return ok
+def _evaluate(task, t, x, sig, p, modes, out, k, f):
+    if task == 3:
+        return next_time(t, p, modes)
+    if task == 4:
+        time_events(t, x, sig, p, modes, f, out)
+    elif task == 5:
+        initialize(t, x, sig, p, modes)
+    else:
+        outputs(t, x, sig, p, modes)
+        if task == 1:
+            derivatives(t, x, sig, p, modes, out)
+        elif task == 2:
+            guards(t, x, sig, p, modes, out)
+        elif task == 6:
+            apply_event(t, x, sig, p, modes, k, f)
+    return 0.0
 
 
-@_jit
-def record_guards(t, x, sig, p, modes, s_idx, x_idx, buf, row, g):
-    ok = record(t, x, sig, p, modes, s_idx, x_idx, buf, row)
-    guards(t, x, sig, p, modes, g)
-    return ok
+@cfunc(SYSTEM_SIG)
+def _system(task, t, x, sig, p, modes, out, k, f):
+    return _evaluate(task, t, carray(x, N_X), carray(sig, 2), carray(p, N_P),
+                     carray(modes, N_MODES), carray(out, max(N_X, N_G, 1)), k, f)
+
+
+SYSTEM = _system.address
 '''
 
 BALL = '''
@@ -123,6 +138,8 @@ class HandSystem:
 
     def __init__(self, module, x0, p, modes, events=(), timed=()):
         self.module = module
+        assert (module.N_X, module.N_P, module.N_MODES, module.N_G) == (
+            len(x0), len(p), len(modes), len(events))
         self.x0 = np.array(x0, float)
         self.n_x = len(x0)
         self.p = np.array(p, float)
@@ -136,11 +153,11 @@ class HandSystem:
         self.units = {k: "1" for k in self.record_slices}
         self._s_idx = np.zeros(0, np.int64)
         self._x_idx = np.arange(self.n_x)
-        self.compiled_entry = module.run_loop
+        self.compiled_entry = module.SYSTEM
 
     def record_row(self, t, x, buf, row):
-        return self.module.record(t, x, self.sig, self.p, self.modes, self._s_idx,
-                                  self._x_idx, buf, row)
+        return sysfn.record(self.compiled_entry, t, x, self.sig, self.p, self.modes,
+                            self._s_idx, self._x_idx, buf, row)
 
     def newton_iterations(self):
         return 0
@@ -152,9 +169,10 @@ class HandSystem:
         return ""
 
 
-def build(name, text, tmp_path):
+def build(name, text, tmp_path, n_x, n_p, n_modes, n_g):
     path = tmp_path / f"{name}.py"
-    path.write_text(HEADER + text + "\n\n" + loop_body())
+    sizes = f"N_X, N_P, N_MODES, N_G = {n_x}, {n_p}, {n_modes}, {n_g}\n"
+    path.write_text(HEADER + sizes + text + "\n\n" + DISPATCH)
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
@@ -176,7 +194,7 @@ def impact_times(h0, e, g, n):
 
 @pytest.fixture(scope="module")
 def ball(tmp_path_factory):
-    return build("hand_ball", BALL, tmp_path_factory.mktemp("ball"))
+    return build("hand_ball", BALL, tmp_path_factory.mktemp("ball"), 2, 3, 1, 1)
 
 
 @pytest.fixture(params=["DP54", "ROS34PW2"])
@@ -239,7 +257,7 @@ def test_pause_and_resume_give_the_same_result(ball, method):
 
 
 def test_sampled_integrator_fires_at_every_sample(tmp_path, method):
-    mod = build("hand_sampled", SAMPLED, tmp_path)
+    mod = build("hand_sampled", SAMPLED, tmp_path, 1, 1, 2, 0)
     Ts = 0.1
     s = HandSystem(mod, [0.0], [Ts], [0.0, 0.0], timed=["zoh"])
     r = run(s, 1.0, rtol=1e-8, atol=1e-10, method=method)
@@ -254,7 +272,7 @@ def test_sampled_integrator_fires_at_every_sample(tmp_path, method):
 
 
 def test_stop_request_ends_the_run_with_what_was_computed(tmp_path):
-    mod = build("hand_sampled_stop", SAMPLED, tmp_path)
+    mod = build("hand_sampled_stop", SAMPLED, tmp_path, 1, 1, 2, 0)
     s = HandSystem(mod, [0.0], [1e-3], [0.0, 0.0], timed=["zoh"])
     seen = []
     r = run(s, 1000.0, rtol=1e-8, atol=1e-10, progress=seen.append,
