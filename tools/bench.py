@@ -27,6 +27,16 @@ spider
 contact
     ``diagrams/force_control_rigid_ideal.yaml`` (arm pressed on a rigid plane by the hybrid
     controller): wall time, Newton iterations per RHS evaluation, largest penetration.
+memory
+    Memory against run length: ``diagrams/servo.yaml`` for 1, 10 and 100 s with the compiled
+    loop (output grid 1 ms) and with LSODA: the peak of the memory Python allocates during
+    ``simulate`` (tracemalloc), the bytes of the logged result, and their difference, which
+    must stay flat (everything but the logged signals is allocated once).
+compile
+    ``spider.yaml`` compiled with its integration loop in fresh processes: a new diagram
+    (spidersim's kernels and loop in numba's cache), all cold (empty numba cache too) and
+    from the cache (see ``tools/bench_codegen.py compile``). Targets: cold <= 10 s, cached
+    <= 1 s.
 sweep
     A 3 x 2 grid of ``diagrams/impact_fault_joint1.yaml`` serial in one process and on a local Dask
     cluster of 2 workers: runs per minute each, the speed-up (cluster start-up and each
@@ -357,9 +367,39 @@ def bench_sweep():
     print()
 
 
+def bench_memory():
+    import tracemalloc
+
+    import spidersim
+    d = spidersim.load(SERVO)
+    d.compile(jit=True, loop=True)
+    print("== memory: diagrams/servo.yaml, output grid 1 ms: peak allocated during simulate "
+          "vs the logged result ==")
+    print(f"{'method':8s} {'t_end [s]':>9s} {'rows':>8s} {'result [MB]':>12s} "
+          f"{'peak [MB]':>10s} {'peak - result [MB]':>19s}")
+    for method in ("DP54", "LSODA"):
+        d.simulate(t_end=0.1, method=method, output_interval=1e-3)    # warm
+        for t_end in (1.0, 10.0, 100.0):
+            tracemalloc.start()
+            r = d.simulate(t_end=t_end, method=method, output_interval=1e-3)
+            _cur, peak = tracemalloc.get_traced_memory()
+            tracemalloc.stop()
+            res = r.t.nbytes + r._data.nbytes
+            print(f"{method:8s} {t_end:9.0f} {len(r.t):8d} {res / 1e6:12.2f} {peak / 1e6:10.2f} "
+                  f"{(peak - res) / 1e6:19.2f}")
+    print()
+
+
+def bench_compile():
+    sys.path.insert(0, os.path.join(ROOT, "tools"))
+    from bench_codegen import bench_compile as run
+    run(["spider"])
+    print()
+
+
 BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball,
            "ripple": bench_ripple, "spider": bench_spider, "contact": bench_contact,
-           "sweep": bench_sweep}
+           "memory": bench_memory, "compile": bench_compile, "sweep": bench_sweep}
 
 
 def main(argv):

@@ -114,8 +114,11 @@ class CompiledLoop:
         self.bmask = np.zeros(max(1, len(names)), dtype=np.int64)
         self.hit = np.zeros(max(1, ng), dtype=np.int64)
         self.chat = np.zeros((max(1, len(names)), CHATTER_COUNT + 1))
-        self.tbuf = np.zeros(capacity)
-        self.buf = np.zeros((capacity, s.record_size))
+        rows = capacity
+        if output_interval:        # the grid's rows are known: no growth, no copy at the end
+            rows = max(capacity, int((t_end - t0) / output_interval) + 2 + 2 * ROW_RESERVE)
+        self.tbuf = np.zeros(rows)
+        self.buf = np.zeros((rows, s.record_size))
         self.ev_t = np.zeros(capacity)
         self.ev_i = np.zeros((capacity, 3), dtype=np.int64)
         self.ist = np.zeros(N_IST, dtype=np.int64)
@@ -183,8 +186,10 @@ class CompiledLoop:
         from .result import Result
         s = self.system
         n = int(self.ist[I_ROWS])
-        return Result(self.tbuf[:n].copy(), self.buf[:n].copy(), s.record_slices, s.units,
-                      self.events(), stats, status, message)
+        t, buf = self.tbuf[:n], self.buf[:n]
+        if n < 0.9 * len(self.tbuf):         # trim a buffer much larger than its rows
+            t, buf = t.copy(), buf.copy()
+        return Result(t, buf, s.record_slices, s.units, self.events(), stats, status, message)
 
     def stats(self):
         i = self.ist

@@ -39,7 +39,9 @@ def _tol(t):
 
 
 class Recorder:
-    """Logged rows in a preallocated buffer that doubles when full."""
+    """Logged rows in a preallocated buffer that doubles when full (sized for the whole
+    run when the rows are known: an output grid), handed to the result without a copy when
+    it is nearly full."""
 
     def __init__(self, system, capacity=1024):
         self.system = system
@@ -67,8 +69,10 @@ class Recorder:
 
     def result(self, events, stats, status="ok", message=""):
         s = self.system
-        return Result(self.t.copy(), self.buf[:self.n].copy(), s.record_slices, s.units,
-                      events, stats, status, message)
+        t, buf = self.t, self.buf[:self.n]
+        if self.n < 0.9 * len(self.tbuf):         # trim a buffer much larger than its rows
+            t, buf = t.copy(), buf.copy()
+        return Result(t, buf, s.record_slices, s.units, events, stats, status, message)
 
 
 class SciPyLoop:
@@ -94,7 +98,10 @@ class SciPyLoop:
         self.st = dict(stats or {})
         self.st.update(steps=0, rhs_calls=0, jacobian_calls=0, lu_decompositions=0,
                        segments=0, time_events=0)
-        self.rec = Recorder(system)
+        rows = 1024
+        if output_interval:           # the grid's rows (and a few at events) are known
+            rows = max(rows, int((t_end - self.t0) / output_interval) + 10)
+        self.rec = Recorder(system, rows)
         self.events = []               # (t, block, event name or "time")
         self.grid_k = 0                # next grid point index (output_interval)
         self.tiny = 0                  # consecutive stalled steps
