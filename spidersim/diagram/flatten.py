@@ -82,34 +82,46 @@ class Flat:
         return f" (in {'; in '.join(notes)})" if notes else ""
 
 
+def _unit_factor(unit, decl, record):
+    """Factor converting a value given in ``unit`` to the unit of declaration ``decl``.
+
+    Without a declaration (a diagram or subsystem parameter) the value goes to coherent SI.
+    For a parameter whose unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) there is
+    no conversion: ``record(unit)`` keeps the unit for unit inference and None is returned.
+
+    Raises
+    ------
+    UnitError
+        An unknown or incompatible unit, or a unit on an int, bool or str parameter.
+    """
+    given = U.parse(unit)
+    if decl is None:
+        return U.factor(given, U.base(given))
+    if decl.kind != "real":
+        raise U.UnitError(f"a {decl.kind} parameter takes no unit")
+    if decl.unit == U.ANY or "@" in decl.unit or callable(decl.unit):
+        if record is not None:
+            record(unit)
+        return None
+    return U.factor(given, U.parse(decl.unit))
+
+
 def _quantity(value, scope, decl, file, line, what, block, record):
-    """``{value: x, unit: u}``: x converted to the declared unit of ``decl`` (to coherent SI
-    when there is no declaration: a diagram or subsystem parameter); for a parameter whose
-    unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) the value stays and
-    ``record(unit)`` keeps the unit for unit inference."""
+    """``{value: x, unit: u}``: x converted to the declared unit of ``decl`` (see
+    :func:`_unit_factor`); a converted value must be a number or a list of numbers."""
     if set(value) != {"value", "unit"}:
         raise ParameterError(f"{what}: a value with a unit is written {{value: 2.5, unit: "
                              f"N.m}}; got the keys {', '.join(map(str, value))}", file=file,
                              line=line, block=block)
     x = _eval_value(value["value"], scope, None, file, line, what, block)
     try:
-        given = U.parse(value["unit"])
-        if decl is None:
-            f = U.factor(given, U.base(given))
-        elif decl.kind != "real":
-            raise U.UnitError(f"a {decl.kind} parameter takes no unit")
-        elif decl.unit == U.ANY or "@" in decl.unit or callable(decl.unit):
-            if record is not None:
-                record(value["unit"])
-            return x
-        else:
-            f = U.factor(given, U.parse(decl.unit))
+        f = _unit_factor(value["unit"], decl, record)
     except U.UnitError as exc:
         want = f" (declared [{decl.unit}])" if decl is not None and isinstance(
             decl.unit, str) else ""
         raise ParameterError(f"{what}{want}: {exc}", file=file, line=line,
                              block=block) from None
-    if f == 1.0:
+    if f is None or f == 1.0:
         return x
     if isinstance(x, bool) or not isinstance(x, (int, float, list)):
         raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
@@ -117,22 +129,32 @@ def _quantity(value, scope, decl, file, line, what, block, record):
     return (np.asarray(x, dtype=float) * f).tolist()
 
 
+def _plain_value(value, scope, file, line, what):
+    """A value without a unit: an expression (evaluated in ``scope``), a list (element by
+    element), a number or a boolean; an empty entry or anything else is an ExprError."""
+    if isinstance(value, str):
+        return evaluate(value, scope)
+    if isinstance(value, list):
+        return [_eval_value(v, scope, None, file, line, what) for v in value]
+    if value is None:
+        raise ExprError("no value given (empty entry)")
+    if isinstance(value, (bool, int, float)):
+        return value
+    raise ExprError(f"unsupported value {value!r}")
+
+
 def _eval_value(value, scope, decl, file, line, what, block=None, record=None):
-    """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay."""
+    """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay.
+
+    ``{value, unit}`` mappings are converted (:func:`_quantity`); errors are
+    ParameterErrors located at ``file:line`` and starting with ``what``.
+    """
     if decl is not None and decl.kind == "str":
         return value
     if isinstance(value, dict):
         return _quantity(value, scope, decl, file, line, what, block, record)
     try:
-        if isinstance(value, str):
-            return evaluate(value, scope)
-        if isinstance(value, list):
-            return [_eval_value(v, scope, None, file, line, what) for v in value]
-        if isinstance(value, bool) or value is None or isinstance(value, (int, float)):
-            if value is None:
-                raise ExprError("no value given (empty entry)")
-            return value
-        raise ExprError(f"unsupported value {value!r}")
+        return _plain_value(value, scope, file, line, what)
     except ExprError as exc:
         lead = ("expected a number or an expression of parameters; "
                 if isinstance(value, str) else "")
@@ -153,20 +175,33 @@ def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
     return scope, unknown
 
 
+def _top_level_given(spec, overrides, used):
+    """The overrides of top-level parameters (keys without a dot), evaluated without a
+    scope and marked used; a name the diagram does not have suggests near ones."""
+    given = {}
+    for k, v in overrides.items():
+        if "." in k:
+            continue
+        if k not in spec.parameters:
+            near = difflib.get_close_matches(k, list(spec.parameters), n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
+                                 file=spec.file)
+        given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
+        used.add(k)
+    return given
+
+
 def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
-    """Flatten the top-level ``spec`` with ``overrides`` (dotted path -> value)."""
+    """Flatten the top-level ``spec`` with ``overrides`` (dotted path -> value).
+
+    Top-level parameter overrides replace the file's values before the other parameters
+    are evaluated; dotted overrides go to blocks and subsystems (:func:`_instantiate`);
+    an override that reaches nothing is a ParameterError.
+    """
     overrides = dict(overrides or {})
     used = set()
-    top_given = {}
-    for k, v in overrides.items():
-        if "." not in k:
-            if k not in spec.parameters:
-                near = difflib.get_close_matches(k, list(spec.parameters), n=3)
-                hint = f"; did you mean {', '.join(near)}?" if near else ""
-                raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
-                                     file=spec.file)
-            top_given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
-            used.add(k)
+    top_given = _top_level_given(spec, overrides, used)
     # override values that are expressions are evaluated with the top-level scope
     scope0, _ = eval_parameters(spec, top_given, "")
     for k, v in list(top_given.items()):

@@ -126,3 +126,63 @@ def test_exposed_inputs_record_their_targets():
     lv.spec.port_lines[("in", "v")] = 6
     with pytest.raises(WiringError, match=r"block 'g' \(Gain\) has no input 'w'; inputs: u"):
         F._exposed_inputs(lv, addr)
+
+
+def test_unit_factor_to_declared_unit_or_si():
+    """mOhm -> Ohm is 1e-3; rpm -> rad/s is 2 pi/60; without a declaration a value goes to
+    coherent SI (deg -> rad: pi/180); an inherited unit converts nothing and is recorded;
+    an int parameter takes no unit."""
+    import math
+
+    from spidersim.blocks.base import Param
+    from spidersim.text.units import UnitError
+    assert F._unit_factor("mOhm", Param(1.0, "Ohm"), None) == pytest.approx(1e-3, rel=1e-15)
+    assert F._unit_factor("rpm", Param(1.0, "rad/s"), None) == pytest.approx(
+        2 * math.pi / 60, rel=1e-15)
+    assert F._unit_factor("deg", None, None) == pytest.approx(math.pi / 180, rel=1e-15)
+    seen = []
+    assert F._unit_factor("N.m", Param(1.0, "*"), seen.append) is None and seen == ["N.m"]
+    with pytest.raises(UnitError, match="a int parameter takes no unit"):
+        F._unit_factor("m", Param(1, kind="int"), None)
+    with pytest.raises(UnitError):
+        F._unit_factor("V", Param(1.0, "Ohm"), None)
+
+
+def test_plain_values():
+    """Expressions see the scope, lists are evaluated element by element, numbers and
+    booleans stay; an empty entry says so."""
+    from spidersim.text.expr import ExprError
+    assert F._plain_value("2*a", {"a": 1.5}, "f", 1, "p") == 3.0
+    assert F._plain_value([1, "a", True], {"a": 1.5}, "f", 1, "p") == [1, 1.5, True]
+    with pytest.raises(ExprError, match="no value given"):
+        F._plain_value(None, {}, "f", 1, "p")
+    with pytest.raises(ParameterError, match="p: no value given"):
+        F._plain_value([None], {}, "f", 1, "p")
+
+
+def test_top_level_overrides_are_evaluated_and_marked_used():
+    """Only keys without a dot are top-level; they are evaluated without a scope (so an
+    expression of numbers works) and marked used; an unknown one suggests near names."""
+    spec = parse_text(TWO_GAINS)
+    used = set()
+    assert F._top_level_given(spec, {"k0": "3*2", "a.k": 1}, used) == {"k0": 6.0}
+    assert used == {"k0"}
+    with pytest.raises(ParameterError, match=r"--set k00: the diagram has no parameter 'k00'; "
+                                             r"did you mean k0\?"):
+        F._top_level_given(spec, {"k00": 1}, set())
+
+
+def test_quantity_converts_numbers_and_lists():
+    """1500 mOhm for an Ohm parameter is 1.5; [90, 180] deg for a diagram parameter is
+    [pi/2, pi] rad; a boolean with a unit that needs converting is refused."""
+    import math
+
+    from spidersim.blocks.base import Param
+    assert F._quantity({"value": 1500, "unit": "mOhm"}, {}, Param(1.0, "Ohm"), "f", 1, "p",
+                       None, None) == pytest.approx(1.5, rel=1e-15)
+    np_rad = F._quantity({"value": [90, 180], "unit": "deg"}, {}, None, "f", 1, "p", None,
+                         None)
+    assert np_rad == pytest.approx([math.pi / 2, math.pi], rel=1e-15)
+    with pytest.raises(ParameterError, match="a value with a unit must be a number"):
+        F._quantity({"value": True, "unit": "mOhm"}, {}, Param(1.0, "Ohm"), "f", 1, "p",
+                    None, None)
