@@ -390,31 +390,38 @@ def default_out(d, suffix=""):
         os.path.basename(d.file))[0]) + suffix)
 
 
-def validate_run(d, t_end=None, method=None):
-    """Every check ``run`` makes before integrating, so that ``check`` refuses what ``run``
-    would: method, t_end, output_interval, plots (keys, signals, sizes, files), analysis
-    entries. (Loading already checked the blocks, parameters, wiring, log and metrics.)"""
-    from .linreport import analysis_request
-    from .plots import check_plot_specs
+def _check_method(d, method):
+    """The integration method (``--method`` or ``simulation.method``) is one of
+    ``METHODS``; return it. A value from the command line is reported without a line."""
     from .solver.integrate import METHODS
-    sim_line = d.spec.simulation_lines
-    # a value given on the command line is reported as such, without the file's line
-    m_where, m_line = (("--method", None) if method else
-                       ("simulation.method", sim_line.get("method")))
-    t_where, t_line = (("--t-end", None) if t_end is not None else
-                       ("simulation.t_end", sim_line.get("t_end")))
+    where, line = (("--method", None) if method else
+                   ("simulation.method", d.spec.simulation_lines.get("method")))
     method = method or d.simulation["method"]
     if method not in METHODS:
         import difflib
         near = difflib.get_close_matches(str(method), list(METHODS), n=1)
-        raise DiagramError(f"{m_where}: unknown method '{method}'"
+        raise DiagramError(f"{where}: unknown method '{method}'"
                            + (f" (did you mean '{near[0]}'?)" if near else "")
-                           + f"; methods: {', '.join(METHODS)}", file=d.file,
-                           line=m_line)
+                           + f"; methods: {', '.join(METHODS)}", file=d.file, line=line)
+    return method
+
+
+def _check_t_end(d, t_end):
+    """The run length (``--t-end`` or ``simulation.t_end``) is a finite time > 0 s; return
+    it."""
+    where, line = (("--t-end", None) if t_end is not None else
+                   ("simulation.t_end", d.spec.simulation_lines.get("t_end")))
     t_end = d.simulation["t_end"] if t_end is None else t_end
     if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
-        raise DiagramError(f"{t_where}: t_end must be a finite time > 0 s, got {t_end!r}",
-                           file=d.file, line=t_line)
+        raise DiagramError(f"{where}: t_end must be a finite time > 0 s, got {t_end!r}",
+                           file=d.file, line=line)
+    return t_end
+
+
+def _check_simulation_steps(d, t_end):
+    """``output_interval`` at most ``t_end``, ``first_step`` shorter than ``t_end``, and
+    ``rtol``, ``atol``, ``max_step``, ``first_step`` finite."""
+    sim_line = d.spec.simulation_lines
     oi = d.simulation.get("output_interval")
     if oi is not None and not oi <= t_end:
         raise DiagramError(f"simulation.output_interval ({oi:g} s) is longer than the run "
@@ -430,29 +437,55 @@ def validate_run(d, t_end=None, method=None):
         if v is not None and not math.isfinite(v):
             raise DiagramError(f"simulation.{k} must be finite, got {v!r}", file=d.file,
                                line=sim_line.get(k))
-    raw = d.spec.data.get("plots") if hasattr(d.spec.data, "get") else None
-    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file,
-                     lines=getattr(raw, "lines", None))
-    from .sweep import parse_metrics
-    parse_metrics(d)
+
+
+def _check_analysis_signal(d, name, s_, line):
+    """Signal ``s_`` named by analysis entry ``name`` is a signal of the diagram."""
     from .diagram.analysis import _signal_ref
+    try:
+        if not isinstance(s_, str):
+            raise DiagramError(f"a signal name, got {s_!r}")
+        _signal_ref(d, s_)
+    except SpidersimError as exc:
+        raise DiagramError(f"analysis '{name}': {exc.message}", file=d.file,
+                           line=line) from None
+
+
+def _valid_analysis_time(at, t_end):
+    """``at`` of an analysis entry: None, 'initial', 'trim', a mapping (an operating
+    point) or a time in [0, t_end]."""
+    return at is None or at in ("initial", "trim") or isinstance(at, dict) or (
+        isinstance(at, (int, float)) and not isinstance(at, bool) and 0 <= at <= t_end)
+
+
+def _check_analysis(d, t_end):
+    """Every ``analysis`` entry names signals of the diagram and a valid ``at``."""
+    from .linreport import analysis_request
     for name in d.spec.analysis:
         lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
         inputs, outputs, opened, at, loop = analysis_request(d, name)
         for s_ in inputs + outputs + opened + ([loop] if loop is not None else []):
-            try:
-                if not isinstance(s_, str):
-                    raise DiagramError(f"a signal name, got {s_!r}")
-                _signal_ref(d, s_)
-            except SpidersimError as exc:
-                raise DiagramError(f"analysis '{name}': {exc.message}", file=d.file,
-                                   line=lines(name)) from None
-        if at is not None and not (at in ("initial", "trim") or isinstance(at, dict) or (
-                isinstance(at, (int, float)) and not isinstance(at, bool)
-                and 0 <= at <= t_end)):
+            _check_analysis_signal(d, name, s_, lines(name))
+        if not _valid_analysis_time(at, t_end):
             raise DiagramError(f"analysis '{name}': 'at' must be 'initial', 'trim', a "
                                f"mapping or a time in [0, t_end], got {at!r}", file=d.file,
                                line=lines(name))
+
+
+def validate_run(d, t_end=None, method=None):
+    """Every check ``run`` makes before integrating, so that ``check`` refuses what ``run``
+    would: method, t_end, output_interval, plots (keys, signals, sizes, files), analysis
+    entries. (Loading already checked the blocks, parameters, wiring, log and metrics.)"""
+    from .plots import check_plot_specs
+    from .sweep import parse_metrics
+    _check_method(d, method)
+    t_end = _check_t_end(d, t_end)
+    _check_simulation_steps(d, t_end)
+    raw = d.spec.data.get("plots") if hasattr(d.spec.data, "get") else None
+    check_plot_specs(d.spec.plots, d.logged_sizes(), d.file,
+                     lines=getattr(raw, "lines", None))
+    parse_metrics(d)
+    _check_analysis(d, t_end)
 
 
 def cmd_check(args):

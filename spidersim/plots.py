@@ -85,70 +85,121 @@ def _kind_of(v):
             else repr(v))
 
 
+def _entry_line(p, k, entry_lines):
+    """Line of plot entry ``k``: its own (a LineDict's), else from ``entry_lines``."""
+    line = getattr(p, "line", None)
+    if line is None and entry_lines is not None and k < len(entry_lines):
+        line = entry_lines[k]
+    return line
+
+
+def _key_line(p, key, line):
+    """Line of ``key`` inside entry ``p`` when the YAML reader recorded it, else ``line``."""
+    return p.line_of(key) if hasattr(p, "line_of") else line
+
+
+def _check_plot_keys(p, k, file, line):
+    """Entry ``k`` is a mapping of known keys (:data:`KEYS`) with a known ``kind``; return
+    the kind (default ``time``)."""
+    if not isinstance(p, dict):
+        raise DiagramError(f"plots[{k}] must be a mapping with 'signals', got "
+                           f"{_kind_of(p)}", file=file, line=line)
+    for key in p:
+        if key not in KEYS:
+            raise DiagramError(f"plots[{k}]: unknown key '{key}' (keys: {', '.join(KEYS)})",
+                               file=file, line=_key_line(p, key, line))
+    kind = p.get("kind", "time")
+    if kind not in KINDS:
+        raise DiagramError(f"plots[{k}]: unknown kind '{kind}' (kinds: {', '.join(KINDS)})",
+                           file=file, line=line)
+    return kind
+
+
+def _check_plot_values(p, k, file, line):
+    """The optional values of entry ``k``: ``t_min``, ``t_max`` [s] and ``f_max`` [Hz]
+    finite numbers, ``peaks`` an integer 0..20, ``title`` and ``ylabel`` texts."""
+    _check_plot_numbers(p, k, file, line)
+    _check_plot_texts(p, k, file, line)
+
+
+def _check_plot_numbers(p, k, file, line):
+    """``t_min``, ``t_max`` [s], ``f_max`` [Hz]: finite numbers; ``peaks``: 0..20."""
+    for key in ("t_min", "t_max", "f_max"):
+        v = p.get(key)
+        if key in p and (isinstance(v, bool) or not isinstance(v, (int, float))
+                         or not math.isfinite(v)):
+            raise DiagramError(f"plots[{k}]: '{key}' must be a finite number of seconds"
+                               f"{' (Hz)' if key == 'f_max' else ''}, got {v!r}",
+                               file=file, line=_key_line(p, key, line))
+    _check_peaks(p, k, file, line)
+
+
+def _check_peaks(p, k, file, line):
+    """``peaks``: how many spectrum peaks to label, an integer 0..20."""
+    if "peaks" in p and (isinstance(p["peaks"], bool) or not isinstance(p["peaks"], int)
+                         or not 0 <= p["peaks"] <= 20):
+        raise DiagramError(f"plots[{k}]: 'peaks' must be an integer 0..20, got "
+                           f"{p['peaks']!r}", file=file, line=_key_line(p, "peaks", line))
+
+
+def _check_plot_texts(p, k, file, line):
+    """``title`` and ``ylabel``: texts (a number is accepted as its text)."""
+    for key in ("title", "ylabel"):
+        if key in p and not isinstance(p[key], (str, int, float)):
+            raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
+                               f"{_kind_of(p[key])}", file=file, line=_key_line(p, key, line))
+
+
+def _logged_size(signals, name):
+    """Number of values of logged signal ``name`` when ``signals`` maps names to sizes,
+    else None."""
+    return signals.get(name) if hasattr(signals, "get") else None
+
+
+def _check_plot_signal(s, k, signals, file, line):
+    """Plot signal ``s`` (``name`` or ``name[i]``) is logged, and ``i`` within its size
+    when the size is known; an unknown name suggests the nearest logged ones."""
+    name, idx = split_signal(s)
+    if name not in signals:
+        import difflib
+        near = difflib.get_close_matches(name, list(signals), n=3)
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        raise DiagramError(f"plots[{k}]: signal '{s}' is not logged{hint}", file=file,
+                           line=line)
+    size = _logged_size(signals, name)
+    if idx is not None and size is not None and idx >= size:
+        raise DiagramError(f"plots[{k}]: '{s}': index {idx} out of range, "
+                           f"'{name}' has {size} element(s)", file=file, line=line)
+
+
+def check_plot_entry(p, k, signals, file=None, line=None):
+    """Validate plot entry ``p`` (number ``k``, at ``line``) against the logged
+    ``signals`` (see :func:`check_plot_specs`); raise DiagramError."""
+    kind = _check_plot_keys(p, k, file, line)
+    if "file" in p:
+        check_plot_file(p["file"], kind, f"plots[{k}]", file, _key_line(p, "file", line))
+    _check_plot_values(p, k, file, line)
+    sigs = p.get("signals")
+    if not isinstance(sigs, list) or not sigs:
+        raise DiagramError(f"plots[{k}] needs a non-empty list 'signals'", file=file,
+                           line=line)
+    for s in sigs:
+        _check_plot_signal(s, k, signals, file, line)
+    if kind == "animation":
+        from .animation import check_animation_spec
+        check_animation_spec(p, _logged_size(signals, sigs[0]), f"plots[{k}]", file, line)
+
+
 def check_plot_specs(plots, signals, file=None, lines=None):
     """Validate plot entries against the logged ``signals``; raise DiagramError.
 
     ``signals`` holds the names of the logged signals, or maps them to their number of
     values (then an animation's signal is also checked against the arm's number of joints).
+    ``lines`` gives the line of each entry (default: the YAML reader's, when it has them).
     """
-    # line of each entry: given, or from the YAML reader's LineList
     entry_lines = lines if lines is not None else getattr(plots, "lines", None)
     for k, p in enumerate(plots):
-        line = getattr(p, "line", None)
-        if line is None and entry_lines is not None and k < len(entry_lines):
-            line = entry_lines[k]
-        if not isinstance(p, dict):
-            raise DiagramError(f"plots[{k}] must be a mapping with 'signals', got "
-                               f"{_kind_of(p)}", file=file, line=line)
-        for key in p:
-            if key not in KEYS:
-                raise DiagramError(f"plots[{k}]: unknown key '{key}' (keys: {', '.join(KEYS)})",
-                                   file=file, line=p.line_of(key) if hasattr(p, "line_of")
-                                   else line)
-        kind = p.get("kind", "time")
-        if kind not in KINDS:
-            raise DiagramError(f"plots[{k}]: unknown kind '{kind}' (kinds: {', '.join(KINDS)})",
-                               file=file, line=line)
-
-        def key_line(key):
-            return p.line_of(key) if hasattr(p, "line_of") else line
-        if "file" in p:
-            check_plot_file(p["file"], kind, f"plots[{k}]", file, key_line("file"))
-        for key in ("t_min", "t_max", "f_max"):
-            v = p.get(key)
-            if key in p and (isinstance(v, bool) or not isinstance(v, (int, float))
-                             or not math.isfinite(v)):
-                raise DiagramError(f"plots[{k}]: '{key}' must be a finite number of seconds"
-                                   f"{' (Hz)' if key == 'f_max' else ''}, got {v!r}",
-                                   file=file, line=key_line(key))
-        if "peaks" in p and (isinstance(p["peaks"], bool) or not isinstance(p["peaks"], int)
-                             or not 0 <= p["peaks"] <= 20):
-            raise DiagramError(f"plots[{k}]: 'peaks' must be an integer 0..20, got "
-                               f"{p['peaks']!r}", file=file, line=key_line("peaks"))
-        for key in ("title", "ylabel"):
-            if key in p and not isinstance(p[key], (str, int, float)):
-                raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
-                                   f"{_kind_of(p[key])}", file=file, line=key_line(key))
-        sigs = p.get("signals")
-        if not isinstance(sigs, list) or not sigs:
-            raise DiagramError(f"plots[{k}] needs a non-empty list 'signals'", file=file,
-                               line=line)
-        for s in sigs:
-            name, idx = split_signal(s)
-            if name not in signals:
-                import difflib
-                near = difflib.get_close_matches(name, list(signals), n=3)
-                hint = f"; did you mean {', '.join(near)}?" if near else ""
-                raise DiagramError(f"plots[{k}]: signal '{s}' is not logged{hint}", file=file,
-                                   line=line)
-            size = signals.get(name) if hasattr(signals, "get") else None
-            if idx is not None and size is not None and idx >= size:
-                raise DiagramError(f"plots[{k}]: '{s}': index {idx} out of range, "
-                                   f"'{name}' has {size} element(s)", file=file, line=line)
-        if kind == "animation":
-            from .animation import check_animation_spec
-            size = signals.get(sigs[0]) if hasattr(signals, "get") else None
-            check_animation_spec(p, size, f"plots[{k}]", file, line)
+        check_plot_entry(p, k, signals, file, _entry_line(p, k, entry_lines))
 
 
 def time_plot(result, spec, path):

@@ -38,6 +38,7 @@ import re
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -252,51 +253,92 @@ class SweepResult:
             lines.append(f"run {r['run']} failed: {r['message']}")
         return "\n".join(lines)
 
+    def curves(self, fixed):
+        """The curves of one sweep figure: the rows with the parameters ``fixed`` (name ->
+        value of the third and later parameters), one :class:`Curve` per value of the
+        second parameter (one curve without it), split into ok and failed runs."""
+        if len(self.vary) < 2:
+            return [self._curve(None, fixed)]
+        p2, values = self.vary[1]
+        return [self._curve(f"{p2} = {v2:g}", {**fixed, p2: v2}) for v2 in values]
+
+    def _curve(self, label, point):
+        """The :class:`Curve` of the rows whose parameters have the values in ``point``."""
+        pts = [r for r in self.rows if all(r[k] == v for k, v in point.items())]
+        return Curve(label, [r for r in pts if r["status"] == "ok"],
+                     [r for r in pts if r["status"] != "ok"])
+
+    def figures(self):
+        """The ``fixed`` mapping of each figure per metric: one per combination of the
+        values of the third and later parameters (one empty mapping for up to two)."""
+        rest = self.vary[2:]
+        combos = itertools.product(*[v for _, v in rest]) if rest else [()]
+        return [dict(zip([p for p, _ in rest], combo)) for combo in combos]
+
     def plot(self, folder):
         """One PNG per metric: metric vs the first parameter, one line per value of the
         second (the paper's Fig. 9); further parameters give one figure per combination."""
+        return [self._plot_metric(folder, m, fixed)
+                for fixed in self.figures() for m in self.metrics]
+
+    def _plot_metric(self, folder, m, fixed):
+        """Draw metric ``m`` against the first parameter for the rows with ``fixed``;
+        failed runs are crosses at the bottom edge. Returns the PNG's path."""
         import matplotlib.pyplot as plt
-        p1, v1 = self.vary[0]
-        second = self.vary[1] if len(self.vary) > 1 else None
-        rest = self.vary[2:]
-        files = []
-        for combo in itertools.product(*[v for _, v in rest]) if rest else [()]:
-            fixed = dict(zip([p for p, _ in rest], combo))
-            for m in self.metrics:
-                fig, ax = plt.subplots(figsize=(7, 4.5))
-                for v2 in (second[1] if second else [None]):
-                    pts = [r for r in self.rows
-                           if all(r[k] == v for k, v in fixed.items())
-                           and (second is None or r[second[0]] == v2)]
-                    ok = [r for r in pts if r["status"] == "ok"]
-                    bad = [r for r in pts if r["status"] != "ok"]
-                    label = f"{second[0]} = {v2:g}" if second else None
-                    line, = ax.plot([r[p1] for r in ok], [r[m.name] for r in ok], "o-",
-                                    label=label)
-                    if bad:                    # at the bottom edge: no value to plot
-                        ax.plot([r[p1] for r in bad], [0.03] * len(bad), "x",
-                                transform=ax.get_xaxis_transform(), clip_on=False,
-                                color=line.get_color(), markersize=10,
-                                label=f"failed ({label})" if label else "failed")
-                ax.set_xlabel(p1)
-                ax.set_ylabel(f"{m.name}" + (f" [{m.unit}]" if m.unit else ""))
-                title = f"{m.name} ({m.reduce} of {m.label})"
-                if fixed:
-                    title += ", " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items())
-                ax.set_title(title)
-                ax.grid(True, alpha=0.3)
-                if second or any(r["status"] != "ok" for r in self.rows):
-                    ax.legend()
-                fig.tight_layout()
-                tag = "".join(f"_{k}{v:g}" for k, v in fixed.items())
-                path = os.path.join(folder, f"sweep_{safe_stem(m.name + tag)}.png")
-                try:
-                    with atomic_path(path) as tmp:
-                        fig.savefig(tmp, dpi=110)
-                finally:
-                    plt.close(fig)
-                files.append(path)
-        return files
+        p1 = self.vary[0][0]
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        for curve in self.curves(fixed):
+            _draw_curve(ax, p1, m.name, curve)
+        ax.set_xlabel(p1)
+        ax.set_ylabel(f"{m.name}" + (f" [{m.unit}]" if m.unit else ""))
+        ax.set_title(_figure_title(m, fixed))
+        ax.grid(True, alpha=0.3)
+        if len(self.vary) > 1 or any(r["status"] != "ok" for r in self.rows):
+            ax.legend()
+        fig.tight_layout()
+        path = _figure_path(folder, m, fixed)
+        try:
+            with atomic_path(path) as tmp:
+                fig.savefig(tmp, dpi=110)
+        finally:
+            plt.close(fig)
+        return path
+
+
+class Curve(NamedTuple):
+    """One line of a sweep figure: its legend label (None for a single line), the rows
+    of the runs that succeeded and of those that failed."""
+
+    label: str | None
+    ok: list
+    failed: list
+
+
+def _draw_curve(ax, p1, metric, curve):
+    """Plot ``curve`` on ``ax``: the metric of the ok runs against parameter ``p1`` as a
+    line with markers, the failed runs as crosses at the bottom edge in the same colour
+    (they have no value to plot)."""
+    line, = ax.plot([r[p1] for r in curve.ok], [r[metric] for r in curve.ok], "o-",
+                    label=curve.label)
+    if curve.failed:
+        ax.plot([r[p1] for r in curve.failed], [0.03] * len(curve.failed), "x",
+                transform=ax.get_xaxis_transform(), clip_on=False,
+                color=line.get_color(), markersize=10,
+                label=f"failed ({curve.label})" if curve.label else "failed")
+
+
+def _figure_title(m, fixed):
+    """``x_end (final value of x.y), K = 3`` for metric ``m`` and fixed parameters."""
+    title = f"{m.name} ({m.reduce} of {m.label})"
+    if fixed:
+        title += ", " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items())
+    return title
+
+
+def _figure_path(folder, m, fixed):
+    """``folder/sweep_<metric>[_<param><value>...].png``, the name made safe."""
+    tag = "".join(f"_{k}{v:g}" for k, v in fixed.items())
+    return os.path.join(folder, f"sweep_{safe_stem(m.name + tag)}.png")
 
 
 def _fmt(v, digits=None):

@@ -211,6 +211,131 @@ def _fmt(v):
     return str(v)
 
 
+def _definition_error(cls, msg):
+    """A :class:`BlockDefinitionError` naming block class ``cls``."""
+    return BlockDefinitionError(f"block class {cls.__name__}: {msg}")
+
+
+def _declared_roles(cls):
+    """Every declared name of block class ``cls`` -> its role (parameter, input, output,
+    state, mode, scratch), first role first.
+
+    Raises
+    ------
+    BlockDefinitionError
+        A name with the reserved prefix ``der_``, or a name declared in two roles (an
+        output may share the name of a state: it is that state).
+    """
+    roles = {}
+    for role, names in (("parameter", cls.parameters), ("input", cls.inputs),
+                        ("output", cls.outputs), ("state", cls.states),
+                        ("mode", cls.modes), ("scratch", cls.scratch)):
+        for n in names:
+            if n.startswith("der_"):
+                raise _definition_error(cls, f"{role} '{n}' uses the reserved prefix der_ "
+                                             f"(state derivatives)")
+            prev = roles.get(n)
+            if prev and {prev, role} != {"output", "state"}:
+                raise _definition_error(cls, f"'{n}' is declared both as {prev} and as {role}")
+            roles.setdefault(n, role)
+    return roles
+
+
+def _check_implicit(cls):
+    """Each implicit output names a declared output, a residual port (input or output) and
+    a guess parameter."""
+    for o, (res, guess) in cls.implicit.items():
+        if o not in cls.outputs or guess not in cls.parameters or not (
+                res in cls.outputs or res in cls.inputs):
+            raise _definition_error(cls, f"implicit output '{o}' needs output '{o}', a "
+                                         f"residual port '{res}' (input or output) and a "
+                                         f"guess parameter '{guess}'")
+
+
+def _check_renamed(cls):
+    """Each renamed parameter ``old -> new`` has ``new`` declared and ``old`` not."""
+    for old, new in cls.renamed.items():
+        if new not in cls.parameters or old in cls.parameters:
+            raise _definition_error(cls, f"renamed parameter '{old}' -> '{new}' needs "
+                                         f"'{new}' declared and '{old}' not")
+
+
+def _check_kernel_set(cls):
+    """The kernels defined fit the declarations: ``derivative`` needs states, ``guard``
+    needs events, events need both ``guard`` and ``on_event``."""
+    if cls.has_kernel("derivative") and not cls.states:
+        raise _definition_error(cls, "defines 'derivative' but declares no states")
+    if cls.has_kernel("guard") and not cls.events:
+        raise _definition_error(cls, "defines 'guard' but declares no events")
+    if cls.events and not (cls.has_kernel("guard") and cls.has_kernel("on_event")):
+        raise _definition_error(cls, "declares events but does not define both 'guard' and "
+                                     "'on_event'")
+
+
+def _default_params(cls):
+    """The default parameter values of ``cls`` (real ones as arrays), or None when a
+    parameter is required (no defaults to derive from)."""
+    if any(d.default is REQUIRED for d in cls.parameters.values()):
+        return None
+    return {n: np.asarray(d.default, dtype=float) if d.kind == "real" and
+            not isinstance(d.default, str) else d.default
+            for n, d in cls.parameters.items()}
+
+
+def _derived_names(cls):
+    """Names ``cls.derive`` computes from the default parameters: an empty set when the
+    class does not define ``derive``, None when they cannot be known (a required parameter,
+    or ``derive`` fails on the defaults): then any kernel argument name is accepted."""
+    if "derive" not in {k for c in cls.__mro__ for k in vars(c)} or \
+            cls.derive.__func__ is Block.derive.__func__:
+        return set()
+    try:
+        params = _default_params(cls)
+        return None if params is None else set(cls.derive(params))
+    except Exception:              # noqa: BLE001 (defaults need not be derivable)
+        return None
+
+
+def _has_dynamic_names(cls):
+    """True when ``cls`` overrides ``kernel_source``, ``input_names`` or ``output_names``:
+    its kernel arguments depend on structural parameters and cannot be checked here."""
+    return any(getattr(cls, m).__func__ is not getattr(Block, m).__func__
+               for m in ("kernel_source", "input_names", "output_names"))
+
+
+def _check_kernel_args(cls, kernel, fn, roles, derived):
+    """Every argument of ``kernel`` (the function ``fn``) is a declared name, a state
+    derivative ``der_<state>``, a reserved name or a derived name, and no declared name is
+    also reserved; unknown names get the nearest known ones."""
+    known = set(roles) | set(RESERVED) | {f"der_{n}" for n in cls.states}
+    for arg in inspect.signature(fn).parameters:
+        if arg in RESERVED and arg in roles:
+            raise _definition_error(cls, f"kernel '{kernel}' argument '{arg}' is ambiguous: "
+                                         f"a reserved name ({', '.join(RESERVED)}) and a "
+                                         f"declared {roles[arg]}")
+        if arg in known or (derived is None) or arg in derived:
+            continue
+        near = difflib.get_close_matches(arg, sorted(known | (derived or set())), n=2)
+        hint = f" (did you mean {', '.join(near)}?)" if near else ""
+        raise _definition_error(cls, f"kernel '{kernel}' argument '{arg}' is not a declared "
+                                     f"parameter, port, state, mode, scratch or derived "
+                                     f"name, nor reserved{hint}")
+
+
+def _check_kernels(cls, roles, derived):
+    """The kernels ``cls`` itself defines are static methods with known arguments (see
+    :func:`_check_kernel_args`; skipped for blocks with dynamic names)."""
+    for kernel in KERNELS:
+        fn = cls.__dict__.get(kernel)
+        if fn is None:
+            continue
+        if not isinstance(fn, staticmethod):
+            raise _definition_error(cls, f"kernel '{kernel}' must be a @staticmethod")
+        if _has_dynamic_names(cls):
+            continue
+        _check_kernel_args(cls, kernel, fn.__func__, roles, derived)
+
+
 class Block:
     """Base class of every block; see the module docstring for the contract."""
 
@@ -244,68 +369,13 @@ class Block:
 
     @classmethod
     def _check_contract(cls):
-        """Check the declarations against the kernels (see contract item 7)."""
-        def fail(msg):
-            raise BlockDefinitionError(f"block class {cls.__name__}: {msg}")
-        roles = {}
-        for role, names in (("parameter", cls.parameters), ("input", cls.inputs),
-                            ("output", cls.outputs), ("state", cls.states),
-                            ("mode", cls.modes), ("scratch", cls.scratch)):
-            for n in names:
-                if n.startswith("der_"):
-                    fail(f"{role} '{n}' uses the reserved prefix der_ (state derivatives)")
-                prev = roles.get(n)
-                if prev and {prev, role} != {"output", "state"}:
-                    fail(f"'{n}' is declared both as {prev} and as {role}")
-                roles.setdefault(n, role)
-        for o, (res, guess) in cls.implicit.items():
-            if o not in cls.outputs or guess not in cls.parameters or not (
-                    res in cls.outputs or res in cls.inputs):
-                fail(f"implicit output '{o}' needs output '{o}', a residual port '{res}' "
-                     f"(input or output) and a guess parameter '{guess}'")
-        for old, new in cls.renamed.items():
-            if new not in cls.parameters or old in cls.parameters:
-                fail(f"renamed parameter '{old}' -> '{new}' needs '{new}' declared and "
-                     f"'{old}' not")
-        if cls.has_kernel("derivative") and not cls.states:
-            fail("defines 'derivative' but declares no states")
-        if cls.has_kernel("guard") and not cls.events:
-            fail("defines 'guard' but declares no events")
-        if cls.events and not (cls.has_kernel("guard") and cls.has_kernel("on_event")):
-            fail("declares events but does not define both 'guard' and 'on_event'")
-        derived = set()
-        if "derive" in {k for c in cls.__mro__ for k in vars(c)} and \
-                cls.derive.__func__ is not Block.derive.__func__:
-            try:
-                params = {n: np.asarray(d.default, dtype=float) if d.kind == "real" and
-                          not isinstance(d.default, str) else d.default
-                          for n, d in cls.parameters.items()}
-                if any(v is REQUIRED for v in params.values()):
-                    derived = None
-                else:
-                    derived = set(cls.derive(params))
-            except Exception:              # noqa: BLE001 (defaults need not be derivable)
-                derived = None
-        known = set(roles) | set(RESERVED) | {f"der_{n}" for n in cls.states}
-        for kernel in KERNELS:
-            fn = cls.__dict__.get(kernel)
-            if fn is None:
-                continue
-            if not isinstance(fn, staticmethod):
-                fail(f"kernel '{kernel}' must be a @staticmethod")
-            if any(getattr(cls, m).__func__ is not getattr(Block, m).__func__
-                   for m in ("kernel_source", "input_names", "output_names")):
-                continue                  # names depend on structural parameters
-            for arg in inspect.signature(fn.__func__).parameters:
-                if arg in RESERVED and arg in roles:
-                    fail(f"kernel '{kernel}' argument '{arg}' is ambiguous: a reserved name "
-                         f"({', '.join(RESERVED)}) and a declared {roles[arg]}")
-                if arg in known or (derived is None) or arg in derived:
-                    continue
-                near = difflib.get_close_matches(arg, sorted(known | (derived or set())), n=2)
-                hint = f" (did you mean {', '.join(near)}?)" if near else ""
-                fail(f"kernel '{kernel}' argument '{arg}' is not a declared parameter, port, "
-                     f"state, mode, scratch or derived name, nor reserved{hint}")
+        """Check the declarations against the kernels (see contract item 7); raise
+        :class:`BlockDefinitionError` naming the class at the first problem."""
+        roles = _declared_roles(cls)
+        _check_implicit(cls)
+        _check_renamed(cls)
+        _check_kernel_set(cls)
+        _check_kernels(cls, roles, _derived_names(cls))
 
     # ---------------------------------------------------------------- interface
     @classmethod
@@ -461,25 +531,80 @@ class Block:
 
     @classmethod
     def _normalise(cls, name, decl, value, known, where):
+        """Check one parameter value against its declaration and normalise it.
+
+        Parameters
+        ----------
+        name : str
+            The parameter.
+        decl : Param
+            Its declaration (kind, shape, bounds, choices).
+        value : object
+            The evaluated value from the diagram (or the default).
+        known : dict
+            Parameters normalised so far (sizes given by another parameter's name).
+        where : callable
+            ``where(name) -> (file, line)`` for the message.
+
+        Returns
+        -------
+        str, bool, int, float or numpy.ndarray
+            ``str``/``bool``/``int`` for those kinds; a real scalar as a float; a vector
+            or matrix as a C-contiguous float array of the declared shape.
+
+        Raises
+        ------
+        ParameterError
+            ``parameter '<name>' must ...`` located by ``where(name)``.
+        """
         f, l = where(name)
 
         def fail(msg):
             raise ParameterError(f"parameter '{name}' {msg}", file=f, line=l)
 
         if decl.kind == "str":
-            if not isinstance(value, str):
-                fail(f"must be a string, got {value!r}")
-            if decl.choices and value not in decl.choices:
-                near = difflib.get_close_matches(value, decl.choices, n=1)
-                hint = f" (did you mean '{near[0]}'?)" if near else ""
-                fail(f"must be one of {', '.join(decl.choices)}, got '{value}'{hint}")
-            return value
+            return cls._normalise_str(decl, value, fail)
         if decl.kind == "bool":
-            if isinstance(value, bool):
-                return value
-            if isinstance(value, (int, float)) and value in (0, 1):
-                return bool(value)
-            fail(f"must be true or false, got {value!r}")
+            return cls._normalise_bool(value, fail)
+        arr = cls._as_float_array(value, fail)
+        if decl.kind == "int":
+            return cls._normalise_int(decl, arr, value, fail)
+        cls._check_finite(decl, arr, value, fail)
+        shape = decl.shape
+        if shape == ():
+            return cls._normalise_scalar(decl, arr, fail)
+        if shape == "*" or not isinstance(shape, tuple):
+            arr = cls._normalise_vector(shape, arr, known, fail)
+        else:
+            arr = cls._normalise_matrix(shape, arr, known, fail)
+        cls._bounds(decl, arr, fail)
+        return np.ascontiguousarray(arr, dtype=float)
+
+    @staticmethod
+    def _normalise_str(decl, value, fail):
+        """A ``str`` parameter: a string, one of ``decl.choices`` when given (the nearest
+        choice is suggested)."""
+        if not isinstance(value, str):
+            fail(f"must be a string, got {value!r}")
+        if decl.choices and value not in decl.choices:
+            near = difflib.get_close_matches(value, decl.choices, n=1)
+            hint = f" (did you mean '{near[0]}'?)" if near else ""
+            fail(f"must be one of {', '.join(decl.choices)}, got '{value}'{hint}")
+        return value
+
+    @staticmethod
+    def _normalise_bool(value, fail):
+        """A ``bool`` parameter: true/false, or the numbers 0 and 1."""
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, (int, float)) and value in (0, 1):
+            return bool(value)
+        fail(f"must be true or false, got {value!r}")
+
+    @staticmethod
+    def _as_float_array(value, fail):
+        """``value`` of a numeric parameter as a float array; strings, booleans (alone or
+        in a list) and what numpy cannot read as floats are refused."""
         if isinstance(value, str):
             fail(f"must be a number, got the string '{value}'")
         if isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(
@@ -487,55 +612,72 @@ class Block:
             fail(f"must be a number, got a boolean ({value!r}; write 1 or 0 if you mean "
                  f"a number)")
         try:
-            arr = np.asarray(value, dtype=float)
+            return np.asarray(value, dtype=float)
         except (TypeError, ValueError, OverflowError):
             fail(f"must be numeric (and representable as a float), got {str(value)[:40]}")
-        if decl.kind == "int":
-            if arr.ndim != 0 or not float(arr).is_integer():
-                fail(f"must be an integer, got {value!r}")
-            cls._bounds(decl, arr, fail)
-            return int(arr)
+
+    @classmethod
+    def _normalise_int(cls, decl, arr, value, fail):
+        """An ``int`` parameter: a scalar with an integer value, within the bounds."""
+        if arr.ndim != 0 or not float(arr).is_integer():
+            fail(f"must be an integer, got {value!r}")
+        cls._bounds(decl, arr, fail)
+        return int(arr)
+
+    @staticmethod
+    def _check_finite(decl, arr, value, fail):
+        """No NaN; no infinity unless ``decl.allow_inf`` (``1e400`` overflows to inf)."""
         if np.any(np.isnan(arr)):
             fail(f"must not be NaN, got {value!r}")
         if not decl.allow_inf and np.any(np.isinf(arr)):
             fail(f"must be finite, got {str(value)[:40]} (a number beyond 1.8e308, such as "
                  f"1e400, is infinite)")
-        shape = decl.shape
-        if shape == ():
-            if arr.ndim != 0:
-                if arr.size == 1:
-                    arr = arr.reshape(())
-                else:
-                    fail(f"must be a scalar, got an array of shape {arr.shape}")
-            cls._bounds(decl, arr, fail)
-            return float(arr)
-        if shape == "*" or not isinstance(shape, tuple):
-            arr = np.atleast_1d(arr)
-            if arr.ndim != 1:
-                fail(f"must be a 1-D list, got shape {arr.shape}")
-            if shape != "*":
-                n = cls._dim(shape, known)
-                if arr.size == 1 and n != 1:
-                    arr = np.full(n, arr[0])
-                if arr.size != n:
-                    fail(f"must have {n} elements ({shape}), got {arr.size}")
-            if arr.size == 0:
-                fail("must not be empty")
-        else:
-            if arr.ndim == 0:
-                arr = arr.reshape(1, 1)
-            if arr.ndim == 1:
-                arr = arr.reshape(1, -1) if shape[0] == 1 else arr.reshape(-1, 1)
-            if arr.ndim != 2:
-                fail(f"must be a matrix (list of rows), got shape {arr.shape}")
-            for k, d in enumerate(shape):
-                if d != "*":
-                    n = cls._dim(d, known)
-                    if arr.shape[k] != n:
-                        fail(f"must have {n} {'rows' if k == 0 else 'columns'} ({d}), "
-                             f"got shape {arr.shape}")
+
+    @classmethod
+    def _normalise_scalar(cls, decl, arr, fail):
+        """A real scalar (a one-element list is accepted), within the bounds, as a float."""
+        if arr.ndim != 0:
+            if arr.size == 1:
+                arr = arr.reshape(())
+            else:
+                fail(f"must be a scalar, got an array of shape {arr.shape}")
         cls._bounds(decl, arr, fail)
-        return np.ascontiguousarray(arr, dtype=float)
+        return float(arr)
+
+    @classmethod
+    def _normalise_vector(cls, shape, arr, known, fail):
+        """A non-empty 1-D array; of the declared size unless ``shape`` is ``"*"`` (a
+        scalar given for a vector of size n is repeated n times)."""
+        arr = np.atleast_1d(arr)
+        if arr.ndim != 1:
+            fail(f"must be a 1-D list, got shape {arr.shape}")
+        if shape != "*":
+            n = cls._dim(shape, known)
+            if arr.size == 1 and n != 1:
+                arr = np.full(n, arr[0])
+            if arr.size != n:
+                fail(f"must have {n} elements ({shape}), got {arr.size}")
+        if arr.size == 0:
+            fail("must not be empty")
+        return arr
+
+    @classmethod
+    def _normalise_matrix(cls, shape, arr, known, fail):
+        """A 2-D array with the declared rows and columns (``"*"``: any); a scalar is a
+        1x1 matrix, a flat list a row (when one row is declared) or else a column."""
+        if arr.ndim == 0:
+            arr = arr.reshape(1, 1)
+        if arr.ndim == 1:
+            arr = arr.reshape(1, -1) if shape[0] == 1 else arr.reshape(-1, 1)
+        if arr.ndim != 2:
+            fail(f"must be a matrix (list of rows), got shape {arr.shape}")
+        for k, d in enumerate(shape):
+            if d != "*":
+                n = cls._dim(d, known)
+                if arr.shape[k] != n:
+                    fail(f"must have {n} {'rows' if k == 0 else 'columns'} ({d}), "
+                         f"got shape {arr.shape}")
+        return arr
 
     @staticmethod
     def _bounds(decl, arr, fail):
@@ -596,69 +738,110 @@ class Block:
     # ---------------------------------------------------------------- docs
     @classmethod
     def describe(cls) -> str:
-        """Documentation generated from the declarations (``spidersim blocks TYPE``)."""
-        from ..text.plain import plain
+        """Documentation generated from the declarations (``spidersim blocks TYPE``): the
+        docstring in plain text, then parameters, inputs, outputs, states, modes and events,
+        one line each."""
         lines = [f"{cls.type_name}  ({cls.category})", ""]
-        doc = inspect.cleandoc(cls.__doc__ or "")
-        if "module docstring" in doc:
-            # the equations are shared by the module's blocks: print them here
-            mod_doc = inspect.cleandoc(sys.modules[cls.__module__].__doc__ or "")
-            doc = re.sub(r"\s*\(?see the module docstring[^.)]*\)?", "", doc)
-            doc += "\n\nEquations and conventions (shared by the blocks of this module):\n\n" \
-                + mod_doc
-        lines += ["  " + ln for ln in plain(doc).splitlines()] + [""]
-
-        def size_text(s):
-            if isinstance(s, (Dim, FromInputs)):
-                return s.text
-            if s is None:
-                return "inherited"
-            if isinstance(s, str) and s.startswith("@"):
-                return f"size of {s[1:]}"
-            return str(s)
-
-        if cls.parameters:
-            lines.append("  Parameters:")
-            for n, p in cls.parameters.items():
-                dflt = "required" if p.default is REQUIRED else f"default {p.default!r}"
-                shape = "" if p.shape == () else f", shape {size_text(p.shape)}"
-                bnds = [f"{w} {_fmt(getattr(p, a))}" for a, w in
-                        (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
-                        if getattr(p, a) is not None]
-                extra = f", {' and '.join(bnds)}" if bnds else ""
-                ch = f", one of {'|'.join(p.choices)}" if p.choices else ""
-                kind = "" if p.kind == "real" else f" {p.kind}"
-                lines.append(f"    {n} [{cls.unit_of(p)}]{kind} ({dflt}{shape}{extra}{ch}): "
-                             f"{plain(p.doc)}")
-        for title, ports in (("Inputs", cls.inputs), ("Outputs", cls.outputs)):
-            if ports:
-                lines.append(f"  {title}:")
-                for n, p in ports.items():
-                    ft = ""
-                    if title == "Outputs":
-                        f = p.feedthrough
-                        ft = ("; feedthrough depends on parameters" if callable(f) else
-                              "; direct feedthrough (all inputs)" if f == "all" else
-                              f"; direct feedthrough from {', '.join(f)}" if f else "")
-                    opt = (", optional: zero when unconnected" if p.optional is True else
-                           ", optional for some parameters" if p.optional else "")
-                    lines.append(f"    {n} [{cls.unit_of(p)}] (size {size_text(p.size)}{opt}{ft}): "
-                                 f"{plain(p.doc)}")
-        if cls.states:
-            lines.append("  States:")
-            for n, s in cls.states.items():
-                lines.append(f"    {n} [{cls.unit_of(s)}] (size {size_text(s.size)}, initial "
-                             f"{s.initial if not callable(s.initial) else 'computed'}): {s.doc}")
-        if cls.modes:
-            lines.append("  Modes:")
-            for n, m in cls.modes.items():
-                lines.append(f"    {n} (size {size_text(m.size)}): {m.doc}")
-        if cls.events:
-            lines.append("  Events:")
-            for n, e in cls.events.items():
-                d = {1: "rising", -1: "falling", 0: "either"}[e.direction]
-                lines.append(f"    {n} ({d}): {e.doc}")
+        lines += _describe_doc(cls) + [""]
+        lines += _describe_section("Parameters", cls.parameters,
+                                   lambda n, p: _describe_param(cls, n, p))
+        lines += _describe_section("Inputs", cls.inputs,
+                                   lambda n, p: _describe_port(cls, n, p, output=False))
+        lines += _describe_section("Outputs", cls.outputs,
+                                   lambda n, p: _describe_port(cls, n, p, output=True))
+        lines += _describe_section("States", cls.states,
+                                   lambda n, s: _describe_state(cls, n, s))
+        lines += _describe_section("Modes", cls.modes, _describe_mode)
+        lines += _describe_section("Events", cls.events, _describe_event)
         return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ docs (Block.describe)
+def _describe_doc(cls):
+    """The class docstring as indented plain-text lines; a docstring that refers to the
+    module docstring gets the module docstring (the shared equations) appended."""
+    from ..text.plain import plain
+    doc = inspect.cleandoc(cls.__doc__ or "")
+    if "module docstring" in doc:
+        # the equations are shared by the module's blocks: print them here
+        mod_doc = inspect.cleandoc(sys.modules[cls.__module__].__doc__ or "")
+        doc = re.sub(r"\s*\(?see the module docstring[^.)]*\)?", "", doc)
+        doc += "\n\nEquations and conventions (shared by the blocks of this module):\n\n" \
+            + mod_doc
+    return ["  " + ln for ln in plain(doc).splitlines()]
+
+
+def _size_text(s):
+    """A size declaration in words: ``7``, a :class:`Dim`'s text, ``inherited`` or
+    ``size of u``."""
+    if isinstance(s, (Dim, FromInputs)):
+        return s.text
+    if s is None:
+        return "inherited"
+    if isinstance(s, str) and s.startswith("@"):
+        return f"size of {s[1:]}"
+    return str(s)
+
+
+def _describe_section(title, decls, line_of):
+    """``  Title:`` and one line per declaration (``line_of(name, decl)``); nothing for
+    an empty section."""
+    if not decls:
+        return []
+    return [f"  {title}:"] + [line_of(n, d) for n, d in decls.items()]
+
+
+def _bounds_text(p):
+    """``, > 0 and <= 1`` for the bounds a parameter declares, or ''."""
+    bnds = [f"{w} {_fmt(getattr(p, a))}" for a, w in
+            (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
+            if getattr(p, a) is not None]
+    return f", {' and '.join(bnds)}" if bnds else ""
+
+
+def _describe_param(cls, n, p):
+    """``    R [Ohm] (default 1.0, > 0): winding resistance`` for parameter ``n``."""
+    from ..text.plain import plain
+    dflt = "required" if p.default is REQUIRED else f"default {p.default!r}"
+    shape = "" if p.shape == () else f", shape {_size_text(p.shape)}"
+    ch = f", one of {'|'.join(p.choices)}" if p.choices else ""
+    kind = "" if p.kind == "real" else f" {p.kind}"
+    return (f"    {n} [{cls.unit_of(p)}]{kind} ({dflt}{shape}{_bounds_text(p)}{ch}): "
+            f"{plain(p.doc)}")
+
+
+def _feedthrough_text(f):
+    """How an output's declared feedthrough reads in the docs ('' for none)."""
+    return ("; feedthrough depends on parameters" if callable(f) else
+            "; direct feedthrough (all inputs)" if f == "all" else
+            f"; direct feedthrough from {', '.join(f)}" if f else "")
+
+
+def _describe_port(cls, n, p, output):
+    """One line for input or output port ``n``: unit, size, optional, feedthrough, doc."""
+    from ..text.plain import plain
+    ft = _feedthrough_text(p.feedthrough) if output else ""
+    opt = (", optional: zero when unconnected" if p.optional is True else
+           ", optional for some parameters" if p.optional else "")
+    return (f"    {n} [{cls.unit_of(p)}] (size {_size_text(p.size)}{opt}{ft}): "
+            f"{plain(p.doc)}")
+
+
+def _describe_state(cls, n, s):
+    """One line for state ``n``: unit, size, initial value (or 'computed'), doc."""
+    return (f"    {n} [{cls.unit_of(s)}] (size {_size_text(s.size)}, initial "
+            f"{s.initial if not callable(s.initial) else 'computed'}): {s.doc}")
+
+
+def _describe_mode(n, m):
+    """One line for mode ``n``: size and doc."""
+    return f"    {n} (size {_size_text(m.size)}): {m.doc}"
+
+
+def _describe_event(n, e):
+    """One line for event ``n``: crossing direction in words and doc."""
+    d = {1: "rising", -1: "falling", 0: "either"}[e.direction]
+    return f"    {n} ({d}): {e.doc}"
 
 
 def unit_vector(v, what):

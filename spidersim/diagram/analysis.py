@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -88,6 +89,81 @@ def control_name(name):
     return name.replace(".", "/")
 
 
+class AnalysisPoint(NamedTuple):
+    """The blocks inserted for one analysis point (see the module docstring)."""
+
+    name: str            #: the signal
+    kind: str            #: ``"input"`` (a perturbation added) or ``"open"`` (loop cut)
+    delta: str           #: path of the Constant holding the perturbation ``d``
+    op_const: str | None  #: path of the Constant holding ``S_op`` (openings), else None
+
+
+def _consumers(conns, ref, d):
+    """The connections that read exactly the signal ``ref`` (path, port, s0, s1, ...)."""
+    path, port, s0, s1 = ref[:4]
+    return [c for c in conns if c.src[0] == path and c.src[1] == port and
+            _covers(c.src, s0, s1, d)]
+
+
+def _insert_point(blocks, conns, k, name, kind, ref, d):
+    """Insert analysis point number ``k`` at signal ``name`` (``ref`` from
+    :func:`_signal_ref`) into ``blocks`` (in place) and return ``(conns, point)``.
+
+    A Sum ``__lin_s{k}`` adds the Constant ``__lin_d{k}`` (the perturbation) to the signal
+    (an input) or to the Constant ``__lin_op{k}`` holding its operating value (an opening);
+    every consumer of the signal then reads the Sum. Opening a signal nobody reads is an
+    :class:`AnalysisError`.
+    """
+    path, port, s0, s1, n, unit = ref
+    consumers = _consumers(conns, ref, d)
+    if not consumers and kind == "open":
+        raise AnalysisError(f"cannot open '{name}': it is not a connection (no block "
+                            f"reads it)", file=d.file)
+    delta, add, opc = f"__lin_d{k}", f"__lin_s{k}", None
+    blocks[delta] = _instance(delta, "Constant", {"value": np.zeros(n)}, d.file)
+    blocks[add] = _instance(add, "Sum", {"signs": "++"}, d.file)
+    if kind == "open":
+        opc = f"__lin_op{k}"
+        blocks[opc] = _instance(opc, "Constant", {"value": np.zeros(n)}, d.file)
+        conns = conns + [FlatConn((opc, "y", None, None), (add, "u1"), d.file, 0, "")]
+    else:
+        conns = conns + [FlatConn((path, port, s0, s1), (add, "u1"), d.file, 0, "")]
+    conns.append(FlatConn((delta, "y", None, None), (add, "u2"), d.file, 0, ""))
+    # consumers reading exactly this signal now read the sum (others are unchanged)
+    conns = [FlatConn((add, "y", None, None), c.dst, c.file, c.line, c.text)
+             if c in consumers else c for c in conns]
+    return conns, AnalysisPoint(name, kind, delta, opc)
+
+
+def _with_analysis_points(d, inputs, open, refs):
+    """The flat diagram of ``d`` with an analysis point at every opening, then at every
+    input that is not also opened; ``(blocks, conns, points)``."""
+    blocks, conns = dict(d.flat.blocks), list(d.flat.conns)
+    todo = [(n, "open") for n in open] + [(n, "input") for n in inputs if n not in open]
+    points = []
+    for k, (name, kind) in enumerate(todo):
+        conns, point = _insert_point(blocks, conns, k, name, kind, refs[name], d)
+        points.append(point)
+    return blocks, conns, points
+
+
+def _diagram_copy(d, flat, blocks):
+    """A copy of diagram ``d`` over another flat diagram (its own layout, parameter array,
+    log of every signal and compiled modules), made without importing the model module."""
+    from .graph import build_layout
+    dlin = type(d).__new__(type(d))
+    dlin.__dict__.update({k: v for k, v in d.__dict__.items() if k not in ("_modules",)})
+    dlin._modules = {}
+    dlin.flat = flat
+    dlin.blocks = blocks
+    dlin.layout = build_layout(flat)
+    dlin.p = dlin._param_array()
+    dlin._log = dlin._log_spec("all")
+    if dlin.layout.n_x != d.layout.n_x:
+        raise RuntimeError("analysis points changed the state layout")
+    return dlin
+
+
 class Linearizer:
     """A diagram transformed with analysis points, ready to be differentiated."""
 
@@ -95,68 +171,48 @@ class Linearizer:
         self.d = d
         inputs, outputs, open = list(inputs), list(outputs), list(open or ())
         refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
-        flat = d.flat
-        blocks = dict(flat.blocks)
-        conns = list(flat.conns)
-        self.in_slots = []       # (name, const path, size)
-        self.op_consts = []      # (const path, (path, port, s0, s1)) for openings
-        points = [(n, "open") for n in open] + [(n, "input") for n in inputs if n not in open]
-        for k, (name, kind) in enumerate(points):
-            path, port, s0, s1, n, unit = refs[name]
-            consumers = [c for c in conns if c.src[0] == path and c.src[1] == port and
-                         _covers(c.src, s0, s1, d)]
-            if not consumers and kind == "open":
-                raise AnalysisError(f"cannot open '{name}': it is not a connection (no block "
-                                    f"reads it)", file=d.file)
-            delta = f"__lin_d{k}"
-            blocks[delta] = _instance(delta, "Constant", {"value": np.zeros(n)}, d.file)
-            add = f"__lin_s{k}"
-            blocks[add] = _instance(add, "Sum", {"signs": "++"}, d.file)
-            if kind == "open":
-                opc = f"__lin_op{k}"
-                blocks[opc] = _instance(opc, "Constant", {"value": np.zeros(n)}, d.file)
-                conns.append(FlatConn((opc, "y", None, None), (add, "u1"), d.file, 0, ""))
-                self.op_consts.append((opc, (path, port, s0, s1)))
-            else:
-                conns.append(FlatConn((path, port, s0, s1), (add, "u1"), d.file, 0, ""))
-            conns.append(FlatConn((delta, "y", None, None), (add, "u2"), d.file, 0, ""))
-            # consumers reading exactly this signal now read the sum (others are unchanged)
-            conns = [FlatConn((add, "y", None, None), c.dst, c.file, c.line, c.text)
-                     if c in consumers else c for c in conns]
-            if name in inputs:
-                self.in_slots.append((name, delta, n))
-        flat2 = type(flat)(blocks, conns, flat.subsystem_instances, flat.aliases)
-        # a copy of the diagram's class without importing model (no import cycle)
-        self.dlin = type(d).__new__(type(d))
-        self.dlin.__dict__.update({k: v for k, v in d.__dict__.items()
-                                   if k not in ("_modules",)})
-        self.dlin._modules = {}
-        self.dlin.flat = flat2
-        self.dlin.blocks = blocks
-        from .graph import build_layout
-        self.dlin.layout = build_layout(flat2)
-        self.dlin.p = self.dlin._param_array()
-        self.dlin._log = self.dlin._log_spec("all")
-        if self.dlin.layout.n_x != d.layout.n_x:
-            raise RuntimeError("analysis points changed the state layout")
+        blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
+        #: (name, const path, size) of each input; (const path, (path, port, s0, s1)) of
+        #: each opening
+        self.in_slots = [(p.name, p.delta, refs[p.name][4]) for p in points
+                         if p.name in inputs]
+        self.op_consts = [(p.op_const, refs[p.name][:4]) for p in points if p.kind == "open"]
+        flat2 = type(d.flat)(blocks, conns, d.flat.subsystem_instances, d.flat.aliases)
+        self.dlin = _diagram_copy(d, flat2, blocks)
         self.system = self.dlin.compile(jit)
         a, r = self.dlin.layout.p_loop_tol
         self.system.p[a] = 1e-14        # loops to round-off: central differences need it
         self.system.p[r] = 1e-13
         self.inputs, self.outputs, self.open = inputs, outputs, open
-        self.out_slices = []
+        self.out_slices = self._output_slices(outputs, refs)
+        self.in_p = self._input_slots()
+        self.op_p = self._opening_slots()
+
+    def _output_slices(self, outputs, refs):
+        """``(name, array, start, stop)`` of each output in the signal or state array."""
+        slices = []
         for name in outputs:
             path, port, s0, s1, n, unit = refs[name]
             arr, a0, _b0 = self.dlin.layout.blocks[path].ports[("out", port)].loc
-            self.out_slices.append((name, arr, a0 + s0, a0 + s1))
-        self.in_p = []
+            slices.append((name, arr, a0 + s0, a0 + s1))
+        return slices
+
+    def _input_slots(self):
+        """``(name, start, stop)`` of each input's perturbation in the parameter array."""
+        slots = []
         for name, delta, n in self.in_slots:
             a0 = self.dlin.layout.blocks[delta].pslots["value"][0]
-            self.in_p.append((name, a0, a0 + n))
-        self.op_p = []
+            slots.append((name, a0, a0 + n))
+        return slots
+
+    def _opening_slots(self):
+        """``(start, stop, (path, port, s0, s1))``: where each opening's operating value
+        goes in the parameter array, and the signal it is taken from."""
+        slots = []
         for opc, src in self.op_consts:
             a0, b0, _ = self.dlin.layout.blocks[opc].pslots["value"]
-            self.op_p.append((a0, b0, src))
+            slots.append((a0, b0, src))
+        return slots
 
     def state_names(self):
         names = [""] * self.d.layout.n_x
@@ -269,6 +325,43 @@ def loop_transfer(d, signal, at=None, jit=True):
                       name=f"L({control_name(signal)})")
 
 
+def _derivative_rows(d, derivatives, names):
+    """Indices of the state derivatives ``trim`` drives to zero: all, or those of the
+    states named (``block.state`` covers every element, ``block.state[i]`` one)."""
+    if derivatives == "all":
+        return list(range(d.layout.n_x))
+    rows = []
+    for nm in derivatives:
+        idx = [i for i, n in enumerate(names) if n == nm or n.startswith(nm + "[")]
+        if not idx:
+            near = difflib.get_close_matches(nm, names, n=3)
+            raise AnalysisError(f"trim: unknown state '{nm}'"
+                                + (f"; did you mean {', '.join(near)}?" if near else ""),
+                                file=d.file)
+        rows += idx
+    return rows
+
+
+def _check_trim_residuals(d, res, resid, sol, tol):
+    """Every residual ``res`` finite and at most ``tol``; otherwise an
+    :class:`AnalysisError` with the solver's message and the six largest residuals by name
+    (``resid``: label -> residual)."""
+    if not np.all(np.isfinite(res)) or np.max(np.abs(res), initial=0.0) > tol:
+        worst = sorted(resid.items(), key=lambda kv: -abs(kv[1]))[:6]
+        raise AnalysisError("trim did not converge (" + sol.message + "); largest residuals: "
+                            + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
+
+
+def _named_inputs(lin, u):
+    """The free inputs' values ``u`` by name: a float for a scalar, an array otherwise."""
+    inputs = {}
+    k = 0
+    for name, a, b in getattr(lin, "in_p", []):
+        inputs[name] = u[k:k + b - a].copy() if b - a > 1 else float(u[k])
+        k += b - a
+    return inputs
+
+
 def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit=True,
          tol=1e-10):
     """Find states (and the values of ``free_inputs``, signals opened as unknown inputs) such
@@ -286,18 +379,7 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     outs = list(targets)
     lin = Linearizer(d, free_inputs, outs, (), jit) if free_inputs else None
     names = _state_names(d)
-    if derivatives == "all":
-        rows = list(range(d.layout.n_x))
-    else:
-        rows = []
-        for nm in derivatives:
-            idx = [i for i, n in enumerate(names) if n == nm or n.startswith(nm + "[")]
-            if not idx:
-                near = difflib.get_close_matches(nm, names, n=3)
-                raise AnalysisError(f"trim: unknown state '{nm}'"
-                                    + (f"; did you mean {', '.join(near)}?" if near else ""),
-                                    file=d.file)
-            rows += idx
+    rows = _derivative_rows(d, derivatives, names)
     base = operating_point(d, None, jit)
     x_start = base.x.copy() if x0 is None else np.asarray(x0, dtype=float)
     if lin is None:
@@ -314,22 +396,14 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
 
     sol = least_squares(residual, np.concatenate((x_start, np.zeros(nu))), xtol=1e-15,
                         ftol=1e-15, gtol=1e-15, max_nfev=2000)
-    res = residual(sol.x)
     labels = [f"d/dt {names[i]}" for i in rows] + [
         nm for n in outs for nm in _channel_names(n, np.size(targets[n]))]
+    res = residual(sol.x)
     resid = dict(zip(labels, res))
-    if not np.all(np.isfinite(res)) or np.max(np.abs(res), initial=0.0) > tol:
-        worst = sorted(resid.items(), key=lambda kv: -abs(kv[1]))[:6]
-        raise AnalysisError("trim did not converge (" + sol.message + "); largest residuals: "
-                            + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
+    _check_trim_residuals(d, res, resid, sol, tol)
     x = sol.x[:len(x_start)]
     u = sol.x[len(x_start):]
-    inputs = {}
-    k = 0
-    for name, a, b in getattr(lin, "in_p", []):
-        inputs[name] = u[k:k + b - a].copy() if b - a > 1 else float(u[k])
-        k += b - a
-    return OperatingPoint(float(t), x, base.modes.copy(), inputs, resid)
+    return OperatingPoint(float(t), x, base.modes.copy(), _named_inputs(lin, u), resid)
 
 
 def _state_names(d):

@@ -12,6 +12,7 @@ import difflib
 import functools
 import os
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -81,34 +82,46 @@ class Flat:
         return f" (in {'; in '.join(notes)})" if notes else ""
 
 
+def _unit_factor(unit, decl, record):
+    """Factor converting a value given in ``unit`` to the unit of declaration ``decl``.
+
+    Without a declaration (a diagram or subsystem parameter) the value goes to coherent SI.
+    For a parameter whose unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) there is
+    no conversion: ``record(unit)`` keeps the unit for unit inference and None is returned.
+
+    Raises
+    ------
+    UnitError
+        An unknown or incompatible unit, or a unit on an int, bool or str parameter.
+    """
+    given = U.parse(unit)
+    if decl is None:
+        return U.factor(given, U.base(given))
+    if decl.kind != "real":
+        raise U.UnitError(f"a {decl.kind} parameter takes no unit")
+    if decl.unit == U.ANY or "@" in decl.unit or callable(decl.unit):
+        if record is not None:
+            record(unit)
+        return None
+    return U.factor(given, U.parse(decl.unit))
+
+
 def _quantity(value, scope, decl, file, line, what, block, record):
-    """``{value: x, unit: u}``: x converted to the declared unit of ``decl`` (to coherent SI
-    when there is no declaration: a diagram or subsystem parameter); for a parameter whose
-    unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) the value stays and
-    ``record(unit)`` keeps the unit for unit inference."""
+    """``{value: x, unit: u}``: x converted to the declared unit of ``decl`` (see
+    :func:`_unit_factor`); a converted value must be a number or a list of numbers."""
     if set(value) != {"value", "unit"}:
         raise ParameterError(f"{what}: a value with a unit is written {{value: 2.5, unit: "
                              f"N.m}}; got the keys {', '.join(map(str, value))}", file=file,
                              line=line, block=block)
     x = _eval_value(value["value"], scope, None, file, line, what, block)
     try:
-        given = U.parse(value["unit"])
-        if decl is None:
-            f = U.factor(given, U.base(given))
-        elif decl.kind != "real":
-            raise U.UnitError(f"a {decl.kind} parameter takes no unit")
-        elif decl.unit == U.ANY or "@" in decl.unit or callable(decl.unit):
-            if record is not None:
-                record(value["unit"])
-            return x
-        else:
-            f = U.factor(given, U.parse(decl.unit))
+        f = _unit_factor(value["unit"], decl, record)
     except U.UnitError as exc:
         want = f" (declared [{decl.unit}])" if decl is not None and isinstance(
             decl.unit, str) else ""
         raise ParameterError(f"{what}{want}: {exc}", file=file, line=line,
                              block=block) from None
-    if f == 1.0:
+    if f is None or f == 1.0:
         return x
     if isinstance(x, bool) or not isinstance(x, (int, float, list)):
         raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
@@ -116,22 +129,32 @@ def _quantity(value, scope, decl, file, line, what, block, record):
     return (np.asarray(x, dtype=float) * f).tolist()
 
 
+def _plain_value(value, scope, file, line, what):
+    """A value without a unit: an expression (evaluated in ``scope``), a list (element by
+    element), a number or a boolean; an empty entry or anything else is an ExprError."""
+    if isinstance(value, str):
+        return evaluate(value, scope)
+    if isinstance(value, list):
+        return [_eval_value(v, scope, None, file, line, what) for v in value]
+    if value is None:
+        raise ExprError("no value given (empty entry)")
+    if isinstance(value, (bool, int, float)):
+        return value
+    raise ExprError(f"unsupported value {value!r}")
+
+
 def _eval_value(value, scope, decl, file, line, what, block=None, record=None):
-    """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay."""
+    """Evaluate a YAML parameter value in ``scope``; strings of str-kind params stay.
+
+    ``{value, unit}`` mappings are converted (:func:`_quantity`); errors are
+    ParameterErrors located at ``file:line`` and starting with ``what``.
+    """
     if decl is not None and decl.kind == "str":
         return value
     if isinstance(value, dict):
         return _quantity(value, scope, decl, file, line, what, block, record)
     try:
-        if isinstance(value, str):
-            return evaluate(value, scope)
-        if isinstance(value, list):
-            return [_eval_value(v, scope, None, file, line, what) for v in value]
-        if isinstance(value, bool) or value is None or isinstance(value, (int, float)):
-            if value is None:
-                raise ExprError("no value given (empty entry)")
-            return value
-        raise ExprError(f"unsupported value {value!r}")
+        return _plain_value(value, scope, file, line, what)
     except ExprError as exc:
         lead = ("expected a number or an expression of parameters; "
                 if isinstance(value, str) else "")
@@ -152,20 +175,33 @@ def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
     return scope, unknown
 
 
+def _top_level_given(spec, overrides, used):
+    """The overrides of top-level parameters (keys without a dot), evaluated without a
+    scope and marked used; a name the diagram does not have suggests near ones."""
+    given = {}
+    for k, v in overrides.items():
+        if "." in k:
+            continue
+        if k not in spec.parameters:
+            near = difflib.get_close_matches(k, list(spec.parameters), n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
+                                 file=spec.file)
+        given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
+        used.add(k)
+    return given
+
+
 def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
-    """Flatten the top-level ``spec`` with ``overrides`` (dotted path -> value)."""
+    """Flatten the top-level ``spec`` with ``overrides`` (dotted path -> value).
+
+    Top-level parameter overrides replace the file's values before the other parameters
+    are evaluated; dotted overrides go to blocks and subsystems (:func:`_instantiate`);
+    an override that reaches nothing is a ParameterError.
+    """
     overrides = dict(overrides or {})
     used = set()
-    top_given = {}
-    for k, v in overrides.items():
-        if "." not in k:
-            if k not in spec.parameters:
-                near = difflib.get_close_matches(k, list(spec.parameters), n=3)
-                hint = f"; did you mean {', '.join(near)}?" if near else ""
-                raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
-                                     file=spec.file)
-            top_given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
-            used.add(k)
+    top_given = _top_level_given(spec, overrides, used)
     # override values that are expressions are evaluated with the top-level scope
     scope0, _ = eval_parameters(spec, top_given, "")
     for k, v in list(top_given.items()):
@@ -181,181 +217,317 @@ def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
     return flat
 
 
-def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
-    """Add the blocks of ``spec`` under ``prefix``; return (in_map, out_map)."""
-    sub_specs = {}
-    local_subs = {}  # instance name -> (in_map, out_map)
+class PortMaps(NamedTuple):
+    """The exposed ports of one instantiated diagram, in flat terms."""
+
+    #: exposed input -> list of primitive inputs ``(path, port)`` it feeds
+    inputs: dict
+    #: exposed output -> the primitive output slice ``(path, port, start, stop)`` it is
+    outputs: dict
+
+
+class BlockOverrides(NamedTuple):
+    """The ``--set`` entries addressed to one block of a diagram level.
+
+    Each value is ``(key, value)`` with ``key`` the entry as written below this level
+    (``"motor.R"``), so messages and the ``used`` set name it.
+    """
+
+    own: dict       #: parameter of the block (or of the subsystem) -> (key, value)
+    deeper: dict    #: ``block.param`` inside the subsystem -> (key, value)
+
+
+@dataclass(frozen=True)
+class _Level:
+    """One diagram being instantiated under ``prefix`` (``""`` at the top, ``"j3."`` for
+    the blocks of subsystem instance ``j3``)."""
+
+    spec: DiagramSpec
+    prefix: str
+    scope: dict       #: the diagram's parameters, evaluated
+    flat: Flat        #: the flat diagram being filled
+    stack: list       #: absolute paths of the files being instantiated (cycle check)
+    used: set         #: override keys of this level that found their target
+
+
+def _hint(word, choices):
+    """``"; did you mean a, b?"`` with up to three of ``choices`` close to ``word``, or ''."""
+    near = difflib.get_close_matches(word, list(choices), n=3)
+    return f"; did you mean {', '.join(near)}?" if near else ""
+
+
+def _check_override_targets(spec, prefix, overrides):
+    """Every override key must start with a block of ``spec`` (ParameterError naming the
+    nearest blocks otherwise)."""
     for k in overrides:
         head = k.partition(".")[0]
         if head not in spec.blocks:
-            near = difflib.get_close_matches(head, list(spec.blocks), n=3)
-            hint = f"; did you mean {', '.join(near)}?" if near else ""
             where = f"in '{prefix[:-1]}'" if prefix else "in the diagram"
-            raise ParameterError(f"--set {prefix}{k}: there is no block '{head}' {where}{hint}",
-                                 file=spec.file)
-    for bname, b in spec.blocks.items():
-        path = prefix + bname
-        own = {}  # overrides addressed to this block: param -> value
-        deeper = {}
-        for k, v in overrides.items():
-            head, _, rest = k.partition(".")
-            if head == bname:
-                if "." in rest:
-                    deeper[rest] = (k, v)
-                else:
-                    own[rest] = (k, v)
-        if b.type in spec.subsystems:
-            sub_file = spec.subsystems[b.type]
-            if os.path.abspath(sub_file) in stack:
-                chain = " -> ".join(os.path.basename(s) for s in stack + [sub_file])
-                raise DiagramError(f"subsystem type '{b.type}' includes itself ({chain})",
-                                   file=spec.file, line=b.line, block=path)
-            if sub_file not in sub_specs:
-                if not os.path.isfile(sub_file):
-                    raise DiagramError(f"subsystem file for type '{b.type}' not found: "
-                                       f"{sub_file}", file=spec.file,
-                                       line=spec.subsystem_lines.get(b.type), block=path)
-                try:
-                    sub_specs[sub_file] = parse_file(sub_file)
-                except DiagramError as exc:
-                    # say which parent line brought the subsystem in
-                    exc.message += (f" (subsystem type '{b.type}' of block '{path}', "
-                                    f"{os.path.basename(spec.file)}:{b.line})")
-                    raise
-            sub = sub_specs[sub_file]
-            given = {}
-            for pname, raw in b.params.items():
-                if pname not in sub.parameters:
-                    near = difflib.get_close_matches(pname, list(sub.parameters), n=3)
-                    hint = f"; did you mean {', '.join(near)}?" if near else ""
-                    raise ParameterError(
-                        f"unknown parameter '{pname}' for subsystem type '{b.type}'{hint} "
-                        f"(parameters: {', '.join(sub.parameters) or 'none'})",
-                        file=spec.file, line=b.param_lines.get(pname), block=path)
-                given[pname] = _eval_value(raw, scope, None, spec.file,
-                                           b.param_lines.get(pname), f"parameter '{pname}'",
-                                           block=path)
-            for pname, (key, v) in own.items():
-                if pname in sub.parameters:
-                    given[pname] = _eval_value(v, scope, None, spec.file, b.line,
-                                               f"--set {prefix}{key}", block=path)
-                    used.add(key)
-                else:
-                    near = difflib.get_close_matches(pname, list(sub.parameters), n=3)
-                    hint = f"; did you mean {', '.join(near)}?" if near else ""
-                    what = (f"'{pname}' is a block of it: write {prefix}{key}.param"
-                            if pname in sub.blocks else f"it has no parameter '{pname}'{hint}")
-                    raise ParameterError(
-                        f"--set {prefix}{key}: '{path}' is a subsystem of type '{b.type}'; "
-                        f"{what} (parameters: {', '.join(sub.parameters) or 'none'})",
-                        block=path, file=spec.file, line=b.line)
-            sub_scope, _ = eval_parameters(sub, given, path + ".")
-            sub_over = {k: v for k, (key, v) in deeper.items()}
-            keymap = {k: key for k, (key, v) in deeper.items()}
-            sub_used = set()
-            flat.instances[path] = (b.type, spec.file, b.line)
-            try:
-                maps = _instantiate(sub, path + ".", sub_scope, sub_over, flat,
-                                    stack + [os.path.abspath(sub_file)], sub_used)
-            except SpidersimError as exc:
-                # an error in the subsystem's file: say which parent line brought it in
-                if exc.file == sub_file and not getattr(exc, "_used_at", False):
-                    exc.message += (f" (subsystem type '{b.type}' of block '{path}', "
-                                    f"{os.path.basename(spec.file)}:{b.line})")
-                    exc._used_at = True
-                raise
-            used.update(keymap[k] for k in sub_used if k in keymap)
-            local_subs[bname] = maps
-            for oname, src in maps[1].items():
-                flat.aliases[f"{path}.{oname}"] = src
-            flat.subsystem_instances[path] = sub_file
+            raise ParameterError(f"--set {prefix}{k}: there is no block '{head}' "
+                                 f"{where}{_hint(head, spec.blocks)}", file=spec.file)
+
+
+def _overrides_for(bname, overrides) -> BlockOverrides:
+    """Split the overrides addressed to block ``bname``: ``bname.p`` -> own ``p``,
+    ``bname.x.p`` -> deeper ``x.p``."""
+    own, deeper = {}, {}
+    for k, v in overrides.items():
+        head, _, rest = k.partition(".")
+        if head == bname:
+            (deeper if "." in rest else own)[rest] = (k, v)
+    return BlockOverrides(own, deeper)
+
+
+def _note_parent_line(exc, b, path, spec):
+    """Append to ``exc`` which parent line brought subsystem type ``b.type`` in."""
+    exc.message += (f" (subsystem type '{b.type}' of block '{path}', "
+                    f"{os.path.basename(spec.file)}:{b.line})")
+
+
+def _load_subsystem(level, b, path, sub_specs):
+    """``(file, DiagramSpec)`` of the subsystem type of block ``b``, parsed once per file
+    (``sub_specs`` caches them).
+
+    Raises
+    ------
+    DiagramError
+        When the type includes itself (the chain of files is named), its file is missing,
+        or the file has an error (the parent line is appended).
+    """
+    spec = level.spec
+    sub_file = spec.subsystems[b.type]
+    if os.path.abspath(sub_file) in level.stack:
+        chain = " -> ".join(os.path.basename(s) for s in level.stack + [sub_file])
+        raise DiagramError(f"subsystem type '{b.type}' includes itself ({chain})",
+                           file=spec.file, line=b.line, block=path)
+    if sub_file not in sub_specs:
+        if not os.path.isfile(sub_file):
+            raise DiagramError(f"subsystem file for type '{b.type}' not found: {sub_file}",
+                               file=spec.file, line=spec.subsystem_lines.get(b.type),
+                               block=path)
+        try:
+            sub_specs[sub_file] = parse_file(sub_file)
+        except DiagramError as exc:
+            _note_parent_line(exc, b, path, spec)
+            raise
+    return sub_file, sub_specs[sub_file]
+
+
+def _subsystem_given(level, b, path, sub):
+    """The subsystem parameters given by the instance entry ``b``, evaluated in the
+    parent's scope (name -> value); an unknown name is a ParameterError at its line."""
+    spec, given = level.spec, {}
+    for pname, raw in b.params.items():
+        if pname not in sub.parameters:
+            raise ParameterError(
+                f"unknown parameter '{pname}' for subsystem type '{b.type}'"
+                f"{_hint(pname, sub.parameters)} "
+                f"(parameters: {', '.join(sub.parameters) or 'none'})",
+                file=spec.file, line=b.param_lines.get(pname), block=path)
+        given[pname] = _eval_value(raw, level.scope, None, spec.file,
+                                   b.param_lines.get(pname), f"parameter '{pname}'",
+                                   block=path)
+    return given
+
+
+def _subsystem_overrides(level, b, path, sub, own, given):
+    """Add the ``--set path.p`` overrides of subsystem parameters to ``given`` (evaluated in
+    the parent's scope) and mark them used. ``path.blk`` without a parameter, or a name
+    that is not a subsystem parameter, is a ParameterError."""
+    spec, prefix = level.spec, level.prefix
+    for pname, (key, v) in own.items():
+        if pname in sub.parameters:
+            given[pname] = _eval_value(v, level.scope, None, spec.file, b.line,
+                                       f"--set {prefix}{key}", block=path)
+            level.used.add(key)
             continue
-        try:
-            cls = lookup(b.type, spec.file, b.line, extra=list(spec.subsystems))
-        except SpidersimError as exc:
-            exc.block = path
-            raise
-        values = {}
-        punits = {}
-        for pname, raw in b.params.items():
-            decl = cls.parameters.get(pname)
-            values[pname] = _eval_value(raw, scope, decl, spec.file, b.param_lines.get(pname),
-                                        f"parameter '{pname}'", block=path,
+        what = (f"'{pname}' is a block of it: write {prefix}{key}.param"
+                if pname in sub.blocks else
+                f"it has no parameter '{pname}'{_hint(pname, sub.parameters)}")
+        raise ParameterError(
+            f"--set {prefix}{key}: '{path}' is a subsystem of type '{b.type}'; "
+            f"{what} (parameters: {', '.join(sub.parameters) or 'none'})",
+            block=path, file=spec.file, line=b.line)
+
+
+def _instantiate_subsystem(level, bname, b, ov: BlockOverrides, sub_specs) -> PortMaps:
+    """Instantiate block ``b`` of ``level``, whose type is a subsystem, under
+    ``prefix + bname + "."``: evaluate its parameters, recurse, record the instance and its
+    output aliases in the flat diagram; return its port maps.
+
+    An error raised in the subsystem's own file gets the parent line appended (once).
+    """
+    spec, flat = level.spec, level.flat
+    path = level.prefix + bname
+    sub_file, sub = _load_subsystem(level, b, path, sub_specs)
+    given = _subsystem_given(level, b, path, sub)
+    _subsystem_overrides(level, b, path, sub, ov.own, given)
+    sub_scope, _ = eval_parameters(sub, given, path + ".")
+    sub_over = {k: v for k, (key, v) in ov.deeper.items()}
+    keymap = {k: key for k, (key, v) in ov.deeper.items()}
+    sub_used = set()
+    flat.instances[path] = (b.type, spec.file, b.line)
+    try:
+        maps = _instantiate(sub, path + ".", sub_scope, sub_over, flat,
+                            level.stack + [os.path.abspath(sub_file)], sub_used)
+    except SpidersimError as exc:
+        if exc.file == sub_file and not getattr(exc, "_used_at", False):
+            _note_parent_line(exc, b, path, spec)
+            exc._used_at = True
+        raise
+    level.used.update(keymap[k] for k in sub_used if k in keymap)
+    for oname, src in maps.outputs.items():
+        flat.aliases[f"{path}.{oname}"] = src
+    flat.subsystem_instances[path] = sub_file
+    return maps
+
+
+def _block_class(spec, b, path):
+    """The Block class of ``b.type`` (BlockTypeError naming the block path when unknown;
+    the subsystem types of ``spec`` are among the suggestions)."""
+    try:
+        return lookup(b.type, spec.file, b.line, extra=list(spec.subsystems))
+    except SpidersimError as exc:
+        exc.block = path
+        raise
+
+
+def _block_values(level, b, path, cls, own):
+    """The parameter values of primitive block ``b``: the file's entries, then its
+    ``--set`` overrides (marked used), evaluated with their declarations.
+
+    Returns
+    -------
+    values : dict
+        name -> evaluated value (not yet validated).
+    units : dict
+        name -> unit text given with a value whose declared unit is inherited.
+    """
+    spec, prefix = level.spec, level.prefix
+    values, punits = {}, {}
+    for pname, raw in b.params.items():
+        values[pname] = _eval_value(raw, level.scope, cls.parameters.get(pname), spec.file,
+                                    b.param_lines.get(pname), f"parameter '{pname}'",
+                                    block=path,
+                                    record=functools.partial(punits.__setitem__, pname))
+    for pname, (key, v) in own.items():
+        decl = cls.parameters.get(pname)
+        if decl is None:
+            raise ParameterError(f"--set {prefix}{key}: block type {cls.type_name} has no "
+                                 f"parameter '{pname}'{_hint(pname, cls.parameters)} "
+                                 f"(parameters: {', '.join(cls.parameters)})", block=path,
+                                 file=spec.file, line=b.line)
+        if decl.kind == "str" and isinstance(v, str):
+            values[pname] = v
+        else:
+            values[pname] = _eval_value(v, level.scope, decl, spec.file, b.line,
+                                        f"--set {prefix}{key}", block=path,
                                         record=functools.partial(punits.__setitem__, pname))
-        for pname, (key, v) in own.items():
-            decl = cls.parameters.get(pname)
-            if decl is None:
-                near = difflib.get_close_matches(pname, list(cls.parameters), n=3)
-                hint = f"; did you mean {', '.join(near)}?" if near else ""
-                raise ParameterError(f"--set {prefix}{key}: block type {cls.type_name} has no "
-                                     f"parameter '{pname}'{hint} (parameters: "
-                                     f"{', '.join(cls.parameters)})", block=path,
-                                     file=spec.file, line=b.line)
-            if decl.kind == "str" and isinstance(v, str):
-                values[pname] = v
-            else:
-                values[pname] = _eval_value(v, scope, decl, spec.file, b.line,
-                                            f"--set {prefix}{key}", block=path,
-                                            record=functools.partial(punits.__setitem__,
-                                                                     pname))
-            used.add(key)
-        if deeper:
-            k = next(iter(deeper.values()))[0]
-            raise ParameterError(f"--set {prefix}{k}: '{path}' is a {cls.type_name} block, "
-                                 f"not a subsystem", block=path, file=spec.file, line=b.line)
+        level.used.add(key)
+    return values, punits
 
-        def where(name, _b=b):
-            return spec.file, (_b.param_lines.get(name) if name else _b.line)
 
-        try:
-            params = cls.validate_params(values, where=where)
-        except ParameterError as exc:
-            exc.block = path
-            raise
-        if path in flat.blocks:
-            raise DiagramError(f"duplicate block path '{path}'", file=spec.file, line=b.line)
-        flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines),
-                                     {k: v for k, v in punits.items() if k in params})
+def _instantiate_block(level, bname, b, ov: BlockOverrides):
+    """Add primitive block ``b`` of ``level`` to the flat diagram as an :class:`Instance`
+    with validated parameters (errors name the block path and the parameter's line)."""
+    spec, flat = level.spec, level.flat
+    path = level.prefix + bname
+    cls = _block_class(spec, b, path)
+    values, punits = _block_values(level, b, path, cls, ov.own)
+    if ov.deeper:
+        k = next(iter(ov.deeper.values()))[0]
+        raise ParameterError(f"--set {level.prefix}{k}: '{path}' is a {cls.type_name} block, "
+                             f"not a subsystem", block=path, file=spec.file, line=b.line)
 
-    # resolve local addresses into flat ones
-    def resolve_src(a: Address, line):
-        if a.block in local_subs:
-            out_map = local_subs[a.block][1]
+    def where(name):
+        return spec.file, (b.param_lines.get(name) if name else b.line)
+
+    try:
+        params = cls.validate_params(values, where=where)
+    except ParameterError as exc:
+        exc.block = path
+        raise
+    if path in flat.blocks:
+        raise DiagramError(f"duplicate block path '{path}'", file=spec.file, line=b.line)
+    flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines),
+                                 {k: v for k, v in punits.items() if k in params})
+
+
+class _LocalAddresses:
+    """Resolves ``block.port`` addresses of one diagram level into flat ones, through the
+    port maps of its subsystem instances (``local_subs``: block name -> PortMaps)."""
+
+    def __init__(self, spec, prefix, local_subs):
+        self.spec, self.prefix, self.local_subs = spec, prefix, local_subs
+
+    def source(self, a: Address, line):
+        """The flat output slice ``(path, port, start, stop)`` that source ``a`` names; a
+        slice of a subsystem output is taken relative to the slice the output exposes."""
+        if a.block in self.local_subs:
+            out_map = self.local_subs[a.block].outputs
             if a.port not in out_map:
                 raise WiringError(
-                    f"subsystem instance '{prefix}{a.block}' has no output '{a.port}' "
-                    f"(outputs: {', '.join(out_map) or 'none'})", file=spec.file, line=line)
+                    f"subsystem instance '{self.prefix}{a.block}' has no output '{a.port}' "
+                    f"(outputs: {', '.join(out_map) or 'none'})", file=self.spec.file,
+                    line=line)
             path, port, s0, s1 = out_map[a.port]
             if a.start is not None:
                 base = s0 or 0
                 return (path, port, base + a.start, base + a.stop)
             return (path, port, s0, s1)
-        _check_block(a, line)
-        return (prefix + a.block, a.port, a.start, a.stop)
+        self._check_block(a, line)
+        return (self.prefix + a.block, a.port, a.start, a.stop)
 
-    def resolve_dst(a: Address, line):
-        if a.block in local_subs:
-            in_map = local_subs[a.block][0]
+    def destinations(self, a: Address, line):
+        """The flat inputs ``[(path, port), ...]`` that destination ``a`` names (a
+        subsystem input may feed several)."""
+        if a.block in self.local_subs:
+            in_map = self.local_subs[a.block].inputs
             if a.port not in in_map:
                 raise WiringError(
-                    f"subsystem instance '{prefix}{a.block}' has no input '{a.port}' "
-                    f"(inputs: {', '.join(in_map) or 'none'})", file=spec.file, line=line)
+                    f"subsystem instance '{self.prefix}{a.block}' has no input '{a.port}' "
+                    f"(inputs: {', '.join(in_map) or 'none'})", file=self.spec.file,
+                    line=line)
             return in_map[a.port]
-        _check_block(a, line)
-        return [(prefix + a.block, a.port)]
+        self._check_block(a, line)
+        return [(self.prefix + a.block, a.port)]
 
-    def _check_block(a, line):
-        if a.block not in spec.blocks:
-            near = difflib.get_close_matches(a.block, list(spec.blocks), n=3)
-            hint = f"; did you mean {', '.join(near)}?" if near else ""
-            raise WiringError(f"connection refers to unknown block '{a.block}'{hint}",
-                              file=spec.file, line=line)
+    def _check_block(self, a, line):
+        """``a.block`` must be a block of this level (WiringError with near names)."""
+        if a.block not in self.spec.blocks:
+            raise WiringError(f"connection refers to unknown block '{a.block}'"
+                              f"{_hint(a.block, self.spec.blocks)}", file=self.spec.file,
+                              line=line)
 
+
+def _wire_connections(level, addresses):
+    """Append a :class:`FlatConn` for every connection of the level and destination."""
+    spec = level.spec
     for c in spec.connections:
-        src = resolve_src(c.src, c.line)
-        for dst in resolve_dst(c.dst, c.line):
-            flat.conns.append(FlatConn(src, dst, spec.file, c.line, f"{c.src} -> {c.dst}"))
+        src = addresses.source(c.src, c.line)
+        for dst in addresses.destinations(c.dst, c.line):
+            level.flat.conns.append(FlatConn(src, dst, spec.file, c.line,
+                                             f"{c.src} -> {c.dst}"))
 
+
+def _check_exposed_target(level, name, a, dst_path, dst_port, line):
+    """Exposed input ``name`` maps to ``a``: the primitive block must have input
+    ``dst_port`` (WiringError listing its inputs otherwise)."""
+    inst = level.flat.blocks[dst_path]
+    names = inst.cls.input_names(inst.params)
+    if dst_port not in names:
+        near = difflib.get_close_matches(dst_port, names, n=2)
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        raise WiringError(
+            f"exposed input '{name}' maps to '{a}', but block '{a.block}' "
+            f"({inst.cls.type_name}) has no input '{dst_port}'{hint}; inputs: "
+            f"{', '.join(names) or 'none'}", file=level.spec.file, line=line, block=dst_path)
+
+
+def _exposed_inputs(level, addresses):
+    """The level's exposed inputs -> flat inputs they feed; each fed primitive input is
+    recorded in ``flat.exposed`` (the outermost exposure is written last and stays)."""
+    spec, flat = level.spec, level.flat
     in_map = {}
     for name, addrs in spec.inputs.items():
         line = spec.port_lines[("in", name)]
@@ -364,23 +536,57 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False):
             if a.start is not None:
                 raise WiringError(f"exposed input '{name}' must map to whole input ports",
                                   file=spec.file, line=line)
-            got = resolve_dst(a, line)
+            got = addresses.destinations(a, line)
             for dst_path, dst_port in got:
-                if a.block not in local_subs:
-                    inst = flat.blocks[dst_path]
-                    if dst_port not in inst.cls.input_names(inst.params):
-                        near = difflib.get_close_matches(
-                            dst_port, inst.cls.input_names(inst.params), n=2)
-                        hint = f"; did you mean {', '.join(near)}?" if near else ""
-                        raise WiringError(
-                            f"exposed input '{name}' maps to '{a}', but block '{a.block}' "
-                            f"({inst.cls.type_name}) has no input '{dst_port}'{hint}; inputs: "
-                            f"{', '.join(inst.cls.input_names(inst.params)) or 'none'}",
-                            file=spec.file, line=line, block=dst_path)
-                flat.exposed[(dst_path, dst_port)] = (prefix[:-1], name, spec.file, line)
+                if a.block not in addresses.local_subs:
+                    _check_exposed_target(level, name, a, dst_path, dst_port, line)
+                flat.exposed[(dst_path, dst_port)] = (level.prefix[:-1], name, spec.file,
+                                                      line)
             targets += got
         in_map[name] = targets
-    out_map = {}
-    for name, a in spec.outputs.items():
-        out_map[name] = resolve_src(a, spec.port_lines[("out", name)])
-    return in_map, out_map
+    return in_map
+
+
+def _exposed_outputs(level, addresses):
+    """The level's exposed outputs -> the flat output slices they are."""
+    spec = level.spec
+    return {name: addresses.source(a, spec.port_lines[("out", name)])
+            for name, a in spec.outputs.items()}
+
+
+def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False) -> PortMaps:
+    """Add the blocks of ``spec`` under ``prefix`` to ``flat``; return its port maps.
+
+    Parameters
+    ----------
+    spec : DiagramSpec
+        The diagram (top level or a subsystem file).
+    prefix : str
+        Dotted path of the instance with a trailing dot (``""`` at the top).
+    scope : dict
+        The diagram's parameters, evaluated.
+    overrides : dict
+        ``--set`` entries relative to this level (``"motor.R"``, ``"j1.motor.R"``).
+    flat : Flat
+        Filled in place.
+    stack : list of str
+        Files being instantiated, outermost first (a type including itself is an error).
+    used : set
+        Receives the override keys that found their target.
+
+    The blocks are instantiated in file order (subsystems recursively), then the
+    connections are wired and the exposed ports mapped.
+    """
+    level = _Level(spec, prefix, scope, flat, stack, used)
+    _check_override_targets(spec, prefix, overrides)
+    sub_specs = {}
+    local_subs = {}  # instance name -> PortMaps
+    for bname, b in spec.blocks.items():
+        ov = _overrides_for(bname, overrides)
+        if b.type in spec.subsystems:
+            local_subs[bname] = _instantiate_subsystem(level, bname, b, ov, sub_specs)
+        else:
+            _instantiate_block(level, bname, b, ov)
+    addresses = _LocalAddresses(spec, prefix, local_subs)
+    _wire_connections(level, addresses)
+    return PortMaps(_exposed_inputs(level, addresses), _exposed_outputs(level, addresses))

@@ -32,6 +32,51 @@ DEFAULTS = {"t_end": 1.0, "method": "LSODA", "rtol": 1e-6, "atol": 1e-8, "max_st
             "output_interval": None, "first_step": None}
 
 
+#: keys of the ``microgravity`` section
+MICROGRAVITY_KEYS = {"signal", "mass", "window", "f_min", "f_max"}
+
+
+def _check_microgravity_keys(sec, err):
+    """Only known keys, and ``signal`` and ``mass`` given (``err(msg, key)`` makes the
+    located error)."""
+    for k in sec:
+        if k not in MICROGRAVITY_KEYS:
+            raise err(f"unknown key '{k}'; keys are {', '.join(sorted(MICROGRAVITY_KEYS))}",
+                      k)
+    for k in ("signal", "mass"):
+        if k not in sec:
+            raise err(f"'{k}' is required (signal: the base force, e.g. arm.base_force; "
+                      f"mass: the station mass in kg)")
+
+
+def _positive_setting(sec, k, default, scope, err):
+    """Setting ``k`` of a section (``default`` when absent): a number or an expression of
+    the parameters in ``scope``, finite and > 0, as a float. Booleans are refused."""
+    from ..text.expr import ExprError, evaluate
+    v = sec.get(k, default)
+    try:
+        v = float(evaluate(v, scope) if isinstance(v, str) else v)
+    except (ExprError, TypeError, ValueError):
+        raise err(f"'{k}' must be a number or an expression of parameters, got {v!r}",
+                  k) from None
+    if isinstance(sec.get(k), bool) or not (np.isfinite(v) and v > 0):
+        raise err(f"'{k}' must be a finite number > 0, got {sec.get(k)!r}", k)
+    return v
+
+
+def _time_window(w, err):
+    """A time window ``[t0, t1]`` with ``0 <= t0 < t1`` [s] as a pair of floats, or None
+    when not given."""
+    if w is None:
+        return None
+    if not (isinstance(w, list) and len(w) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in w)
+            and 0 <= w[0] < w[1]):
+        raise err(f"'window' must be [t0, t1] with 0 <= t0 < t1 (seconds), got {w!r}",
+                  "window")
+    return (float(w[0]), float(w[1]))
+
+
 class Diagram:
     """A flat diagram ready to simulate.
 
@@ -144,52 +189,32 @@ class Diagram:
         or None without the section."""
         if not sec:
             return None
-        from ..text.expr import ExprError, evaluate
-        keys = {"signal", "mass", "window", "f_min", "f_max"}
 
         def err(msg, key=None):
             return DiagramError(f"microgravity: {msg}", file=self.file,
                                 line=sec.line_of(key) if key else sec.line)
-        for k in sec:
-            if k not in keys:
-                raise err(f"unknown key '{k}'; keys are {', '.join(sorted(keys))}", k)
-        for k in ("signal", "mass"):
-            if k not in sec:
-                raise err(f"'{k}' is required (signal: the base force, e.g. arm.base_force; "
-                          f"mass: the station mass in kg)")
-        sizes = self.logged_sizes()
-        if sec["signal"] not in sizes:
-            known = {r[0] for r in self._signal_table()}
-            if sec["signal"] in known:
-                raise err(f"signal '{sec['signal']}' is not logged (add it to 'log')",
-                          "signal")
-            import difflib
-            near = difflib.get_close_matches(str(sec["signal"]), sorted(known), n=3)
-            hint = f"; did you mean {', '.join(near)}?" if near else ""
-            raise err(f"no signal '{sec['signal']}'{hint}", "signal")
+        _check_microgravity_keys(sec, err)
+        self._check_microgravity_signal(sec["signal"], err)
         out = {"signal": sec["signal"]}
         for k, default in (("mass", None), ("f_min", 0.01), ("f_max", 300.0)):
-            v = sec.get(k, default)
-            try:
-                v = float(evaluate(v, self.flat.scope) if isinstance(v, str) else v)
-            except (ExprError, TypeError, ValueError):
-                raise err(f"'{k}' must be a number or an expression of parameters, got "
-                          f"{v!r}", k) from None
-            if isinstance(sec.get(k), bool) or not (np.isfinite(v) and v > 0):
-                raise err(f"'{k}' must be a finite number > 0, got {sec.get(k)!r}", k)
-            out[k] = v
+            out[k] = _positive_setting(sec, k, default, self.flat.scope, err)
         if not out["f_min"] < out["f_max"]:
             raise err(f"f_min ({out['f_min']:g}) must be below f_max ({out['f_max']:g})")
-        w = sec.get("window")
-        if w is not None:
-            if not (isinstance(w, list) and len(w) == 2 and all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in w)
-                    and 0 <= w[0] < w[1]):
-                raise err(f"'window' must be [t0, t1] with 0 <= t0 < t1 (seconds), got {w!r}",
-                          "window")
-            w = (float(w[0]), float(w[1]))
-        out["window"] = w
+        out["window"] = _time_window(sec.get("window"), err)
         return out
+
+    def _check_microgravity_signal(self, signal, err):
+        """The microgravity ``signal`` is logged; a signal of the diagram that is not
+        logged is told to be added to ``log``, an unknown one gets near names."""
+        if signal in self.logged_sizes():
+            return
+        known = {r[0] for r in self._signal_table()}
+        if signal in known:
+            raise err(f"signal '{signal}' is not logged (add it to 'log')", "signal")
+        import difflib
+        near = difflib.get_close_matches(str(signal), sorted(known), n=3)
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        raise err(f"no signal '{signal}'{hint}", "signal")
 
     def logged_sizes(self):
         """Logged signals (what a run's result holds) -> number of values of each."""

@@ -30,6 +30,7 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from ..errors import DiagramError, WiringError
 from ..text.yamlio import LineDict, load_text, read_file
@@ -146,7 +147,29 @@ def parse_text(text: str, file: str = "<string>") -> DiagramSpec:
     return _parse_data(load_text(text, file), file)
 
 
-def _parse_data(data, file: str) -> DiagramSpec:
+def _did_you_mean(key, choices):
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``key``, or ''."""
+    import difflib
+    near = difflib.get_close_matches(str(key), list(choices), n=1)
+    return f" (did you mean '{near[0]}'?)" if near else ""
+
+
+def _check_sections(data, file):
+    """Check that ``data`` is a mapping of known sections with a ``blocks`` section.
+
+    Parameters
+    ----------
+    data : LineDict or None or other
+        The loaded YAML document.
+    file : str
+        Name of the file, for the messages.
+
+    Raises
+    ------
+    DiagramError
+        For an empty document, a document that is not a mapping, an unknown section
+        (with the nearest section name) or a missing ``blocks`` section.
+    """
     if data is None:
         raise DiagramError("the diagram is empty: it needs at least a 'blocks' section",
                            file=file)
@@ -157,21 +180,37 @@ def _parse_data(data, file: str) -> DiagramSpec:
                            f"...), got {kind}", file=file, line=getattr(data, "line", None))
     for key in data:
         if key not in SECTIONS:
-            import difflib
-            near = difflib.get_close_matches(str(key), SECTIONS, n=1)
-            hint = f" (did you mean '{near[0]}'?)" if near else ""
-            raise DiagramError(f"unknown section '{key}'{hint}; sections are "
-                               f"{', '.join(SECTIONS)}", file=file, line=data.line_of(key))
+            raise DiagramError(f"unknown section '{key}'{_did_you_mean(key, SECTIONS)}; "
+                               f"sections are {', '.join(SECTIONS)}", file=file,
+                               line=data.line_of(key))
     if "blocks" not in data:
         raise DiagramError("the diagram has no 'blocks' section", file=file, line=1)
-    base = os.path.dirname(os.path.abspath(file)) if file != "<string>" else os.getcwd()
 
+
+def _base_dir(file):
+    """Folder that relative subsystem paths of ``file`` start from (the current folder for
+    a diagram given as text, ``file == "<string>"``)."""
+    return os.path.dirname(os.path.abspath(file)) if file != "<string>" else os.getcwd()
+
+
+def _parse_parameters(data, file):
+    """The ``parameters`` section (name -> unevaluated value, in order); every name must be
+    an identifier (DiagramError at its line otherwise)."""
     params = _section(data, "parameters", LineDict, file)
     for k in params:
         if not isinstance(k, str) or not _NAME.match(k):
             raise DiagramError(f"parameter name '{k}' is not an identifier", file=file,
                                line=params.line_of(k))
+    return params
 
+
+def _parse_subsystems(data, file, base):
+    """The ``subsystems`` section: ``(type name -> absolute normalised path, raw section)``.
+
+    An entry is ``Type: path.yaml`` or ``Type: {file: path.yaml}``; the path is relative to
+    ``base``. A type name that is not an identifier or an entry without a file name is a
+    DiagramError at its line.
+    """
     subs_raw = _section(data, "subsystems", LineDict, file)
     subsystems = {}
     for k, v in subs_raw.items():
@@ -184,67 +223,154 @@ def _parse_data(data, file: str) -> DiagramSpec:
             raise DiagramError(f"subsystem '{k}' must name a YAML file, got {v!r}",
                                file=file, line=subs_raw.line_of(k))
         subsystems[k] = os.path.normpath(os.path.join(base, v))
+    return subsystems, subs_raw
 
-    blocks_raw = _section(data, "blocks", LineDict, file)
-    blocks = {}
+
+class BlockEntry(NamedTuple):
+    """One block entry of the ``blocks`` section after block arrays are expanded."""
+
+    name: str
+    entry: object     #: the YAML value (a LineDict with a ``type`` key when well formed)
+    line: int | None  #: line of the entry (of the array entry for array instances)
+
+
+def _expand_block_arrays(blocks_raw, file):
+    """The entries of the ``blocks`` section with ``name[a..b]`` arrays expanded.
+
+    Returns
+    -------
+    entries : list of BlockEntry
+        In file order; an array contributes its instances at its own position.
+    arrays : dict
+        Array base name -> its index range (for ``{i}`` in connections).
+
+    Raises
+    ------
+    DiagramError
+        When an array instance has the name of a block declared on its own.
+    """
     arrays = {}
-    expanded = []
+    entries = []
     for name, entry in blocks_raw.items():
         line = blocks_raw.line_of(name)
         arr = array_key(name)
         if arr is None:
-            expanded.append((name, entry, line))
+            entries.append(BlockEntry(name, entry, line))
             continue
         arrays[arr[0]] = arr[1]
         for inst, e in expand_block(name, entry, file, line):
             if inst in blocks_raw:
                 raise DiagramError(f"block array '{name}' makes '{inst}', which is also "
                                    f"declared on its own", file=file, line=line)
-            expanded.append((inst, e, line))
-    for name, entry, line in expanded:
-        if name in blocks:
-            raise DiagramError(f"block '{name}' is declared twice (an array entry and another "
-                               f"entry make the same name)", file=file, line=line)
-        if not isinstance(name, str) or not _NAME.match(name):
-            raise DiagramError(f"block name '{name}' is not an identifier (letters, digits, "
-                               f"_; no dots)", file=file, line=line)
-        if not isinstance(entry, dict) or "type" not in entry:
-            raise DiagramError(f"block '{name}' must be a mapping with a 'type' key, e.g. "
-                               f"'{name}: {{type: Gain, k: 2}}'", file=file, line=line)
-        btype = entry["type"]
-        if not isinstance(btype, str) or not _NAME.match(btype):
-            shown = btype if isinstance(btype, str) else {"LineList": "a list", "LineDict": "a mapping"}.get(type(btype).__name__, type(btype).__name__)
-            raise DiagramError(f"block '{name}': 'type' must be a block or subsystem type "
-                               f"name (letters, digits, _), got {shown}", file=file,
-                               line=entry.line_of("type"))
-        p = LineDict((k, v) for k, v in entry.items() if k != "type")
-        plines = {k: entry.line_of(k) for k in p}
-        blocks[name] = BlockSpec(name, entry["type"], p, line, plines)
+            entries.append(BlockEntry(inst, e, line))
+    return entries, arrays
 
-    conns_raw = _section(data, "connections", list, file)
+
+def _kind_name(value):
+    """What ``value`` is, in words, for a message (``a list``, ``a mapping`` or its type)."""
+    return {"LineList": "a list", "LineDict": "a mapping"}.get(type(value).__name__,
+                                                               type(value).__name__)
+
+
+def _check_block_type(name, entry, file):
+    """The ``type`` of block ``name`` must be an identifier (DiagramError at its line)."""
+    btype = entry["type"]
+    if not isinstance(btype, str) or not _NAME.match(btype):
+        shown = btype if isinstance(btype, str) else _kind_name(btype)
+        raise DiagramError(f"block '{name}': 'type' must be a block or subsystem type "
+                           f"name (letters, digits, _), got {shown}", file=file,
+                           line=entry.line_of("type"))
+
+
+def _parse_block(item: BlockEntry, file) -> BlockSpec:
+    """One block entry -> :class:`BlockSpec` (parameters unevaluated, with their lines).
+
+    Raises
+    ------
+    DiagramError
+        When the name is not an identifier, the entry is not a mapping with a ``type`` key,
+        or the type is not an identifier.
+    """
+    name, entry, line = item
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise DiagramError(f"block name '{name}' is not an identifier (letters, digits, "
+                           f"_; no dots)", file=file, line=line)
+    if not isinstance(entry, dict) or "type" not in entry:
+        raise DiagramError(f"block '{name}' must be a mapping with a 'type' key, e.g. "
+                           f"'{name}: {{type: Gain, k: 2}}'", file=file, line=line)
+    _check_block_type(name, entry, file)
+    p = LineDict((k, v) for k, v in entry.items() if k != "type")
+    plines = {k: entry.line_of(k) for k in p}
+    return BlockSpec(name, entry["type"], p, line, plines)
+
+
+def _parse_blocks(data, file):
+    """The ``blocks`` section: ``(name -> BlockSpec, arrays)`` (see
+    :func:`_expand_block_arrays`); a name made twice is a DiagramError."""
+    entries, arrays = _expand_block_arrays(_section(data, "blocks", LineDict, file), file)
+    blocks = {}
+    for item in entries:
+        if item.name in blocks:
+            raise DiagramError(f"block '{item.name}' is declared twice (an array entry and "
+                               f"another entry make the same name)", file=file, line=item.line)
+        blocks[item.name] = _parse_block(item, file)
+    return blocks, arrays
+
+
+def _split_connection(item, file, line):
+    """``(source text, [destination texts])`` of one connection: ``"src -> d1, d2"`` or a
+    pair ``[src, dst]``; anything else is a WiringError."""
+    if isinstance(item, (list, tuple)) and len(item) == 2:
+        return item[0], [item[1]]
+    if isinstance(item, str) and "->" in item:
+        src_t, rest = item.split("->", 1)
+        return src_t, rest.split(",")
+    raise WiringError(f"connection {item!r} must read 'src.port -> dst.port'",
+                      file=file, line=line)
+
+
+def _parse_connection(item, file, line):
+    """One connection (after ``{i}`` expansion) -> a list of :class:`ConnSpec`, one per
+    destination. A destination must be a whole input port (no ``[i]``)."""
+    src_t, dsts = _split_connection(item, file, line)
+    src = parse_address(src_t, file, line, "connection source")
     conns = []
+    for d in dsts:
+        dst = parse_address(d, file, line, "connection destination")
+        if dst.start is not None:
+            raise WiringError(f"a destination takes a whole input port, got '{d.strip()}' "
+                              f"(select elements on the source side or with a Selector)",
+                              file=file, line=line)
+        conns.append(ConnSpec(src, dst, line))
+    return conns
+
+
+def _parse_connections(data, arrays, file):
+    """The ``connections`` section -> list of :class:`ConnSpec`, lines over block
+    ``arrays`` expanded first (every line is expanded before any is parsed)."""
+    conns_raw = _section(data, "connections", list, file)
     items = []
     for k, item in enumerate(conns_raw):
         line = conns_raw.lines[k] if hasattr(conns_raw, "lines") else None
         items += [(x, line) for x in expand_connection(item, arrays, file, line)]
+    conns = []
     for item, line in items:
-        if isinstance(item, (list, tuple)) and len(item) == 2:
-            src_t, dsts = item[0], [item[1]]
-        elif isinstance(item, str) and "->" in item:
-            src_t, rest = item.split("->", 1)
-            dsts = [d for d in rest.split(",")]
-        else:
-            raise WiringError(f"connection {item!r} must read 'src.port -> dst.port'",
-                              file=file, line=line)
-        src = parse_address(src_t, file, line, "connection source")
-        for d in dsts:
-            dst = parse_address(d, file, line, "connection destination")
-            if dst.start is not None:
-                raise WiringError(f"a destination takes a whole input port, got '{d.strip()}' "
-                                  f"(select elements on the source side or with a Selector)",
-                                  file=file, line=line)
-            conns.append(ConnSpec(src, dst, line))
+        conns += _parse_connection(item, file, line)
+    return conns
 
+
+def _parse_exposed_ports(data, file):
+    """The ``inputs`` and ``outputs`` sections of a subsystem file.
+
+    Returns
+    -------
+    inputs : dict
+        Exposed input -> list of :class:`Address` (one exposed input may feed several).
+    outputs : dict
+        Exposed output -> :class:`Address`.
+    port_lines : dict
+        ``("in", name)`` / ``("out", name)`` -> line.
+    """
     port_lines = {}
     inputs = {}
     for k, v in _section(data, "inputs", LineDict, file).items():
@@ -257,19 +383,46 @@ def _parse_data(data, file: str) -> DiagramSpec:
         line = data["outputs"].line_of(k)
         outputs[k] = parse_address(v, file, line, f"exposed output '{k}'")
         port_lines[("out", k)] = line
+    return inputs, outputs, port_lines
 
+
+def _parse_simulation(data, file):
+    """The ``simulation`` section; a key not in :data:`SIM_KEYS` is a DiagramError naming
+    the nearest setting."""
     sim = _section(data, "simulation", LineDict, file)
     for k in sim:
         if k not in SIM_KEYS:
-            import difflib
-            near = difflib.get_close_matches(str(k), list(SIM_KEYS), n=1)
-            hint = f" (did you mean '{near[0]}'?)" if near else ""
-            raise DiagramError(f"unknown simulation setting '{k}'{hint}; settings are "
-                               f"{', '.join(SIM_KEYS)}", file=file, line=sim.line_of(k))
+            raise DiagramError(f"unknown simulation setting '{k}'{_did_you_mean(k, SIM_KEYS)}; "
+                               f"settings are {', '.join(SIM_KEYS)}", file=file,
+                               line=sim.line_of(k))
+    return sim
+
+
+def _parse_log(data, file):
+    """The ``log`` section: ``"all"`` (the default) or a list of signal names."""
     log = data.get("log", "all")
     if not (log == "all" or isinstance(log, list)):
         raise DiagramError("section 'log' must be 'all' or a list of 'block.port'",
                            file=file, line=data.line_of("log"))
+    return log
+
+
+def _parse_data(data, file: str) -> DiagramSpec:
+    """Check the loaded YAML ``data`` of diagram ``file`` section by section and collect it
+    in a :class:`DiagramSpec` (values unevaluated, subsystems not opened).
+
+    The sections are checked in a fixed order (top level, parameters, subsystems, blocks,
+    connections, exposed ports, simulation, log, the rest), so the first error of a file
+    is always the same one.
+    """
+    _check_sections(data, file)
+    params = _parse_parameters(data, file)
+    subsystems, subs_raw = _parse_subsystems(data, file, _base_dir(file))
+    blocks, arrays = _parse_blocks(data, file)
+    conns = _parse_connections(data, arrays, file)
+    inputs, outputs, port_lines = _parse_exposed_ports(data, file)
+    sim = _parse_simulation(data, file)
+    log = _parse_log(data, file)
     plots = _section(data, "plots", list, file)
     analysis = _section(data, "analysis", LineDict, file)
     metrics = _section(data, "metrics", LineDict, file)

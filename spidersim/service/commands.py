@@ -107,6 +107,36 @@ def _line_blocks(spec):
     return pairs
 
 
+def _argument_decl(v):
+    """A declared argument of a named command: ``{doc, unit, default}`` (texts, '' when
+    not given; default None)."""
+    return {"doc": str((v or {}).get("doc", "")), "unit": str((v or {}).get("unit", "")),
+            "default": (v or {}).get("default")}
+
+
+def _command_entry(name, c, spec, where):
+    """One entry of the ``commands`` section, checked: ``{doc, set, arguments, t_end}``
+    (``arguments`` may be a list of names). Errors are located at ``where``."""
+    if not isinstance(c, dict):
+        raise ParameterError(f"command '{name}' must be a mapping", file=spec.file,
+                             line=where)
+    bad = set(c) - {"doc", "set", "arguments", "t_end"}
+    if bad:
+        raise ParameterError(f"command '{name}': unknown key(s) {', '.join(sorted(bad))}; "
+                             f"keys are doc, set, arguments, t_end", file=spec.file,
+                             line=where)
+    args = c.get("arguments") or {}
+    if isinstance(args, list):
+        args = {a: {} for a in args}
+    sets = c.get("set") or {}
+    if not isinstance(args, dict) or not isinstance(sets, dict):
+        raise ParameterError(f"command '{name}': 'arguments' and 'set' must be mappings",
+                             file=spec.file, line=where)
+    return {"doc": str(c.get("doc", "")), "set": dict(sets),
+            "arguments": {str(k): _argument_decl(v) for k, v in args.items()},
+            "t_end": c.get("t_end")}
+
+
 def named_commands(spec):
     """The ``commands`` section, checked: name -> {doc, set, arguments, t_end}."""
     raw = (spec.data or {}).get("commands") or {}
@@ -114,32 +144,9 @@ def named_commands(spec):
     if not isinstance(raw, dict):
         raise ParameterError("section 'commands' must map names to {doc, set, arguments, "
                              "t_end}", file=spec.file, line=line)
-    out = {}
-    for name, c in raw.items():
-        where = raw.line_of(name) if hasattr(raw, "line_of") else line
-        if not isinstance(c, dict):
-            raise ParameterError(f"command '{name}' must be a mapping", file=spec.file,
-                                 line=where)
-        bad = set(c) - {"doc", "set", "arguments", "t_end"}
-        if bad:
-            raise ParameterError(f"command '{name}': unknown key(s) {', '.join(sorted(bad))}; "
-                                 f"keys are doc, set, arguments, t_end", file=spec.file,
-                                 line=where)
-        args = c.get("arguments") or {}
-        if isinstance(args, list):
-            args = {a: {} for a in args}
-        sets = c.get("set") or {}
-        if not isinstance(args, dict) or not isinstance(sets, dict):
-            raise ParameterError(f"command '{name}': 'arguments' and 'set' must be mappings",
-                                 file=spec.file, line=where)
-        out[str(name)] = {
-            "doc": str(c.get("doc", "")), "set": dict(sets),
-            "arguments": {str(k): {"doc": str((v or {}).get("doc", "")),
-                                   "unit": str((v or {}).get("unit", "")),
-                                   "default": (v or {}).get("default")}
-                          for k, v in args.items()},
-            "t_end": c.get("t_end")}
-    return out
+    return {str(name): _command_entry(name, c, spec, raw.line_of(name)
+                                      if hasattr(raw, "line_of") else line)
+            for name, c in raw.items()}
 
 
 def commandables(d, spec):
@@ -223,118 +230,236 @@ def _set(overrides, key, value, spec):
     overrides[key] = value
 
 
+def _refuse_overrides_of(overrides, name, replaced_by, spec):
+    """Refuse request parameters of block ``name`` when the command replaces the block
+    (``replaced_by`` ends the message: what replaces it)."""
+    for k in list(overrides):
+        if k.startswith(name + "."):
+            _fail(f"parameter '{k}' belongs to block '{name}', which {replaced_by}", spec)
+
+
+def _table_command(d0, spec, cmd, overrides):
+    """``{"kind": "table", "block", "time", "value", "unit"}``: replace the source block by a
+    ``TimeTable`` through the points (values converted to the unit the model infers for
+    the block's output ``y``; kept with their unit when that is not fixed)."""
+    name = _pick(_table_blocks(d0, spec), cmd.get("block"), "table-commandable source "
+                 "block", spec)
+    t = _numbers(cmd.get("time"), "time", spec)
+    v = _numbers(cmd.get("value"), "value", spec)
+    if len(t) != len(v):
+        _fail(f"command: 'time' has {len(t)} values and 'value' {len(v)}; give one value "
+              f"per time", spec)
+    _refuse_overrides_of(overrides, name, "the table command replaces", spec)
+    v, unit = _to_unit(v, cmd.get("unit"), d0.units.get((name, "out", "y")),
+                       f"block '{name}'", spec)
+    old = spec.blocks[name]
+    value = v.tolist() if unit is None else {"value": v.tolist(), "unit": unit}
+    spec.blocks[name] = BlockSpec(name, "TimeTable", {"time": t.tolist(), "value": value},
+                                  old.line, {})
+
+
+def _check_path_points(q, t, spec):
+    """At least two points, one time per point, times strictly increasing from t >= 0."""
+    if len(q) < 2 or len(q) != len(t):
+        _fail(f"command: give at least 2 points and one time per point, got {len(q)} "
+              f"points and {len(t)} times", spec)
+    if not (t[0] >= 0 and np.all(np.diff(t) > 0)):
+        _fail(f"command.times must be strictly increasing from t >= 0, got {t.tolist()}",
+              spec)
+
+
+def profile_parameters(typ, q, t):
+    """Parameters of a two-point move for a trajectory block of type ``typ``.
+
+    Parameters
+    ----------
+    typ : {"QuinticProfile", "TrapezoidalProfile"}
+    q : array of 2 floats
+        Start and end position ``q_a, q_b`` (the block's unit).
+    t : array of 2 floats
+        Start and end time ``t_a < t_b`` [s].
+
+    Returns
+    -------
+    dict
+        ``q0 = q_a``, ``q1 = q_b``, ``t_start = t_a`` and, with ``T = t_b - t_a`` and
+        ``d = |q_b - q_a|``: for a QuinticProfile ``T``; for a TrapezoidalProfile
+        ``v_max = 1.5 d/T`` and ``a_max = 4.5 d/T^2`` (accelerating for T/3 reaches
+        ``a_max T/3 = v_max``; cruising T/3 and braking T/3 then cover
+        ``v_max (2T/3) = d``: the move takes exactly T). For d = 0 both are 1 (any
+        positive value: nothing moves).
+    """
+    T = t[1] - t[0]
+    out = {"q0": float(q[0]), "q1": float(q[1]), "t_start": float(t[0])}
+    if typ == "QuinticProfile":
+        out["T"] = float(T)
+    else:
+        dist = abs(q[1] - q[0])
+        out["v_max"] = float(1.5 * dist / T) if dist > 0 else 1.0
+        out["a_max"] = float(4.5 * dist / T ** 2) if dist > 0 else 1.0
+    return out
+
+
+def _joint_path_command(d0, spec, cmd, overrides):
+    """``{"kind": "joint_path", "block", "points", "times"}``: two points set the
+    trajectory block's parameters (:func:`profile_parameters`); more points replace the
+    block by a ``ViaPointProfile`` through them."""
+    opts = [n for n, b in spec.blocks.items() if b.type in PATH_TYPES]
+    name = _pick(opts, cmd.get("block"), "trajectory block (TrapezoidalProfile, "
+                 "QuinticProfile)", spec)
+    q = _numbers(cmd.get("points"), "points", spec)
+    t = _numbers(cmd.get("times"), "times", spec)
+    q, unit = _to_unit(q, cmd.get("unit"), d0.units.get((name, "out", "q")),
+                       f"block '{name}'", spec)
+    if unit is not None:
+        _fail(f"command.unit: the unit of block '{name}''s positions is not fixed by the "
+              f"model; give the points without a unit", spec)
+    _check_path_points(q, t, spec)
+    if len(q) > 2:
+        _refuse_overrides_of(overrides, name, "a joint_path of more than 2 points replaces "
+                                              "by a ViaPointProfile", spec)
+        old = spec.blocks[name]
+        spec.blocks[name] = BlockSpec(name, "ViaPointProfile", {
+            "points": q.tolist(), "times": t.tolist()}, old.line, {})
+        return
+    for param, value in profile_parameters(spec.blocks[name].type, q, t).items():
+        _set(overrides, f"{name}.{param}", value, spec)
+
+
+#: cartesian_line request key -> (TrapezoidalProfile parameter, unit of the value)
+LINE_KEYS = {"distance": ("q1", "m"), "speed": ("v_max", "m/s"), "accel": ("a_max", "m/s2"),
+             "t_start": ("t_start", "s")}
+
+
+def _cartesian_line_command(d0, spec, cmd, overrides):
+    """``{"kind": "cartesian_line", "ik", "direction", "distance", "speed", "accel",
+    "t_start"}``: the direction of the CartesianLineIK block and the parameters of the
+    TrapezoidalProfile feeding its path length (starting at 0)."""
+    pairs = _line_blocks(spec)
+    ik, prof = _pick([{"ik": a, "p": b} for a, b in pairs], cmd.get("ik"),
+                     "straight-line path (CartesianLineIK fed by a TrapezoidalProfile)",
+                     spec, key="ik").values()
+    u = _numbers(cmd.get("direction"), "direction", spec)
+    if len(u) != 3:
+        _fail(f"command.direction must have 3 components, got {len(u)}", spec)
+    _set(overrides, f"{ik}.direction", u.tolist(), spec)
+    _set(overrides, f"{prof}.q0", 0.0, spec)
+    for key, (param, unit) in LINE_KEYS.items():
+        if cmd.get(key) is not None:
+            val = _scalar_with_unit(cmd[key], key, unit, spec)
+            _set(overrides, f"{prof}.{param}", val, spec)
+
+
+def _argument_value(name, k, v, declared, spec):
+    """Value of argument ``k`` of named command ``name``: a ``{"value", "unit"}`` is
+    converted to the unit the command ``declared`` for it (a number or a list stays one);
+    anything else is passed on for the loader to check."""
+    if not (isinstance(v, dict) and declared):
+        # without a declared unit the loader converts a value with a unit to the
+        # parameter's own unit
+        return v
+    if set(v) != {"value", "unit"}:
+        _fail(f"command argument '{k}': a value with a unit is {{\"value\": x, "
+              f"\"unit\": \"{declared}\"}}", spec)
+    x = v["value"]
+    arr = _numbers(x if isinstance(x, list) else [x], f"arguments.{k}", spec)
+    arr = _to_unit(arr, v["unit"], declared, f"argument '{k}'", spec)[0]
+    return arr.tolist() if isinstance(x, list) else float(arr[0])
+
+
+def _named_command(d0, spec, cmd, overrides):
+    """``{"kind": "named", "name", "arguments"}``: a command of the model's ``commands``
+    section: its ``set`` values, the arguments given, then the defaults of those not
+    given. Returns the command's run length (None: the model's)."""
+    cmds = named_commands(spec)
+    name = cmd.get("name")
+    if name not in cmds:
+        _fail(f"command.name: the model declares no command {name!r}; commands: "
+              f"{', '.join(cmds) or 'none'}", spec)
+    c = cmds[name]
+    for k, v in c["set"].items():
+        _set(overrides, str(k), v, spec)
+    _set_arguments(name, c["arguments"], cmd.get("arguments") or {}, overrides, spec)
+    return c["t_end"]
+
+
+def _set_arguments(name, declared, args, overrides, spec):
+    """Set the ``args`` given to named command ``name`` (each must be ``declared``), then
+    the declared defaults of the arguments not given."""
+    if not isinstance(args, dict):
+        _fail("command.arguments must be a mapping", spec)
+    for k, v in args.items():
+        if k not in declared:
+            _fail(f"command '{name}' has no argument '{k}'; arguments: "
+                  f"{', '.join(declared) or 'none'}", spec)
+        _set(overrides, k, _argument_value(name, k, v, declared[k]["unit"], spec), spec)
+    for k, a in declared.items():
+        if k not in args and a["default"] is not None:
+            _set(overrides, k, a["default"], spec)
+
+
+#: command kind -> function(d0, spec, cmd, overrides) -> run length or None
+COMMANDS = {"table": _table_command, "joint_path": _joint_path_command,
+            "cartesian_line": _cartesian_line_command, "named": _named_command}
+
+
 def apply_command(d0, spec, cmd, overrides):
     """Change ``spec`` (block replacements) and ``overrides`` for ``cmd``; return the
-    command's default run length or None."""
+    command's default run length or None.
+
+    Parameters
+    ----------
+    d0 : Diagram
+        The model loaded with the request's parameters (units and parameter values the
+        command reads).
+    spec : DiagramSpec
+        The model's spec, changed in place when a block is replaced.
+    cmd : dict
+        The request's ``command``; ``kind`` selects the function in :data:`COMMANDS`.
+    overrides : dict
+        The request's parameters, completed in place with what the command sets.
+    """
     kind = cmd.get("kind")
-    if kind == "table":
-        name = _pick(_table_blocks(d0, spec), cmd.get("block"), "table-commandable source "
-                     "block", spec)
-        t = _numbers(cmd.get("time"), "time", spec)
-        v = _numbers(cmd.get("value"), "value", spec)
-        if len(t) != len(v):
-            _fail(f"command: 'time' has {len(t)} values and 'value' {len(v)}; give one value "
-                  f"per time", spec)
-        for k in list(overrides):
-            if k.startswith(name + "."):
-                _fail(f"parameter '{k}' belongs to block '{name}', which the table command "
-                      f"replaces", spec)
-        v, unit = _to_unit(v, cmd.get("unit"), d0.units.get((name, "out", "y")),
-                           f"block '{name}'", spec)
-        old = spec.blocks[name]
-        value = v.tolist() if unit is None else {"value": v.tolist(), "unit": unit}
-        spec.blocks[name] = BlockSpec(name, "TimeTable", {"time": t.tolist(),
-                                                          "value": value}, old.line, {})
-        return None
-    if kind == "joint_path":
-        opts = [n for n, b in spec.blocks.items() if b.type in PATH_TYPES]
-        name = _pick(opts, cmd.get("block"), "trajectory block (TrapezoidalProfile, "
-                     "QuinticProfile)", spec)
-        q = _numbers(cmd.get("points"), "points", spec)
-        t = _numbers(cmd.get("times"), "times", spec)
-        q, unit = _to_unit(q, cmd.get("unit"), d0.units.get((name, "out", "q")),
-                           f"block '{name}'", spec)
-        if unit is not None:
-            _fail(f"command.unit: the unit of block '{name}''s positions is not fixed by the "
-                  f"model; give the points without a unit", spec)
-        typ = spec.blocks[name].type
-        if len(q) < 2 or len(q) != len(t):
-            _fail(f"command: give at least 2 points and one time per point, got {len(q)} "
-                  f"points and {len(t)} times", spec)
-        if not (t[0] >= 0 and np.all(np.diff(t) > 0)):
-            _fail(f"command.times must be strictly increasing from t >= 0, got {t.tolist()}",
-                  spec)
-        if len(q) > 2:
-            for k in list(overrides):
-                if k.startswith(name + "."):
-                    _fail(f"parameter '{k}' belongs to block '{name}', which a joint_path of "
-                          f"more than 2 points replaces by a ViaPointProfile", spec)
-            old = spec.blocks[name]
-            spec.blocks[name] = BlockSpec(name, "ViaPointProfile", {
-                "points": q.tolist(), "times": t.tolist()}, old.line, {})
-            return None
-        T = t[1] - t[0]
-        _set(overrides, f"{name}.q0", float(q[0]), spec)
-        _set(overrides, f"{name}.q1", float(q[1]), spec)
-        _set(overrides, f"{name}.t_start", float(t[0]), spec)
-        if typ == "QuinticProfile":
-            _set(overrides, f"{name}.T", float(T), spec)
-        else:
-            dist = abs(q[1] - q[0])
-            _set(overrides, f"{name}.v_max", float(1.5 * dist / T) if dist > 0 else 1.0, spec)
-            _set(overrides, f"{name}.a_max", float(4.5 * dist / T ** 2) if dist > 0 else 1.0,
-                 spec)
-        return None
-    if kind == "cartesian_line":
-        pairs = _line_blocks(spec)
-        ik, prof = _pick([{"ik": a, "p": b} for a, b in pairs], cmd.get("ik"),
-                         "straight-line path (CartesianLineIK fed by a TrapezoidalProfile)",
-                         spec, key="ik").values()
-        u = _numbers(cmd.get("direction"), "direction", spec)
-        if len(u) != 3:
-            _fail(f"command.direction must have 3 components, got {len(u)}", spec)
-        _set(overrides, f"{ik}.direction", u.tolist(), spec)
-        _set(overrides, f"{prof}.q0", 0.0, spec)
-        for key, param, unit in (("distance", "q1", "m"), ("speed", "v_max", "m/s"),
-                                 ("accel", "a_max", "m/s2"), ("t_start", "t_start", "s")):
-            if cmd.get(key) is not None:
-                val = _scalar_with_unit(cmd[key], key, unit, spec)
-                _set(overrides, f"{prof}.{param}", val, spec)
-        return None
-    if kind == "named":
-        cmds = named_commands(spec)
-        name = cmd.get("name")
-        if name not in cmds:
-            _fail(f"command.name: the model declares no command {name!r}; commands: "
-                  f"{', '.join(cmds) or 'none'}", spec)
-        c = cmds[name]
-        for k, v in c["set"].items():
-            _set(overrides, str(k), v, spec)
-        args = cmd.get("arguments") or {}
-        if not isinstance(args, dict):
-            _fail("command.arguments must be a mapping", spec)
-        for k, v in args.items():
-            if k not in c["arguments"]:
-                _fail(f"command '{name}' has no argument '{k}'; arguments: "
-                      f"{', '.join(c['arguments']) or 'none'}", spec)
-            declared = c["arguments"][k]["unit"]
-            if isinstance(v, dict) and declared:
-                # a value with a unit, in the unit the command declares for the argument
-                # (without a declared unit the loader converts to the parameter's own)
-                if set(v) != {"value", "unit"}:
-                    _fail(f"command argument '{k}': a value with a unit is {{\"value\": x, "
-                          f"\"unit\": \"{declared}\"}}", spec)
-                x = v["value"]
-                arr = _numbers(x if isinstance(x, list) else [x], f"arguments.{k}", spec)
-                arr = _to_unit(arr, v["unit"], declared, f"argument '{k}'", spec)[0]
-                v = arr.tolist() if isinstance(x, list) else float(arr[0])
-            _set(overrides, k, v, spec)
-        for k, a in c["arguments"].items():
-            if k not in args and a["default"] is not None:
-                _set(overrides, k, a["default"], spec)
-        return c["t_end"]
-    _fail(f"command.kind must be table, joint_path, cartesian_line or named, got {kind!r}",
-          spec)
+    if not isinstance(kind, str) or kind not in COMMANDS:
+        _fail(f"command.kind must be table, joint_path, cartesian_line or named, got "
+              f"{kind!r}", spec)
+    return COMMANDS[kind](d0, spec, cmd, overrides)
+
+
+def _set_initial_states(d0, initial, overrides, spec):
+    """Initial states ``block.state -> value`` of a request, set through the parameter each
+    state starts from (a state with a fixed initial value cannot be set)."""
+    for name, value in initial.items():
+        path, _, state = str(name).rpartition(".")
+        bl = d0.layout.blocks.get(path)
+        decl = bl.cls.states.get(state) if bl is not None else None
+        if decl is None:
+            _fail(f"initial: no state '{name}' (write block.state, e.g. motor.w)", spec)
+        if not (isinstance(decl.initial, str) and decl.initial in bl.cls.parameters):
+            _fail(f"initial: state '{name}' of {bl.cls.type_name} starts from a fixed "
+                  f"value, not from a parameter; it cannot be set", spec)
+        _set(overrides, f"{path}.{decl.initial}", value, spec)
+
+
+def _log_only(spec, log):
+    """Record only the signals ``log``; plots of signals not recorded are dropped."""
+    from spidersim.plots import split_signal
+    spec.log = list(log)
+    logged = set(spec.log)
+    spec.plots = [p for p in spec.plots if isinstance(p, dict) and all(
+        split_signal(s)[0] in logged for s in p.get("signals", []))]
+
+
+def _run_length(req, t_cmd, d, spec):
+    """The run length [s]: the request's ``t_end``, else the command's, else the model's;
+    it must be a positive finite number."""
+    t_end = req.get("t_end")
+    if t_end is None:
+        t_end = t_cmd if t_cmd is not None else d.simulation["t_end"]
+    t_end = float(t_end)
+    if not (np.isfinite(t_end) and t_end > 0):
+        _fail(f"t_end must be a positive number of seconds, got {t_end}", spec)
+    return t_end
 
 
 def prepare(model, req):
@@ -346,27 +471,8 @@ def prepare(model, req):
         d0 = spidersim.Diagram(spec, dict(overrides))
         if req.get("command"):
             t_cmd = apply_command(d0, spec, dict(req["command"]), overrides)
-        for name, value in (req.get("initial") or {}).items():
-            path, _, state = str(name).rpartition(".")
-            bl = d0.layout.blocks.get(path)
-            decl = bl.cls.states.get(state) if bl is not None else None
-            if decl is None:
-                _fail(f"initial: no state '{name}' (write block.state, e.g. motor.w)", spec)
-            if not (isinstance(decl.initial, str) and decl.initial in bl.cls.parameters):
-                _fail(f"initial: state '{name}' of {bl.cls.type_name} starts from a fixed "
-                      f"value, not from a parameter; it cannot be set", spec)
-            _set(overrides, f"{path}.{decl.initial}", value, spec)
+        _set_initial_states(d0, req.get("initial") or {}, overrides, spec)
     if req.get("log"):
-        spec.log = list(req["log"])
-        logged = set(spec.log)
-        from spidersim.plots import split_signal
-        spec.plots = [p for p in spec.plots if isinstance(p, dict) and all(
-            split_signal(s)[0] in logged for s in p.get("signals", []))]
+        _log_only(spec, req["log"])
     d = spidersim.Diagram(spec, overrides)
-    t_end = req.get("t_end")
-    if t_end is None:
-        t_end = t_cmd if t_cmd is not None else d.simulation["t_end"]
-    t_end = float(t_end)
-    if not (np.isfinite(t_end) and t_end > 0):
-        _fail(f"t_end must be a positive number of seconds, got {t_end}", spec)
-    return d, t_end
+    return d, _run_length(req, t_cmd, d, spec)

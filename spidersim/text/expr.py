@@ -88,58 +88,108 @@ def evaluate(text: str, names: dict):
     return value
 
 
-def _eval(node, names, text):
-    if isinstance(node, ast.Constant):
-        if isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
-            try:
-                return float(node.value)   # floats only: no huge-integer arithmetic
-            except OverflowError:
-                raise ExprError(f"number too large in '{text}'") from None
-        raise ExprError(f"only numbers are allowed in '{text}', got {node.value!r}")
-    if isinstance(node, ast.Name):
-        if node.id in names:
-            return names[node.id]
-        if node.id in CONSTANTS:
-            return CONSTANTS[node.id]
-        known = list(names) + list(CONSTANTS)
-        near = difflib.get_close_matches(node.id, known, n=3)
-        hint = f"; did you mean {', '.join(near)}?" if near else ""
-        raise ExprError(f"unknown name '{node.id}' in '{text}'{hint}")
-    if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
-        a, b = _eval(node.left, names, text), _eval(node.right, names, text)
-        if isinstance(a, int) and not isinstance(a, bool):
-            a = float(a)
-        if isinstance(b, int) and not isinstance(b, bool):
-            b = float(b)
-        if isinstance(a, list) or isinstance(b, list):
-            a, b = np.asarray(a, float), np.asarray(b, float)
-            return _BINOPS[type(node.op)](a, b).tolist()
-        return _BINOPS[type(node.op)](a, b)
-    if isinstance(node, ast.UnaryOp) and type(node.op) in _UNOPS:
-        v = _eval(node.operand, names, text)
-        if isinstance(v, list):
-            return _UNOPS[type(node.op)](np.asarray(v, float)).tolist()
-        return _UNOPS[type(node.op)](v)
-    if isinstance(node, (ast.List, ast.Tuple)):
-        return [_eval(e, names, text) for e in node.elts]
-    if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name):
-        seq = _eval(node.value, names, text)
-        idx = _eval(node.slice, names, text)
-        if isinstance(idx, float) and idx.is_integer():
-            idx = int(idx)
-        if not isinstance(seq, list) or not isinstance(idx, int):
-            raise ExprError(f"only list[int] indexing is allowed in '{text}'")
+def _not_allowed(node, text):
+    """The error for a syntax element the evaluator does not accept."""
+    return ExprError(f"'{ast.unparse(node)}' is not allowed in a parameter expression "
+                     f"('{text}'): use numbers, parameter names, + - * / ** and math "
+                     f"functions")
+
+
+def _constant(node, names, text):
+    """A number literal, as a float (no huge-integer arithmetic); strings, booleans and
+    ``None`` are refused."""
+    if isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
         try:
-            return seq[idx]
-        except IndexError:
-            raise ExprError(f"index {idx} out of range in '{text}'") from None
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
-        fn = FUNCTIONS.get(node.func.id)
-        if fn is None:
-            raise ExprError(f"unknown function '{node.func.id}' in '{text}' "
-                            f"(allowed: {', '.join(sorted(FUNCTIONS))})")
-        return fn(*[_eval(a, names, text) for a in node.args])
-    raise ExprError(f"'{ast.unparse(node)}' is not allowed in a parameter expression "
-                    f"('{text}'): use numbers, parameter names, + - * / ** and math functions")
+            return float(node.value)
+        except OverflowError:
+            raise ExprError(f"number too large in '{text}'") from None
+    raise ExprError(f"only numbers are allowed in '{text}', got {node.value!r}")
 
 
+def _name(node, names, text):
+    """A parameter of ``names`` or one of :data:`CONSTANTS` (parameters first); an unknown
+    name suggests the nearest ones."""
+    if node.id in names:
+        return names[node.id]
+    if node.id in CONSTANTS:
+        return CONSTANTS[node.id]
+    known = list(names) + list(CONSTANTS)
+    near = difflib.get_close_matches(node.id, known, n=3)
+    hint = f"; did you mean {', '.join(near)}?" if near else ""
+    raise ExprError(f"unknown name '{node.id}' in '{text}'{hint}")
+
+
+def _int_as_float(v):
+    """An int operand (not a bool) as a float, anything else unchanged."""
+    return float(v) if isinstance(v, int) and not isinstance(v, bool) else v
+
+
+def _binop(node, names, text):
+    """``a op b`` for ``+ - * / // % **``; with a list on either side, element-wise
+    (numpy broadcasting) and a list again."""
+    op = _BINOPS.get(type(node.op))
+    if op is None:
+        raise _not_allowed(node, text)
+    a = _int_as_float(_eval(node.left, names, text))
+    b = _int_as_float(_eval(node.right, names, text))
+    if isinstance(a, list) or isinstance(b, list):
+        return op(np.asarray(a, float), np.asarray(b, float)).tolist()
+    return op(a, b)
+
+
+def _unaryop(node, names, text):
+    """``-v`` or ``+v``; element-wise for a list."""
+    op = _UNOPS.get(type(node.op))
+    if op is None:
+        raise _not_allowed(node, text)
+    v = _eval(node.operand, names, text)
+    if isinstance(v, list):
+        return op(np.asarray(v, float)).tolist()
+    return op(v)
+
+
+def _sequence(node, names, text):
+    """``[a, b, ...]`` or ``(a, b, ...)``: a list of the evaluated elements."""
+    return [_eval(e, names, text) for e in node.elts]
+
+
+def _subscript(node, names, text):
+    """``name[i]``: element ``i`` (an integer value) of a list parameter."""
+    if not isinstance(node.value, ast.Name):
+        raise _not_allowed(node, text)
+    seq = _eval(node.value, names, text)
+    idx = _eval(node.slice, names, text)
+    if isinstance(idx, float) and idx.is_integer():
+        idx = int(idx)
+    if not isinstance(seq, list) or not isinstance(idx, int):
+        raise ExprError(f"only list[int] indexing is allowed in '{text}'")
+    try:
+        return seq[idx]
+    except IndexError:
+        raise ExprError(f"index {idx} out of range in '{text}'") from None
+
+
+def _call(node, names, text):
+    """``f(a, ...)`` for ``f`` in :data:`FUNCTIONS` (positional arguments only)."""
+    if not isinstance(node.func, ast.Name) or node.keywords:
+        raise _not_allowed(node, text)
+    fn = FUNCTIONS.get(node.func.id)
+    if fn is None:
+        raise ExprError(f"unknown function '{node.func.id}' in '{text}' "
+                        f"(allowed: {', '.join(sorted(FUNCTIONS))})")
+    return fn(*[_eval(a, names, text) for a in node.args])
+
+
+#: syntax node type -> its evaluator ``f(node, names, text)``; any other node is refused
+_EVALUATORS = {ast.Constant: _constant, ast.Name: _name, ast.BinOp: _binop,
+               ast.UnaryOp: _unaryop, ast.List: _sequence, ast.Tuple: _sequence,
+               ast.Subscript: _subscript, ast.Call: _call}
+
+
+def _eval(node, names, text):
+    """Value of syntax node ``node`` with parameters ``names`` (``text``: the whole
+    expression, for messages); only the node types of :data:`_EVALUATORS` are accepted."""
+    evaluator = _EVALUATORS.get(type(node))
+    if evaluator is None:
+        raise _not_allowed(node, text)
+    return evaluator(node, names, text)

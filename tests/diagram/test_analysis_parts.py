@@ -1,0 +1,95 @@
+"""The parts of linearization and trim (spidersim.diagram.analysis) that work on the flat
+diagram or on plain arrays: analysis-point insertion, derivative selection, residual check.
+Nothing is compiled; whole linearizations are tests/solver/test_linearize.py."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import spidersim
+from spidersim.diagram import analysis as A
+from spidersim.diagram.analysis import AnalysisError
+
+CHAIN = """\
+blocks:
+  u: {type: Constant, value: [1, 2]}
+  g: {type: Gain, k: 2}
+  h: {type: Gain, k: 3}
+  s: {type: Selector, index: [1]}
+connections: [u.y -> g.u, u.y -> s.u, g.y -> h.u]
+"""
+
+
+def test_input_point_feeds_every_reader_of_the_signal_through_a_sum():
+    """An input at ``u.y`` adds a Constant perturbation and a Sum; both readers of u.y now
+    read the Sum, which reads u.y itself; nothing else is rewired."""
+    d = spidersim.loads(CHAIN)
+    blocks = dict(d.flat.blocks)
+    conns, p = A._insert_point(blocks, list(d.flat.conns), 0, "u.y", "input",
+                               A._signal_ref(d, "u.y"), d)
+    assert (p.delta, p.op_const, p.kind) == ("__lin_d0", None, "input")
+    assert blocks["__lin_d0"].params["value"].tolist() == [0.0, 0.0]
+    edges = {(c.src[0], c.dst) for c in conns}
+    assert {("__lin_s0", ("g", "u")), ("__lin_s0", ("s", "u")), ("u", ("__lin_s0", "u1")),
+            ("__lin_d0", ("__lin_s0", "u2")), ("g", ("h", "u"))} == edges
+    assert len(d.flat.conns) == 3                     # the diagram's own list is untouched
+    conns, _ = A._insert_point(dict(d.flat.blocks), list(d.flat.conns), 0, "u.y[1]",
+                               "input", A._signal_ref(d, "u.y[1]"), d)
+    assert ("u", "y", 1, 2) in [c.src for c in conns if c.dst == ("__lin_s0", "u1")]
+
+
+def test_opening_reads_the_operating_value_and_needs_a_reader():
+    """An opening at ``g.y`` feeds h from a Constant (the operating value) plus the
+    perturbation, so g.y no longer reaches h; a signal nobody reads cannot be opened."""
+    d = spidersim.loads(CHAIN)
+    conns, p = A._insert_point(dict(d.flat.blocks), list(d.flat.conns), 1, "g.y", "open",
+                               A._signal_ref(d, "g.y"), d)
+    assert p.op_const == "__lin_op1"
+    assert not any(c.src[0] == "g" for c in conns)
+    assert any(c.src[0] == "__lin_op1" and c.dst == ("__lin_s1", "u1") for c in conns)
+    with pytest.raises(AnalysisError, match="cannot open 'h.y': it is not a connection"):
+        A._insert_point({}, list(d.flat.conns), 0, "h.y", "open", A._signal_ref(d, "h.y"), d)
+
+
+def test_consumers_match_the_slice_exactly():
+    """Only connections reading the whole signal (or exactly the slice) are consumers of
+    it: the reader of ``u.y`` is not a consumer of ``u.y[1]``."""
+    d = spidersim.loads(CHAIN)
+    assert {c.dst for c in A._consumers(d.flat.conns, A._signal_ref(d, "u.y"), d)} == {
+        ("g", "u"), ("s", "u")}
+    assert A._consumers(d.flat.conns, A._signal_ref(d, "u.y[1]"), d) == []
+
+
+def test_derivative_rows():
+    """``"all"`` is every state; ``block.state`` covers all its elements, ``[i]`` one; an
+    unknown name suggests near ones."""
+    d = SimpleNamespace(layout=SimpleNamespace(n_x=5), file="d.yaml")
+    names = ["m.w", "arm.q[0]", "arm.q[1]", "m.i", "m.w2"]
+    assert A._derivative_rows(d, "all", names) == [0, 1, 2, 3, 4]
+    assert A._derivative_rows(d, ["arm.q", "m.i"], names) == [1, 2, 3]
+    assert A._derivative_rows(d, ["m.w"], names) == [0]
+    assert A._derivative_rows(d, ["arm.q[1]"], names) == [2]
+    with pytest.raises(AnalysisError, match="unknown state 'm.ww'; did you mean m.w"):
+        A._derivative_rows(d, ["m.ww"], names)
+
+
+def test_trim_residual_check_names_the_largest():
+    """Residuals within the tolerance pass; otherwise the error lists the largest first
+    with the solver's message; a NaN residual never passes."""
+    d, sol = SimpleNamespace(file="d.yaml"), SimpleNamespace(message="stalled")
+    resid = {"d/dt a": 1e-12, "d/dt b": -3e-3, "y": 2e-4}
+    A._check_trim_residuals(d, np.array([1e-12]), {"d/dt a": 1e-12}, sol, 1e-10)
+    with pytest.raises(AnalysisError, match=r"\(stalled\); largest residuals: d/dt b = "
+                                            r"-0\.003, y = 0\.0002, d/dt a = 1e-12"):
+        A._check_trim_residuals(d, np.array(list(resid.values())), resid, sol, 1e-10)
+    with pytest.raises(AnalysisError):
+        A._check_trim_residuals(d, np.array([np.nan]), {"x": np.nan}, sol, 1e-10)
+
+
+def test_named_inputs_scalars_and_vectors():
+    """The free inputs' solution is split by name: a scalar input as a float, a vector as
+    an array of its size."""
+    lin = SimpleNamespace(in_p=[("a", 10, 11), ("b", 20, 23)])
+    out = A._named_inputs(lin, np.array([1.5, 2.0, 3.0, 4.0]))
+    assert out["a"] == 1.5 and isinstance(out["a"], float)
+    np.testing.assert_array_equal(out["b"], [2.0, 3.0, 4.0])

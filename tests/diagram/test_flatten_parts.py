@@ -1,0 +1,188 @@
+"""The parts of subsystem flattening (spidersim.diagram.flatten), each on a tiny diagram.
+
+These run the parts alone on specs parsed from short texts: no compilation, no port graph.
+Whole diagrams with subsystems are covered by test_subsystem_errors.py and test_errors.py.
+"""
+import pytest
+
+from spidersim.diagram import flatten as F
+from spidersim.diagram.spec import Address, parse_text
+from spidersim.errors import ParameterError, WiringError
+
+TWO_GAINS = """\
+parameters: {k0: 2}
+blocks:
+  a: {type: Gain, k: k0}
+  b: {type: Gain, k: {value: 3, unit: mm}}
+connections:
+  - a.y -> b.u
+"""
+
+
+def level(text, prefix=""):
+    """A fresh :class:`_Level` for the diagram ``text`` with an empty flat diagram."""
+    spec = parse_text(text)
+    scope, _ = F.eval_parameters(spec, {}, prefix)
+    return F._Level(spec, prefix, scope, F.Flat({}, [], {}), [], set())
+
+
+def test_overrides_split_by_block():
+    """``b.p`` is the block's own override, ``b.x.p`` goes deeper, other blocks' entries are
+    left out; each keeps the key as written."""
+    ov = F._overrides_for("j1", {"j1.R": 1, "j1.motor.R": 2, "j2.R": 3, "j10.R": 4})
+    assert ov.own == {"R": ("j1.R", 1)}
+    assert ov.deeper == {"motor.R": ("j1.motor.R", 2)}
+
+
+def test_override_of_an_unknown_block_names_the_level_and_near_blocks():
+    """An override whose first part is no block of the level is refused, naming the
+    subsystem instance it was looked up in and the closest block names."""
+    spec = parse_text(TWO_GAINS)
+    with pytest.raises(ParameterError, match=r"--set j1\.aa\.k: there is no block 'aa' in "
+                                             r"'j1'; did you mean a\?"):
+        F._check_override_targets(spec, "j1.", {"aa.k": 1})
+    with pytest.raises(ParameterError, match="in the diagram"):
+        F._check_override_targets(spec, "", {"c.k": 1})
+
+
+def test_block_values_overrides_win_and_are_marked_used():
+    """A block's file value is evaluated in the level's scope, an override replaces it and
+    its key is recorded as used; a unit given for an inherited-unit parameter is kept."""
+    lv = level(TWO_GAINS)
+    cls = F._block_class(lv.spec, lv.spec.blocks["a"], "a")
+    values, units = F._block_values(lv, lv.spec.blocks["a"], "a", cls, {})
+    assert values == {"k": 2} and units == {} and lv.used == set()
+    values, units = F._block_values(lv, lv.spec.blocks["a"], "a", cls, {"k": ("a.k", "k0*5")})
+    assert values == {"k": 10} and units == {}
+    assert lv.used == {"a.k"}
+    values, units = F._block_values(lv, lv.spec.blocks["b"], "b", cls, {})
+    assert values == {"k": 3} and units == {"k": "mm"}
+
+
+def test_block_values_unknown_override_parameter():
+    """An override of a parameter the block type does not have names the type, the nearest
+    parameter and the list of parameters."""
+    lv = level(TWO_GAINS)
+    cls = F._block_class(lv.spec, lv.spec.blocks["a"], "a")
+    with pytest.raises(ParameterError, match=r"--set a\.kk: block type Gain has no parameter "
+                                             r"'kk'; did you mean k\? \(parameters: k\)"):
+        F._block_values(lv, lv.spec.blocks["a"], "a", cls, {"kk": ("a.kk", 1)})
+
+
+def test_instantiate_block_validates_and_records_the_instance():
+    """A primitive block becomes an Instance with validated parameters (floats) and its
+    file line; an override aimed deeper into it is refused (it is not a subsystem)."""
+    lv = level(TWO_GAINS)
+    F._instantiate_block(lv, "a", lv.spec.blocks["a"], F.BlockOverrides({}, {}))
+    inst = lv.flat.blocks["a"]
+    assert (inst.path, inst.cls.type_name, inst.params["k"], inst.line) == ("a", "Gain", 2.0, 3)
+    with pytest.raises(ParameterError, match="'b' is a Gain block, not a subsystem"):
+        F._instantiate_block(lv, "b", lv.spec.blocks["b"],
+                             F.BlockOverrides({}, {"x.k": ("b.x.k", 1)}))
+
+
+def test_addresses_through_a_subsystem_port_map():
+    """A slice of a subsystem output is taken inside the slice the output exposes; a
+    subsystem input resolves to every primitive input it feeds; a primitive address just
+    gets the prefix."""
+    spec = parse_text(TWO_GAINS)
+    subs = {"s": F.PortMaps({"u": [("p.s.g1", "u"), ("p.s.g2", "u")]},
+                            {"y": ("p.s.mux", "y", 2, 5)})}
+    addr = F._LocalAddresses(spec, "p.", subs)
+    assert addr.source(Address("s", "y"), 1) == ("p.s.mux", "y", 2, 5)
+    assert addr.source(Address("s", "y", 1, 3), 1) == ("p.s.mux", "y", 3, 5)
+    assert addr.source(Address("a", "y", 0, 1), 1) == ("p.a", "y", 0, 1)
+    assert addr.destinations(Address("s", "u"), 1) == [("p.s.g1", "u"), ("p.s.g2", "u")]
+    assert addr.destinations(Address("b", "u"), 1) == [("p.b", "u")]
+
+
+@pytest.mark.parametrize("call,words", [
+    (lambda a: a.source(Address("s", "z"), 9), "subsystem instance 's' has no output 'z' "
+                                               "(outputs: y)"),
+    (lambda a: a.destinations(Address("s", "v"), 9), "has no input 'v' (inputs: none)"),
+    (lambda a: a.source(Address("aa", "y"), 9), "unknown block 'aa'; did you mean a?"),
+])
+def test_address_errors(call, words):
+    """Unknown subsystem ports list the ports there are; an unknown block suggests near
+    names; all at the connection's line."""
+    subs = {"s": F.PortMaps({}, {"y": ("s.g", "y", None, None)})}
+    with pytest.raises(WiringError) as ei:
+        call(F._LocalAddresses(parse_text(TWO_GAINS), "", subs))
+    assert words in str(ei.value) and ei.value.line == 9
+
+
+def test_exposed_inputs_record_their_targets():
+    """An exposed input maps to the primitive inputs it feeds and each is recorded in
+    ``flat.exposed`` with the instance path, the exposed name and the line; a port the
+    block does not have is a wiring error naming the block's inputs."""
+    text = "blocks:\n  g: {type: Gain}\n  h: {type: Gain}\ninputs:\n  u: [g.u, h.u]\n"
+    lv = level(text, prefix="j1.")
+    for name in ("g", "h"):
+        F._instantiate_block(lv, name, lv.spec.blocks[name], F.BlockOverrides({}, {}))
+    addr = F._LocalAddresses(lv.spec, "j1.", {})
+    assert F._exposed_inputs(lv, addr) == {"u": [("j1.g", "u"), ("j1.h", "u")]}
+    assert lv.flat.exposed[("j1.h", "u")] == ("j1", "u", "<string>", 5)
+    lv.spec.inputs["v"] = [Address("g", "w")]
+    lv.spec.port_lines[("in", "v")] = 6
+    with pytest.raises(WiringError, match=r"block 'g' \(Gain\) has no input 'w'; inputs: u"):
+        F._exposed_inputs(lv, addr)
+
+
+def test_unit_factor_to_declared_unit_or_si():
+    """mOhm -> Ohm is 1e-3; rpm -> rad/s is 2 pi/60; without a declaration a value goes to
+    coherent SI (deg -> rad: pi/180); an inherited unit converts nothing and is recorded;
+    an int parameter takes no unit."""
+    import math
+
+    from spidersim.blocks.base import Param
+    from spidersim.text.units import UnitError
+    assert F._unit_factor("mOhm", Param(1.0, "Ohm"), None) == pytest.approx(1e-3, rel=1e-15)
+    assert F._unit_factor("rpm", Param(1.0, "rad/s"), None) == pytest.approx(
+        2 * math.pi / 60, rel=1e-15)
+    assert F._unit_factor("deg", None, None) == pytest.approx(math.pi / 180, rel=1e-15)
+    seen = []
+    assert F._unit_factor("N.m", Param(1.0, "*"), seen.append) is None and seen == ["N.m"]
+    with pytest.raises(UnitError, match="a int parameter takes no unit"):
+        F._unit_factor("m", Param(1, kind="int"), None)
+    with pytest.raises(UnitError):
+        F._unit_factor("V", Param(1.0, "Ohm"), None)
+
+
+def test_plain_values():
+    """Expressions see the scope, lists are evaluated element by element, numbers and
+    booleans stay; an empty entry says so."""
+    from spidersim.text.expr import ExprError
+    assert F._plain_value("2*a", {"a": 1.5}, "f", 1, "p") == 3.0
+    assert F._plain_value([1, "a", True], {"a": 1.5}, "f", 1, "p") == [1, 1.5, True]
+    with pytest.raises(ExprError, match="no value given"):
+        F._plain_value(None, {}, "f", 1, "p")
+    with pytest.raises(ParameterError, match="p: no value given"):
+        F._plain_value([None], {}, "f", 1, "p")
+
+
+def test_top_level_overrides_are_evaluated_and_marked_used():
+    """Only keys without a dot are top-level; they are evaluated without a scope (so an
+    expression of numbers works) and marked used; an unknown one suggests near names."""
+    spec = parse_text(TWO_GAINS)
+    used = set()
+    assert F._top_level_given(spec, {"k0": "3*2", "a.k": 1}, used) == {"k0": 6.0}
+    assert used == {"k0"}
+    with pytest.raises(ParameterError, match=r"--set k00: the diagram has no parameter 'k00'; "
+                                             r"did you mean k0\?"):
+        F._top_level_given(spec, {"k00": 1}, set())
+
+
+def test_quantity_converts_numbers_and_lists():
+    """1500 mOhm for an Ohm parameter is 1.5; [90, 180] deg for a diagram parameter is
+    [pi/2, pi] rad; a boolean with a unit that needs converting is refused."""
+    import math
+
+    from spidersim.blocks.base import Param
+    assert F._quantity({"value": 1500, "unit": "mOhm"}, {}, Param(1.0, "Ohm"), "f", 1, "p",
+                       None, None) == pytest.approx(1.5, rel=1e-15)
+    np_rad = F._quantity({"value": [90, 180], "unit": "deg"}, {}, None, "f", 1, "p", None,
+                         None)
+    assert np_rad == pytest.approx([math.pi / 2, math.pi], rel=1e-15)
+    with pytest.raises(ParameterError, match="a value with a unit must be a number"):
+        F._quantity({"value": True, "unit": "mOhm"}, {}, Param(1.0, "Ohm"), "f", 1, "p",
+                    None, None)

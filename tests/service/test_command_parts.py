@@ -1,0 +1,158 @@
+"""The parts of the service's command translation (spidersim.service.commands), alone.
+
+Each command kind is a function of (model, spec, command, overrides); here the model is a
+stand-in holding only what the commands read (inferred units, parameter values, state
+declarations), and the spec is parsed from a few lines: no Diagram is built, nothing is
+compiled, no server runs. Whole requests on the shipped models are test_commands.py.
+"""
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from spidersim.blocks.base import State
+from spidersim.diagram.spec import parse_text
+from spidersim.errors import ParameterError
+from spidersim.service import commands as C
+
+MODEL = """\
+blocks:
+  ref: {type: Step}
+  path: {type: TrapezoidalProfile}
+  g: {type: Gain}
+connections: [ref.y -> g.u]
+commands:
+  step:
+    doc: a step
+    set: {ref.t_step: 0.5}
+    arguments:
+      ref.after: {doc: final value, unit: rad}
+      g.k: {default: 2}
+    t_end: 3
+"""
+
+
+def fake_model(units=None):
+    """What the commands read from a loaded model: units and the Step's parameters."""
+    return SimpleNamespace(units=units or {},
+                           blocks={"ref": SimpleNamespace(params={"value": 1.0})})
+
+
+def test_trapezoid_parameters_take_exactly_the_given_time():
+    """Hand derivation: accelerating at a_max for t_a = v_max/a_max, cruising, braking
+    t_a; distance v_max (T - t_a). With v_max = 1.5 d/T and a_max = 4.5 d/T^2 the
+    acceleration phase is T/3 and the distance is d, to rounding."""
+    q, t = np.array([0.2, -0.4]), np.array([0.3, 1.5])
+    p = C.profile_parameters("TrapezoidalProfile", q, t)
+    T, d = 1.2, 0.6
+    t_acc = p["v_max"] / p["a_max"]
+    assert t_acc == pytest.approx(T / 3, rel=1e-12)
+    assert p["v_max"] * (T - t_acc) == pytest.approx(d, rel=1e-12)
+    assert (p["q0"], p["q1"], p["t_start"]) == (0.2, -0.4, 0.3)
+    assert C.profile_parameters("QuinticProfile", q, t) == {
+        "q0": 0.2, "q1": -0.4, "t_start": 0.3, "T": pytest.approx(T, rel=1e-12)}
+    still = C.profile_parameters("TrapezoidalProfile", np.array([1.0, 1.0]), t)
+    assert still["v_max"] > 0 and still["a_max"] > 0          # valid even with no move
+
+
+def test_table_replaces_the_source_in_the_inferred_unit():
+    """A table given in degrees for a source whose output the model infers in rad becomes
+    a TimeTable with the values times pi/180; request parameters of that block are
+    refused (the block is gone)."""
+    spec = parse_text(MODEL)
+    C._table_command(fake_model({("ref", "out", "y"): "rad"}), spec,
+                     {"time": [0, 1], "value": [0, 90], "unit": "deg"}, {})
+    b = spec.blocks["ref"]
+    assert b.type == "TimeTable" and b.params["time"] == [0.0, 1.0]
+    np.testing.assert_allclose(b.params["value"], [0.0, math.pi / 2], rtol=1e-15)
+    with pytest.raises(ParameterError, match="'ref.after' belongs to block 'ref', which "
+                                             "the table command replaces"):
+        C._table_command(fake_model(), parse_text(MODEL), {"time": [0], "value": [1]},
+                         {"ref.after": 2})
+
+
+def test_joint_path_of_three_points_is_a_via_point_profile():
+    """More than two points replace the trajectory block by a ViaPointProfile through
+    them; two points only set its parameters; times must increase from t >= 0."""
+    spec = parse_text(MODEL)
+    C._joint_path_command(fake_model(), spec, {"points": [0, 1, 0.5],
+                                               "times": [0, 1, 2]}, {})
+    assert spec.blocks["path"].type == "ViaPointProfile"
+    assert spec.blocks["path"].params == {"points": [0, 1, 0.5], "times": [0, 1, 2]}
+    over = {}
+    C._joint_path_command(fake_model(), parse_text(MODEL), {"points": [0, 1],
+                                                            "times": [0, 2]}, over)
+    assert over == {"path.q0": 0.0, "path.q1": 1.0, "path.t_start": 0.0,
+                    "path.v_max": 0.75, "path.a_max": 1.125}
+    with pytest.raises(ParameterError, match="strictly increasing from t >= 0"):
+        C._check_path_points(np.array([0, 1]), np.array([1.0, 1.0]), None)
+
+
+def test_named_command_sets_arguments_and_defaults():
+    """A named command sets its fixed values, the arguments given (a value with a unit is
+    converted to the unit the command declares) and the defaults of the others; it returns
+    its run length."""
+    over = {}
+    t_end = C._named_command(fake_model(), parse_text(MODEL), {
+        "name": "step", "arguments": {"ref.after": {"value": 180, "unit": "deg"}}}, over)
+    assert t_end == 3
+    assert over == {"ref.t_step": 0.5, "ref.after": pytest.approx(math.pi, rel=1e-15),
+                    "g.k": 2}
+    with pytest.raises(ParameterError, match="has no argument 'x'; arguments: ref.after, g.k"):
+        C._named_command(fake_model(), parse_text(MODEL), {"name": "step",
+                                                           "arguments": {"x": 1}}, {})
+    with pytest.raises(ParameterError, match="'ref.t_step' is set by the command"):
+        C._named_command(fake_model(), parse_text(MODEL), {"name": "step"},
+                         {"ref.t_step": 1})
+
+
+def test_argument_value_units():
+    """A list with a unit stays a list, a number a float; without a declared unit the value
+    is passed on unchanged (the loader converts it); a malformed one names the form."""
+    assert C._argument_value("c", "a", {"value": [1, 2], "unit": "km"}, "m", None) == [
+        1000.0, 2000.0]
+    assert C._argument_value("c", "a", {"value": 5, "unit": "ms"}, "s", None) == 0.005
+    raw = {"value": 5, "unit": "ms"}
+    assert C._argument_value("c", "a", raw, "", None) is raw
+    with pytest.raises(ParameterError, match=r'a value with a unit is \{"value": x, "unit": "s"\}'):
+        C._argument_value("c", "a", {"value": 5}, "s", None)
+
+
+@pytest.mark.parametrize("kind", ["bogus", None, ["table"], {"a": 1}])
+def test_unknown_command_kind(kind):
+    """Any kind that is not one of the four (also a list or a mapping from JSON) is a
+    ParameterError listing the kinds, not a TypeError."""
+    with pytest.raises(ParameterError, match="command.kind must be table, joint_path, "
+                                             "cartesian_line or named"):
+        C.apply_command(fake_model(), parse_text(MODEL), {"kind": kind}, {})
+
+
+def test_named_commands_section_checks():
+    """Entries must be mappings with known keys; a list of argument names is accepted."""
+    entry = C._command_entry("c", {"arguments": ["a.x"], "t_end": 2}, None, 5)
+    assert entry["arguments"] == {"a.x": {"doc": "", "unit": "", "default": None}}
+    with pytest.raises(ParameterError, match="unknown key\\(s\\) dco; keys are doc") as ei:
+        C._command_entry("c", {"dco": "x"}, SimpleNamespace(file="m.yaml"), 5)
+    assert ei.value.line == 5
+
+
+def test_initial_states_through_their_parameters_and_run_length():
+    """An initial state is set through the parameter it starts from; a state with a fixed
+    start is refused. The run length is the request's, else the command's, else the
+    model's, and must be positive."""
+    class Motor:
+        type_name = "Motor"
+        parameters = {"w0": None}
+        states = {"w": State(initial="w0"), "i": State(initial=0.0)}
+    d0 = SimpleNamespace(layout=SimpleNamespace(blocks={"m": SimpleNamespace(cls=Motor)}))
+    over = {}
+    C._set_initial_states(d0, {"m.w": 3.0}, over, None)
+    assert over == {"m.w0": 3.0}
+    with pytest.raises(ParameterError, match="starts from a fixed value"):
+        C._set_initial_states(d0, {"m.i": 1.0}, {}, None)
+    d = SimpleNamespace(simulation={"t_end": 7.0})
+    assert [C._run_length({"t_end": 2}, 5, d, None), C._run_length({}, 5, d, None),
+            C._run_length({}, None, d, None)] == [2.0, 5.0, 7.0]
+    with pytest.raises(ParameterError, match="t_end must be a positive number"):
+        C._run_length({"t_end": -1}, None, d, None)

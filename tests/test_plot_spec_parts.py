@@ -1,0 +1,80 @@
+"""The parts of the plot-entry check (spidersim.plots.check_plot_specs), alone on small
+entries and logged-signal tables: nothing is simulated or drawn. The hostile corpus checks
+the same messages through ``spidersim check``."""
+import pytest
+
+from spidersim import plots as P
+from spidersim.errors import DiagramError
+from spidersim.text.yamlio import load_text
+
+SIZES = {"arm.q": 7, "motor.w": 1}
+
+
+def test_entry_lines_prefer_the_entrys_own():
+    """A mapping read from YAML carries its line; otherwise the list of entry lines gives
+    it; past the end of that list there is none."""
+    doc = load_text("plots:\n  - {signals: [motor.w]}\n", "f.yaml")
+    assert P._entry_line(doc["plots"][0], 0, [9]) == 2
+    assert P._entry_line({}, 0, [9]) == 9
+    assert P._entry_line({}, 1, [9]) is None
+
+
+def test_keys_and_kind_are_checked_before_values():
+    """Unknown keys are named at their own line, with the list of keys; an unknown kind
+    lists the kinds; a valid entry returns its kind (``time`` by default)."""
+    doc = load_text("plots:\n  - signals: [motor.w]\n    colour: red\n", "f.yaml")
+    with pytest.raises(DiagramError, match="plots\\[0\\]: unknown key 'colour'") as ei:
+        P._check_plot_keys(doc["plots"][0], 0, "f.yaml", 2)
+    assert ei.value.line == 3
+    with pytest.raises(DiagramError, match="unknown kind 'bode' \\(kinds: time, spectrum"):
+        P._check_plot_keys({"kind": "bode"}, 0, "f.yaml", 2)
+    assert P._check_plot_keys({"signals": []}, 0, None, None) == "time"
+
+
+@pytest.mark.parametrize("entry,words", [
+    ({"t_min": "a"}, "'t_min' must be a finite number of seconds, got 'a'"),
+    ({"t_max": True}, "'t_max' must be a finite number"),
+    ({"f_max": float("inf")}, "'f_max' must be a finite number of seconds (Hz)"),
+    ({"peaks": 21}, "'peaks' must be an integer 0..20, got 21"),
+    ({"peaks": 2.0}, "'peaks' must be an integer 0..20"),
+    ({"title": [1]}, "'title' must be a text, got a list"),
+    ({"ylabel": {}}, "'ylabel' must be a text, got a mapping"),
+])
+def test_plot_values(entry, words):
+    """Each optional value has its type and range: booleans are not numbers, infinity is
+    not a time, peaks 0..20, titles are texts."""
+    with pytest.raises(DiagramError) as ei:
+        P._check_plot_values(entry, 0, "f.yaml", 4)
+    assert words in str(ei.value)
+
+
+def test_plot_values_that_pass():
+    """Numbers (ints too) and texts within range are accepted silently."""
+    P._check_plot_values({"t_min": 0, "t_max": 1.5, "f_max": 100, "peaks": 0,
+                          "title": 3, "ylabel": "w"}, 0, None, None)
+
+
+def test_signal_index_checked_only_when_sizes_are_known():
+    """``arm.q[6]`` is the last of 7 joints, ``arm.q[7]`` is past the end when sizes are
+    known; with only the names of the logged signals the index cannot be checked."""
+    P._check_plot_signal("arm.q[6]", 0, SIZES, None, None)
+    with pytest.raises(DiagramError, match="'arm.q\\[7\\]': index 7 out of range, 'arm.q' "
+                                           "has 7 element"):
+        P._check_plot_signal("arm.q[7]", 0, SIZES, None, None)
+    P._check_plot_signal("arm.q[7]", 0, set(SIZES), None, None)
+    with pytest.raises(DiagramError, match="signal 'motor.ww' is not logged; did you mean "
+                                           "motor.w\\?"):
+        P._check_plot_signal("motor.ww", 0, SIZES, None, None)
+
+
+def test_plot_entry_needs_signals_and_a_file_for_its_kind():
+    """An entry without signals is refused; an animation must be written to a .gif and a
+    time plot to an image file."""
+    with pytest.raises(DiagramError, match="needs a non-empty list 'signals'"):
+        P.check_plot_entry({"signals": []}, 0, SIZES)
+    with pytest.raises(DiagramError, match="must end with .png, .svg, .pdf"):
+        P.check_plot_entry({"signals": ["motor.w"], "file": "w.gif"}, 0, SIZES)
+    with pytest.raises(DiagramError, match="must end with .gif"):
+        P.check_plot_entry({"signals": ["arm.q"], "kind": "animation", "file": "a.png"}, 0,
+                           SIZES)
+    P.check_plot_entry({"signals": ["motor.w", "arm.q[2]"], "file": "w.svg"}, 0, SIZES)

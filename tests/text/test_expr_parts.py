@@ -1,0 +1,108 @@
+"""The parameter-expression evaluator (spidersim.text.expr), one syntax element at a time.
+
+Each evaluator of :data:`_EVALUATORS` is called on a node parsed from a few characters, and
+:func:`evaluate` on whole expressions with values derived by hand. Whole diagrams using
+expressions are covered by tests/diagram and the hostile corpus.
+"""
+import ast
+import math
+
+import pytest
+
+from spidersim.text import expr as X
+from spidersim.text.expr import ExprError, evaluate
+
+NAMES = {"a": 2.0, "n": 7, "L": [1.0, 2.0, 3.0], "pi": 3.0}
+
+
+def node(text):
+    """The body node of the expression ``text``."""
+    return ast.parse(text, mode="eval").body
+
+
+def test_constants_are_floats_and_only_numbers():
+    """Integer literals become floats (no exact big-integer arithmetic); a literal beyond
+    the float range, a string or a boolean is refused."""
+    v = X._constant(node("3"), {}, "3")
+    assert v == 3.0 and type(v) is float
+    with pytest.raises(ExprError, match="number too large"):
+        X._constant(node("1" + "0" * 400), {}, "big")
+    for text in ("'x'", "True", "None"):
+        with pytest.raises(ExprError, match="only numbers are allowed"):
+            X._constant(node(text), {}, text)
+
+
+def test_parameters_shadow_constants_and_unknown_names_suggest():
+    """A diagram parameter named like a constant wins; an unknown name gets the nearest
+    parameters and constants."""
+    assert X._name(node("pi"), NAMES, "pi") == 3.0
+    assert X._name(node("e"), NAMES, "e") == math.e
+    with pytest.raises(ExprError, match=r"unknown name 'aa' in 'aa'; did you mean a\?"):
+        X._name(node("aa"), NAMES, "aa")
+
+
+def test_binary_operators_on_numbers_and_lists():
+    """Integer parameters take part as floats (7 // 2 = 3.0, a float); a list on either
+    side is element-wise: [1, 2, 3] * 2 = [2, 4, 6]; other operators are refused."""
+    v = X._binop(node("n // 2"), NAMES, "n // 2")
+    assert v == 3.0 and type(v) is float
+    assert X._binop(node("L * a"), NAMES, "") == [2.0, 4.0, 6.0]
+    assert X._binop(node("1 - L"), NAMES, "") == [0.0, -1.0, -2.0]
+    assert X._unaryop(node("-L"), NAMES, "") == [-1.0, -2.0, -3.0]
+    for text in ("a ^ 1", "a << 1", "~a"):
+        with pytest.raises(ExprError, match="is not allowed in a parameter expression"):
+            X._eval(node(text), NAMES, text)
+
+
+def test_integer_parameters_cannot_make_huge_integers():
+    """Integer parameters (YAML ints stay ints in the scope) are turned into floats before
+    an operator, so ``n ** n`` with n = 1000 overflows at once (an error) instead of
+    computing a 3000-digit integer; a tower of them cannot stall the loader."""
+    with pytest.raises(ExprError, match="cannot evaluate 'n \\*\\* n'"):
+        evaluate("n ** n", {"n": 1000})
+    v = X._binop(node("n // n"), NAMES, "")
+    assert v == 1.0 and type(v) is float
+
+
+def test_list_indexing_by_integer_values_only():
+    """``L[1]`` and ``L[1.0]`` pick element 1, negative indices count from the end; a
+    fractional index, an index of a number or past the end is refused."""
+    assert X._subscript(node("L[1.0]"), NAMES, "") == 2.0
+    assert X._subscript(node("L[-1]"), NAMES, "") == 3.0
+    with pytest.raises(ExprError, match="only list\\[int\\] indexing"):
+        X._subscript(node("L[1.5]"), NAMES, "L[1.5]")
+    with pytest.raises(ExprError, match="only list\\[int\\] indexing"):
+        X._subscript(node("a[0]"), NAMES, "a[0]")
+    with pytest.raises(ExprError, match="index 3 out of range"):
+        X._subscript(node("L[3]"), NAMES, "L[3]")
+
+
+def test_calls_to_listed_functions_with_positional_arguments():
+    """Only the functions of FUNCTIONS, called by name with positional arguments; anything
+    else (keywords, methods, unknown names) is refused and the allowed ones are listed."""
+    assert X._call(node("atan2(1, 1)"), NAMES, "") == pytest.approx(math.pi / 4, rel=1e-15)
+    assert X._call(node("max(L)"), NAMES, "") == 3.0
+    with pytest.raises(ExprError, match=r"unknown function 'open' .*\(allowed: abs, acos"):
+        X._call(node("open(1)"), NAMES, "open(1)")
+    for text in ("sin(x=1)", "L.index(1)"):
+        with pytest.raises(ExprError, match="is not allowed"):
+            X._call(node(text), NAMES, text)
+
+
+@pytest.mark.parametrize("text", ["a.real", "().__class__", "lambda: 1", "[x for x in L]",
+                                  "a if a else 1", "a < 2", "{1: 2}", "f'{a}'"])
+def test_everything_else_is_refused(text):
+    """Attribute access, lambdas, comprehensions, comparisons, conditionals, dicts and
+    f-strings have no evaluator: the message names the element and what is allowed."""
+    with pytest.raises(ExprError, match="is not allowed in a parameter expression"):
+        evaluate(text, NAMES)
+
+
+def test_whole_expressions():
+    """Values derived by hand: 2*pi*955/60 with pi = 3 (a parameter) is 95.5; a list of
+    expressions is a list; division by zero is named."""
+    assert evaluate("2*pi*955/60", NAMES) == pytest.approx(95.5, rel=1e-15)
+    assert evaluate("2*pi*955/60", {}) == pytest.approx(2 * math.pi * 955 / 60, rel=1e-15)
+    assert evaluate("[a, L[0] + 1, -n]", NAMES) == [2.0, 2.0, -7.0]
+    with pytest.raises(ExprError, match="division by zero in '1/0'"):
+        evaluate("1/0", NAMES)
