@@ -358,20 +358,11 @@ class Diagram:
     def _system(self, jit):
         mod, key = self._modules[jit]
         L = self.layout
-        sig_names, x_names = [], []
-        for r in self._signal_table():
-            (sig_names if r[1] == "sig" else x_names).append((r[0], r[2], r[3]))
-        for bl in L.blocks.values():
-            for s, (a, b) in bl.states.items():
-                nm = f"{bl.path}.{s}"
-                if nm not in {n for n, _, _ in x_names}:
-                    x_names.append((nm, a, b))
-        sig_names.sort(key=lambda r: r[1])
+        sig_names, x_names, sparsity, tables = self._system_tables()
         system = CompiledSystem(mod, self.initial_state(), self.p.copy(), self.initial_modes(),
-                                L.n_sig, self._log, sig_names, x_names,
-                                jacobian_sparsity(L) if L.n_x else None,
+                                L.n_sig, self._log, sig_names, x_names, sparsity,
                                 sig0=self.initial_signals(), loops=self.loop_info(),
-                                tables=event_tables(L))
+                                tables=tables)
         a, r = L.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
         system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]
@@ -380,6 +371,29 @@ class Diagram:
         # (no-op before the first warm-up compiled the functions)
         system._bind_entry_points()
         return system
+
+    def _system_tables(self):
+        """The structural tables of a system (signal and state names, Jacobian sparsity,
+        event tables): computed once per diagram, shared by every system it compiles."""
+        cached = getattr(self, "_tables_cache", None)
+        if cached is not None and cached[0] is self.layout:
+            return cached[1]
+        L = self.layout
+        sig_names, x_names = [], []
+        for r in self._signal_table():
+            (sig_names if r[1] == "sig" else x_names).append((r[0], r[2], r[3]))
+        seen = {n for n, _, _ in x_names}
+        for bl in L.blocks.values():
+            for s_, (a, b) in bl.states.items():
+                nm = f"{bl.path}.{s_}"
+                if nm not in seen:
+                    x_names.append((nm, a, b))
+                    seen.add(nm)
+        sig_names.sort(key=lambda r: r[1])
+        tables = (sig_names, x_names, jacobian_sparsity(L) if L.n_x else None,
+                  event_tables(L))
+        self._tables_cache = (L, tables)
+        return tables
 
     def simulate(self, t_end=None, method=None, rtol=None, atol=None, max_step=None,
                  output_interval=None, jit=True, progress=None, should_stop=None):

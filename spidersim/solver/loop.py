@@ -147,7 +147,10 @@ class CompiledLoop:
                 s.modes, pause_steps)
 
     def call(self, pause_steps=PAUSE_STEPS):
-        return int(run_loop(self.entry, *self.arguments(pause_steps)))
+        from .system import entry_point
+        args = (self.entry,) + self.arguments(pause_steps)
+        e = entry_point(run_loop, args)
+        return int((e or run_loop)(*args))
 
     def grow_rows(self):
         self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
