@@ -653,7 +653,7 @@ def build_parser():
     r.add_argument("--t-end", type=float, help="simulated time [s]")
     r.add_argument("--out", help="results folder (default results/<diagram name>)")
     r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF; "
-                   "DP54, ROS34PW2 (stiff): the compiled loop")
+                   "DP54, ROS34PW2 (stiff), NDF (stiff, variable order): the compiled loop")
     r.add_argument("--no-jit", action="store_true", help="interpreted mode (no numba)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--show", action="store_true",

@@ -26,7 +26,7 @@ _ID = r"[A-Za-z_]([A-Za-z0-9_.]|\{i\})*"
 _ADDR = rf"{_ID}\.{_ID}(\[\s*{_IDX}\s*(:\s*{_IDX}\s*)?\])?"
 BLOCK_KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\[\d+\.\.\d+\])?$"
 CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
-SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54", "ROS34PW2"]
+SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54", "ROS34PW2", "NDF"]
 REDUCERS = ["max", "min", "absmax", "final", "initial", "mean", "rms", "integral"]
 
 #: ``{value: 2.5, unit: mm}``: a value with its unit, converted to the declared one

@@ -29,6 +29,7 @@ from ..solver.newton import MAX_ITERATIONS, Workspace
 from ..solver.sysfn import (APPLY_EVENT, DERIVATIVES, GUARDS, INITIALIZE, NEXT_TIME,
                             TIME_EVENTS)
 from .graph import Layout
+from .grouping import Call, emit, group, table_text
 
 
 def _slice(arr, a, b):
@@ -59,38 +60,62 @@ def _param_expr(slot):
 
 
 def _arg_expr(bl, kernel, name):
+    return _arg(bl, kernel, name)[0]
+
+
+def _arg(bl, kernel, name):
+    """``(expression, access)`` of kernel argument ``name``: ``access`` is ``"r"``,
+    ``"w"``, ``"rw"`` or ``""`` (what the kernel may do with the array, by the block
+    contract), used to decide which calls may be reordered (:mod:`.grouping`)."""
     if name in ("t", "direction"):
-        return name
+        return name, ""
     if name == "zc":
         a, b = bl.guard_slice
-        return _slice("g", a, b)
+        return _slice("g", a, b), "w"
     if name == "which":
-        return f"k - {bl.guard_slice[0]}"
+        return f"k - {bl.guard_slice[0]}", ""
     if name.startswith("der_") and name[4:] in bl.states:
         a, b = bl.states[name[4:]]
-        return _slice("xdot", a, b)
+        return _slice("xdot", a, b), "w"
     if name in bl.states and (bl.states[name][1] > bl.states[name][0]
                               or ("out", name) not in bl.ports):
         a, b = bl.states[name]
-        return _slice("x", a, b)
+        return _slice("x", a, b), "rw"
     if name in bl.input_src:
         arr, a, b = bl.input_src[name]
-        return _slice(arr, a, b)
+        return _slice(arr, a, b), "r"
     if ("out", name) in bl.ports:
         arr, a, b = bl.ports[("out", name)].loc
-        return _slice(arr, a, b)
+        return _slice(arr, a, b), "w"
     if name in bl.modes:
         a, b = bl.modes[name]
-        return _slice("modes", a, b)
+        return _slice("modes", a, b), "rw"
     if name in bl.scratch:
         a, b = bl.scratch[name]
-        return _slice("sig", a, b)
+        return _slice("sig", a, b), "rw"
     if name in bl.pslots:
-        return _param_expr(bl.pslots[name])
+        return _param_expr(bl.pslots[name]), "r"
     if name in bl.constants:
-        return repr(bl.constants[name])
+        return repr(bl.constants[name]), ""
     raise RuntimeError(f"block type {bl.cls.type_name}: kernel '{kernel}' argument '{name}' "
                        f"is not a state, port, mode or parameter of the block")
+
+
+def _access_sets(exprs_access):
+    """``(reads, writes)``: frozensets of ``(array, index)`` of a call's arguments."""
+    reads, writes = set(), set()
+    for expr, acc in exprs_access:
+        m = re.match(r"^_v\((\w+), (\d+), (\d+)\)", expr)
+        if m:
+            cells = {(m.group(1), i) for i in range(int(m.group(2)), int(m.group(3)))}
+        else:
+            m = re.match(r"^p\[(\d+)\]$", expr)
+            cells = {("p", int(m.group(1)))} if m else set()
+        if "r" in acc:
+            reads |= cells
+        if "w" in acc:
+            writes |= cells
+    return frozenset(reads), frozenset(writes)
 
 
 def _call_order(L):
@@ -159,6 +184,13 @@ class Generator:
         self.kernels[key] = name
         return name
 
+    def call_info(self, bl, kernel):
+        """The call of ``kernel`` of block ``bl`` as a :class:`.grouping.Call`."""
+        name = self.kernel_name(bl, kernel)
+        parts = [_arg(bl, kernel, a) for a in bl.cls.kernel_args(kernel, bl.params)]
+        reads, writes = _access_sets(parts)
+        return Call(name, tuple(e for e, _ in parts), reads, writes)
+
     def call(self, bl, kernel, indent="    "):
         name = self.kernel_name(bl, kernel)
         args = bl.cls.kernel_args(kernel, bl.params)
@@ -208,23 +240,27 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
     def module(self, jit: bool) -> str:
         L = self.layout
         blocks = L.blocks
-        out_lines = []
+        # calls of identical blocks become loops over offset tables (see .grouping)
+        tables = {}
+        out_calls = []
         for kind, what in L.calls:
             if kind == "loop":
-                out_lines.append(f"    _loop{what}_solve(t, x, sig, p, modes)")
+                out_calls.append(Call(f"_loop{what}_solve", ("t", "x", "sig", "p", "modes"),
+                                      None, None))
             elif blocks[what].cls.has_kernel("output"):
-                out_lines.append(self.call(blocks[what], "output"))
+                out_calls.append(self.call_info(blocks[what], "output"))
+        out_lines = emit(group(out_calls), tables)
         loop_text = [self.loop_source(lp) for lp in L.loops]
-        der_lines = [self.call(bl, "derivative") for bl in blocks.values()
-                     if bl.states and bl.cls.has_kernel("derivative")]
+        der_lines = emit(group([self.call_info(bl, "derivative") for bl in blocks.values()
+                                if bl.states and bl.cls.has_kernel("derivative")]), tables)
         # time events in schedule order, outputs refreshed before each, so that a sampled
         # block sees what upstream sampled blocks produced at the same instant
         order = _call_order(L)
         timed = _timed_blocks(L)
-        nt_lines, te_lines = [], []
+        nt_lines = emit(group([self.call_info(bl, "next_time") for bl in timed]), tables,
+                        body=lambda c: [f"v = {c}", "if v < tn:", "    tn = v"])
+        te_lines = []
         for k, bl in enumerate(timed):
-            nt_lines += [f"    v = {self.call(bl, 'next_time', '')}",
-                         "    if v < tn:", "        tn = v"]
             te_lines += [f"    if {self.call(bl, 'next_time', '')} <= t + tol:",
                          "        outputs(t, x, sig, p, modes)",
                          self.call(bl, "time_event", "        "),
@@ -235,7 +271,7 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
                 init_lines += ["    outputs(t, x, sig, p, modes)",
                                self.call(blocks[p_], "initialize")]
         evb = _event_blocks(L)
-        g_lines = [self.call(bl, "guard") for bl in evb]
+        g_lines = emit(group([self.call_info(bl, "guard") for bl in evb]), tables)
         ev_lines = []
         for bl in evb:
             a, b = bl.guard_slice
@@ -282,6 +318,7 @@ N_EVENTS = {n_g}
 N_G = N_EVENTS
 
 {body(self.header)}
+{table_text(tables)}
 {body(loop_text)}
 
 

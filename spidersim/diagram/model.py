@@ -330,7 +330,7 @@ class Diagram:
     def compile(self, jit=True, loop=False):
         """Generate, import and warm up the compiled functions; return the system.
 
-        With ``loop``, the compiled integration loop (methods ``DP54``, ``ROS34PW2``) is
+        With ``loop``, the compiled integration loop (methods ``DP54``, ``ROS34PW2``, ``NDF``) is
         compiled too (or loaded from the cache); otherwise it is compiled on its first use.
         """
         if loop and jit:

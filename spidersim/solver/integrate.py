@@ -22,13 +22,14 @@ from ..errors import SpidersimError
 from .scipy_loop import SciPyLoop
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
-           "BDF": BDF, "DP54": RK45, "ROS34PW2": Radau}
+           "BDF": BDF, "DP54": RK45, "ROS34PW2": Radau, "NDF": BDF}
 #: methods integrated by the compiled loop (:mod:`spidersim.solver.loop`) when the system
 #: has one (numba-compiled diagrams); interpreted diagrams run them through the SciPy
-#: stepper of the same tableau and controller (DP54) or SciPy's Radau (ROS34PW2)
-COMPILED = ("DP54", "ROS34PW2")
+#: stepper of the same tableau and controller (DP54), SciPy's Radau (ROS34PW2) or SciPy's BDF
+#: (NDF, the same family)
+COMPILED = ("DP54", "ROS34PW2", "NDF")
 #: methods given the structural Jacobian pattern (ROS34PW2 runs SciPy's Radau here)
-IMPLICIT = ("Radau", "BDF", "ROS34PW2")
+IMPLICIT = ("Radau", "BDF", "ROS34PW2", "NDF")
 
 
 class _Clock:
@@ -92,7 +93,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         of :mod:`spidersim.solver.loop` (stepping, events and recording in machine code), or
         ``ROS34PW2``: the stiff Rosenbrock-W method of :mod:`spidersim.solver.rosenbrock` in
         the same loop (finite-difference Jacobian over coloured column groups); interpreted
-        diagrams run SciPy's Radau for it.
+        diagrams run SciPy's Radau for it. ``NDF``: the variable-order (1-5) numerical
+        differentiation formulas of :mod:`spidersim.solver.bdf` in the same loop (long
+        Jacobian reuse, for large stiff models such as spider.yaml); interpreted diagrams
+        run SciPy's BDF for it.
     rtol, atol, max_step, first_step : float
         Passed to the SciPy solver.
     output_interval : float, optional

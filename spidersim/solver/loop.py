@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from . import rosenbrock
+from . import bdf, rosenbrock
 from .loop_body import run_loop
 from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
     METHOD_DP54, METHOD_ROS34PW2, METHODS, DONE, ROWS_FULL, EVENTS_FULL, PAUSE,
@@ -84,7 +84,7 @@ class CompiledLoop:
         ``record_size``, the record index arrays ``_s_idx``, ``_x_idx`` and optionally
         ``jac_sparsity`` (the structural pattern; dense without it).
     method : str
-        ``DP54`` or ``ROS34PW2``.
+        ``DP54``, ``ROS34PW2`` or ``NDF``.
     """
 
     def __init__(self, entry, system, t0, t_end, rtol, atol, max_step, first_step,
@@ -94,7 +94,14 @@ class CompiledLoop:
         n = s.n_x
         self.x = np.array(s.x0, dtype=float)
         self.K = rosenbrock.work_array(n)      # rows enough for either method
-        if method == "ROS34PW2":
+        # the NDF method's history and state (V, iw, fw); placeholders of the same types
+        # for the other methods (one compiled loop serves all three)
+        self.B = (np.zeros((1, 1)), np.zeros(1, dtype=np.int64), np.zeros(1))
+        if method == "NDF":
+            V, self.JW, iw, fw = bdf.work(n)
+            self.B = (V, iw, fw)
+            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n)
+        elif method == "ROS34PW2":
             self.JW = rosenbrock.jacobian_work(n)
             self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n)
         else:
@@ -141,7 +148,7 @@ class CompiledLoop:
         function, in order."""
         s = self.system
         return (self.ist, self.fst, self.x, self.K, self.x1, self.xs, self.JW, self.jpat,
-                self.G, self.g_dir,
+                self.B, self.G, self.g_dir,
                 self.g_block, self.timed_block, self.fired, self.bmask, self.hit, self.chat,
                 self.tbuf, self.buf, self.ev_t, self.ev_i, s._s_idx, s._x_idx, s.sig, s.p,
                 s.modes, pause_steps)
@@ -205,8 +212,8 @@ class CompiledLoop:
 def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=math.inf,
                    first_step=None, output_interval=None, progress=None, stats=None,
                    should_stop=None, method="DP54"):
-    """Integrate ``system`` with the compiled loop (Dormand-Prince 5(4), or ROS34PW2 with
-    ``method="ROS34PW2"``); return a ``Result``.
+    """Integrate ``system`` with the compiled loop (Dormand-Prince 5(4); ROS34PW2 or the
+    variable-order NDF with ``method="ROS34PW2"`` or ``"NDF"``); return a ``Result``.
 
     Arguments as :func:`spidersim.solver.integrate.integrate` (already validated there);
     ``entry`` is the system function's address (``system.compiled_entry``). Failures raise

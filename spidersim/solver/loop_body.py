@@ -17,6 +17,7 @@ from . import dp54 as _dp54
 from . import newton as _newton
 from . import events as _events
 from . import rosenbrock as _ros
+from . import bdf as _bdf
 from . import sysfn as _sf
 from .loop_state import (  # noqa: F401
     CHATTER_COUNT, DONE, EVENTS_FULL, FAIL_CHATTER, FAIL_NONFINITE, FAIL_SETTLE,
@@ -25,7 +26,7 @@ from .loop_state import (  # noqa: F401
     G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
     I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
     I_TINY, I_METHOD, I_NJAC, I_NLU, I_JAGE, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
-    F_HOLD_MAX, METHOD_ROS34PW2, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE,
+    F_HOLD_MAX, F_HCAP, METHOD_ROS34PW2, METHOD_NDF, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE,
     ROW_RESERVE, ROWS_FULL, STALL_COUNT, STALL_STEP)
 
 
@@ -55,16 +56,19 @@ def _first_step(fn, t, x, f0, span, rtol, atol, K, sig, p, modes):
 
 
 @njit
-def _dense(meth, t, h, x, x1, K, s, out):
-    """The dense output of the step ``(t, x) -> (t + h, x1)`` of method ``meth`` at ``s``."""
-    if meth == METHOD_ROS34PW2:
+def _dense(meth, t, h, x, x1, K, B, s, out):
+    """The dense output of the step ``(t, x) -> (t + h, x1)`` of method ``meth`` at ``s``
+    (``B``: the NDF method's arrays ``(V, iw, fw)``)."""
+    if meth == METHOD_NDF:
+        _bdf.dense(t + h, B[0], B[1], B[2], s, out)
+    elif meth == METHOD_ROS34PW2:
         _ros.dense(t, h, x, x1, K, s, out)
     else:
         _dp54.dense(t, h, x, x1, K, s, out)
 
 
 @njit
-def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
+def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, B, xs, g, xtol, sig, p, modes):
     """Crossing time of guard ``i`` in ``(t, t + h]`` on the step's dense output, on the far
     side (see :func:`spidersim.solver.events.bracket_trial`)."""
     a = t
@@ -76,7 +80,7 @@ def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, xs, g, xtol, sig, p, modes):
         if _events.bracket_done(a, b, xtol):
             break
         s = _events.bracket_trial(a, b, fa, fb, it, xtol)
-        _dense(meth, t, h, x, x1, K, s, xs)
+        _dense(meth, t, h, x, x1, K, B, s, xs)
         _sf.guards(fn, s, xs, sig, p, modes, g)
         fs = g[i]
         if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
@@ -123,7 +127,7 @@ def _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
 
 
 @njit
-def _record_grid(fn, t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
+def _record_grid(fn, t_a, t_b, t, h, x, x1, K, B, xs, tbuf, buf, ist, fst, s_idx, x_idx,
                 sig, p, modes):
     """Rows at the grid times in ``[t_a, t_b)`` of the step ``(t, x) -> (t + h, x1)``; a
     grid point at an event time is recorded after the event (signals are right-continuous)."""
@@ -132,7 +136,7 @@ def _record_grid(fn, t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x
     k = ist[I_GRID]
     tk = t0 + k * dt
     while tk < t_b - _tol(t_b) and ist[I_ROWS] < tbuf.size:
-        _dense(ist[I_METHOD], t, h, x, x1, K, tk, xs)
+        _dense(ist[I_METHOD], t, h, x, x1, K, B, tk, xs)
         _row(fn, tk, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
         k += 1
         tk = t0 + k * dt
@@ -207,9 +211,11 @@ def _fire_due(fn, t, x, G,
 
 
 @njit
-def _advance(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
+def _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     """One accepted step of the run's method (``ist[I_METHOD]``) from ``(t, x)``; see
-    :func:`_advance_dp54` and :func:`_advance_ros34pw2`."""
+    :func:`_advance_dp54`, :func:`_advance_ros34pw2` and :func:`_advance_ndf`."""
+    if ist[I_METHOD] == METHOD_NDF:
+        return _advance_ndf(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)
     if ist[I_METHOD] == METHOD_ROS34PW2:
         return _advance_ros34pw2(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
     return _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)
@@ -307,6 +313,34 @@ def _advance_ros34pw2(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
 
 
 @njit
+def _advance_ndf(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
+    """One accepted step of the variable-order NDF method (:mod:`spidersim.solver.bdf`)
+    from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg`` nor ``fst[F_HCAP]``; returns
+    ``(h, 1.0)`` (the method keeps its own next step size) and leaves ``f(t + h, x1)`` in
+    ``K[ROW_END]``.
+
+    At a segment start (``ist[I_JAGE] < 0``: the start, after an event) the history is
+    restarted at order 1 with the step ``fst[F_H]`` and the Jacobian marked stale (the
+    event may have changed the equations); otherwise the method's own Jacobian reuse
+    applies (recomputed only when Newton fails with an old one).
+    """
+    V, iw, fw = B[0], B[1], B[2]
+    if ist[I_JAGE] < 0:
+        _bdf.restart(t, x, K[0], fst[F_H], V, JW, iw, fw)
+        _bdf.invalidate_jacobian(iw)
+        ist[I_JAGE] = 0
+    nfev, njac, nlu = iw[_bdf.I_NFEV], iw[_bdf.I_NJAC], iw[_bdf.I_NLU]
+    nrej = iw[_bdf.I_NREJECT] + iw[_bdf.I_NNEWTON]
+    h = _bdf.advance(fn, t, t_seg, x1, K[_ros.ROW_END], fst[F_RTOL], fst[F_ATOL],
+                     fst[F_HCAP], V, JW, iw, fw, jpat, sig, p, modes)
+    ist[I_NFEV] += iw[_bdf.I_NFEV] - nfev
+    ist[I_NJAC] += iw[_bdf.I_NJAC] - njac
+    ist[I_NLU] += iw[_bdf.I_NLU] - nlu
+    ist[I_REJECTED] += iw[_bdf.I_NREJECT] + iw[_bdf.I_NNEWTON] - nrej
+    return h, 1.0
+
+
+@njit
 def _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes):
     """One accepted step from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg``.
 
@@ -336,7 +370,7 @@ def _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes):
 
 
 @njit
-def _state_events(fn, t, h, x, x1, K, xs, G, g_dir,
+def _state_events(fn, t, h, x, x1, K, B, xs, G, g_dir,
                  g_block, bmask, chat, hit, nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx,
                  x_idx, sig, p, modes):
     """Locate the crossings ``hit[:nh]`` of the step ``(t, x) -> (t + h, x1)``, apply the
@@ -350,16 +384,16 @@ def _state_events(fn, t, h, x, x1, K, xs, G, g_dir,
         if G[G_OLD, i] == 0.0:           # left zero at the start of the step
             ti = t
         else:
-            ti = _locate(fn, ist[I_METHOD], i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, xs,
+            ti = _locate(fn, ist[I_METHOD], i, G[G_OLD, i], G[G_NEW, i], t, h, x, x1, K, B, xs,
                               G[G_TMP], xtol, sig, p, modes)
         G[G_TIMES, j] = ti
         t_ev = min(t_ev, ti)
     if t_ev < t_end_step:
-        _dense(ist[I_METHOD], t, h, x, x1, K, t_ev, xs)
+        _dense(ist[I_METHOD], t, h, x, x1, K, B, t_ev, xs)
     else:
         xs[:] = x1
     if fst[F_DT] > 0.0:
-        _grid_to(fn, t, t_ev, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig,
+        _grid_to(fn, t, t_ev, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig,
                  p, modes)
     else:
         _row(fn, t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
@@ -398,15 +432,15 @@ def _state_events(fn, t, h, x, x1, K, xs, G, g_dir,
 
 
 @njit
-def _grid_to(fn, t_a, t_b, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
+def _grid_to(fn, t_a, t_b, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
              modes):
     xs = K[_dp54.ROW_SCRATCH]
-    _record_grid(fn, t_a, t_b, t, h, x, x1, K, xs, tbuf, buf, ist, fst, s_idx, x_idx,
+    _record_grid(fn, t_a, t_b, t, h, x, x1, K, B, xs, tbuf, buf, ist, fst, s_idx, x_idx,
                 sig, p, modes)
 
 
 @njit
-def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_block,
+def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
              pause_steps):
     """Integrate from ``fst[F_T]`` to ``fst[F_TEND]`` with the method ``ist[I_METHOD]``;
@@ -478,16 +512,22 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_bloc
             ist[I_SEGMENTS] += 1
             if fst[F_FIRST] > 0.0:
                 fst[F_H] = min(fst[F_FIRST], t_seg - t)
+            elif ist[I_METHOD] == METHOD_NDF:      # its own first-step rule (order 1)
+                fst[F_H] = _bdf.first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
+                                           fst[F_RTOL], fst[F_ATOL], B[0], sig, p, modes)
+                ist[I_NFEV] += 1
             else:
                 fst[F_H] = _first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
                                            fst[F_RTOL], fst[F_ATOL], K, sig, p, modes)
                 ist[I_NFEV] += 1
             ist[I_FRESH] = 0
             ist[I_JAGE] = -1              # modes may have changed: a new Jacobian
+        fst[F_HCAP] = fst[F_MAXSTEP]
         if grid:                          # the rows of one step must fit in the buffer
             room = tbuf.size - ist[I_ROWS] - ROW_RESERVE
             fst[F_H] = min(fst[F_H], max(room, 1) * fst[F_DT])
-        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
+            fst[F_HCAP] = min(fst[F_HCAP], max(room, 1) * fst[F_DT])
+        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)
         if h == 0.0:
             fst[F_T] = t
             xs[:] = x
@@ -517,7 +557,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_bloc
             if nh:
                 ist[I_ROWS] = row0           # the step's end lies beyond the event
                 t_ev, code = _state_events(fn, t, h, x,
-                                          x1, K, xs, G, g_dir, g_block, bmask, chat, hit,
+                                          x1, K, B, xs, G, g_dir, g_block, bmask, chat, hit,
                                           nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx,
                                           sig, p, modes)
                 if code:
@@ -547,7 +587,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, G, g_dir, g_block, timed_bloc
                 if not math.isfinite(x1[i]):
                     ok = False
             if ok:
-                _grid_to(fn, t, t_new, t, h, x, x1, K, tbuf, buf, ist, fst, s_idx,
+                _grid_to(fn, t, t_new, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx,
                          x_idx, sig, p, modes)
         if not ok:
             fst[F_T] = t_new

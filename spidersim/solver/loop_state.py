@@ -10,8 +10,8 @@ from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME,  # noqa: F401 (read 
                      STALL_COUNT, STALL_STEP)
 
 # integration methods of the compiled loop (``ist[I_METHOD]``)
-METHOD_DP54, METHOD_ROS34PW2 = 0, 1
-METHODS = {"DP54": METHOD_DP54, "ROS34PW2": METHOD_ROS34PW2}
+METHOD_DP54, METHOD_ROS34PW2, METHOD_NDF = 0, 1, 2
+METHODS = {"DP54": METHOD_DP54, "ROS34PW2": METHOD_ROS34PW2, "NDF": METHOD_NDF}
 # both methods leave f(t + h, x1) in the same row of K, copied to row 0 for the next step
 assert rosenbrock.ROW_END == 6 and rosenbrock.K_ROWS >= dp54.K_ROWS
 
@@ -33,6 +33,8 @@ F_TFAIL = 10
 F_HLU = 11            # the step size of the LU factors in JW[1] (0: none)
 # Jacobian and LU reuse of ROS34PW2 (see rosenbrock.JAC_MAX_AGE, JAC_REJECTIONS, HOLD_MAX)
 F_JAC_MAX_AGE, F_JAC_REJECTIONS, F_HOLD_MAX = 12, 13, 14
+# the largest step of the next advance (max_step, or the room left in a grid's buffer)
+F_HCAP = 15
 N_FST = 16
 # rows of the guard work array ``G``
 G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE = range(7)
