@@ -84,9 +84,9 @@ is kept (call :func:`invalidate_jacobian` too when the equations changed).
 ``h = advance(fn, t, t_seg, x1, f1, ...)`` then takes one accepted step from ``(t, D[0])``:
 ``x1`` the state at ``t + h``, ``f1 = f(t + h, x1)`` (one extra evaluation per step), the
 history moved to ``t + h`` (``iw[I_WANT_F1] = 0``: ``f1`` is not evaluated, one evaluation
-per step less, and a Jacobian costs one more); ``h = 0.0`` on failure (step size underflow: ``D`` is still
-at ``t``). :func:`dense` is valid for ``s`` in ``[t, t + h]`` until the next ``advance``
-or ``restart``; ``dense(t + h, ...)`` is given the *new* time.
+per step less, and a Jacobian costs one more); ``h = 0.0`` on failure (step size
+underflow: ``D`` is still at ``t``). :func:`dense` is valid for ``s`` in ``[t, t + h]``
+until the next ``advance`` or ``restart``; ``dense(t + h, ...)`` is given the *new* time.
 """
 from __future__ import annotations
 
@@ -496,11 +496,12 @@ def dense(t, V, iw, fw, s, out):
 
 
 @njit
-def solve(fn, t0, t_end, x0, rtol, atol, jpat, t_out, out, sig, p, modes, V, JW, iw, fw):
+def solve(fn, t0, t_end, x0, rtol, atol, jpat, t_out, out, sig, p, modes, V, JW, iw, fw,
+          max_steps=10 ** 9):
     """Integrate from ``(t0, x0)`` to ``t_end`` (one segment) and write the dense output at
     the increasing times ``t_out`` into the rows of ``out`` (a driver for tests and
     benchmarks; work arrays from :func:`work`). Returns the time reached (< ``t_end`` on a
-    step-size failure)."""
+    step-size failure or after ``max_steps`` accepted steps)."""
     n = x0.size
     f0 = np.empty(n)
     x1 = np.empty(n)
@@ -514,7 +515,7 @@ def solve(fn, t0, t_end, x0, rtol, atol, jpat, t_out, out, sig, p, modes, V, JW,
     while k < t_out.size and t_out[k] <= t0:
         out[k, :] = x0
         k += 1
-    while t < t_end:
+    while t < t_end and iw[I_NSTEPS] < max_steps:
         h = advance(fn, t, t_end, x1, f0, rtol, atol, math.inf, V, JW, iw, fw, jpat, sig,
                     p, modes)
         if h == 0.0:
