@@ -360,3 +360,19 @@ def test_max_order_knob_and_its_check():
     assert iw2[bdf.I_NSTEPS] > iw5[bdf.I_NSTEPS]
     with pytest.raises(ValueError, match="max_order"):
         bdf.work(3, max_order=6)
+
+
+def test_sparse_pattern_gives_the_same_jacobian_in_fewer_evaluations():
+    """The Jacobian over the coloured column groups of the structural pattern of A_STIFF
+    (upper bidiagonal: 2 groups instead of 3) gives the same run as the dense pattern (same
+    steps, outputs to 1e-12 relative) with one evaluation less per Jacobian."""
+    x0 = [1.0, 1.0, 1.0]
+    t_out = np.array([0.01, 1.0, 2.0])
+    pattern = A_STIFF != 0.0
+    assert R.n_groups(R.pattern_array(pattern, 3)) == 2
+    dense_out, iw_d = solve(stiff, x0, 2.0, 1e-8, 1e-12, t_out)
+    sparse_out, iw_s = solve(stiff, x0, 2.0, 1e-8, 1e-12, t_out, pattern=pattern)
+    assert iw_s[bdf.I_NSTEPS] == iw_d[bdf.I_NSTEPS]
+    assert iw_s[bdf.I_NJAC] == iw_d[bdf.I_NJAC]
+    assert iw_d[bdf.I_NFEV] - iw_s[bdf.I_NFEV] == iw_d[bdf.I_NJAC]
+    assert np.allclose(sparse_out, dense_out, rtol=1e-12, atol=1e-20)
