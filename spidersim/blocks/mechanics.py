@@ -12,7 +12,7 @@ class MassOnStop(Block):
     """Point mass falling on a hard stop at ``x_stop`` with restitution ``e``::
 
         dx/dt = v,   m dv/dt = f - m g          (free)
-        v+ = -e v-                              (impact event when x falls through x_stop)
+        x+ = x_stop, v+ = e |v-|                (impact event when x falls through x_stop)
 
     If the rebound speed ``e |v-|`` is below ``v_rest`` the mass comes to rest on the stop
     (mode ``rest``: derivatives zero) and lifts off when ``f > m g`` again. With
@@ -63,7 +63,11 @@ class MassOnStop(Block):
     @staticmethod
     def on_event(t, which, direction, x, v, e, v_rest, x_stop, rest):
         if which == 0:
-            v_new = -e * v[0]
+            # the stop sends the mass back up from the stop: x+ = x_stop, v+ = e |v-| (a
+            # crossing located on an integrated flight shorter than the tolerances can
+            # carry a tiny v- > 0 or lie a rounding error beyond the stop)
+            x[0] = x_stop
+            v_new = e * abs(v[0])
             if abs(v_new) <= v_rest:
                 rest[0] = 1.0
                 v[0] = 0.0

@@ -21,6 +21,11 @@ MAX_EVENTS_AT_ONE_TIME = 1000
 #: STALL_STEP * max(1, |t|): the solution is running into a singularity
 STALL_COUNT = 500
 STALL_STEP = 1e-10
+#: a step shorter than this times max(1, |t|) is not retried for a guard that left zero and
+#: returned unseen (:func:`left_zero_unseen`): chattering; the probe of that test is taken at
+#: this fraction of the step
+UNSEEN_STEP = 1e-14
+UNSEEN_PROBE = 1e-3
 #: chattering: this many events of one block within max(1e-9, 1e-6 * span) s is an error
 CHATTER_COUNT = 50
 
@@ -42,6 +47,40 @@ def crossings(g_old, g_new, direction, armed, out):
             out[k] = i
             k += 1
     return k
+
+
+@njit
+def left_zero_unseen(g_old, g_new, direction, armed, g_probe):
+    """The first guard that returned to its firing side unseen within a step, or -1.
+
+    A guard that had not left zero (``armed`` 0, exactly zero at the step start) and ends
+    the step on its firing side is a candidate: it may have left zero the other way and come
+    back (a ball bouncing off the floor and landing again inside one step), a crossing that
+    :func:`crossings` cannot see. ``g_probe`` holds the guards a short Euler step along
+    ``f(t, x)`` after the start: a candidate that is there on the other side of zero did
+    leave and return. (A candidate that went straight to its firing side, e.g. a saturation whose
+    input keeps rising past the corner, did not.) The compiled loop retries such a step
+    shorter; when it cannot be shortened any more (``UNSEEN_STEP``) the events come faster
+    than the time resolution: chattering.
+    """
+    for i in range(g_old.size):
+        b, d, q = g_new[i], direction[i], g_probe[i]
+        if g_old[i] == 0.0 and armed[i] == 0.0 and b != 0.0 and (
+                d == 0.0 or (b > 0.0) == (d > 0.0)) and q != 0.0 and (q > 0.0) != (b > 0.0):
+            return i
+    return -1
+
+
+@njit
+def zero_start_candidates(g_old, g_new, direction, armed):
+    """Whether any guard may have returned unseen (see :func:`left_zero_unseen`): the cheap
+    test before the probe is evaluated."""
+    for i in range(g_old.size):
+        b, d = g_new[i], direction[i]
+        if g_old[i] == 0.0 and armed[i] == 0.0 and b != 0.0 and (
+                d == 0.0 or (b > 0.0) == (d > 0.0)):
+            return True
+    return False
 
 
 def crossed(g_old, g_new, direction, armed=None):

@@ -41,11 +41,12 @@ import math
 import numpy as np
 
 from . import bdf, rosenbrock
+from .events import UNSEEN_STEP
 from .loop_body import run_loop
 from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
     METHOD_DP54, METHOD_ROS34PW2, METHODS, DONE, ROWS_FULL, EVENTS_FULL, PAUSE,
     FAIL_NONFINITE, FAIL_STALL, FAIL_SMALL_STEP, FAIL_CHATTER, FAIL_TIME_EVENTS,
-    FAIL_SETTLE, FAIL_START, I_ROWS, I_EVENTS, I_GRID, I_TINY, I_STEPS, I_NFEV, I_STARTED,
+    FAIL_SETTLE, FAIL_START, FAIL_ZENO, I_ROWS, I_EVENTS, I_GRID, I_TINY, I_STEPS, I_NFEV, I_STARTED,
     I_REJECTED, I_SEGMENTS, I_TIMED, I_BLOCK, I_FRESH, I_NG, I_OVERFLOW, I_NEW_STEPS,
     I_METHOD, I_NJAC, I_NLU, I_JAGE, N_IST, F_T, F_H, F_TEND, F_RTOL, F_ATOL, F_MAXSTEP,
     F_FIRST, F_DT, F_T0, F_CHATTER_WINDOW, F_TFAIL, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
@@ -281,6 +282,13 @@ def _fail(system, run, code, st, wall0, IntegrationError):
         msg = (f"chattering: block '{block}' fired {CHATTER_COUNT} events ('{name}') "
                f"within {span:.3g} s up to t = {t:.9g} s (Zeno behaviour); give the block a "
                f"rest mode or threshold, or stop the run earlier")
+        raise IntegrationError(msg, partial=run.result(st, "failed", msg), block=block)
+    if code == FAIL_ZENO:
+        block, name, _d = system.event_table[int(run.ist[I_BLOCK])]
+        msg = (f"chattering: block '{block}' fires events ('{name}') faster than the time "
+               f"resolution at t = {t:.9g} s (Zeno behaviour: its guard returns to the "
+               f"firing side within a step of {UNSEEN_STEP * max(1.0, abs(t)):.3g} s); give the "
+               f"block a rest mode or threshold, or stop the run earlier")
         raise IntegrationError(msg, partial=run.result(st, "failed", msg), block=block)
     if code == FAIL_TIME_EVENTS:
         msg = f"time events keep firing at t = {t:.9g} s without time advancing"

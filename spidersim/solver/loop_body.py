@@ -21,7 +21,7 @@ from . import bdf as _bdf
 from . import sysfn as _sf
 from .loop_state import (  # noqa: F401
     CHATTER_COUNT, DONE, EVENTS_FULL, FAIL_CHATTER, FAIL_NONFINITE, FAIL_SETTLE,
-    FAIL_SMALL_STEP, FAIL_STALL, FAIL_START, FAIL_TIME_EVENTS, F_ATOL, F_CHATTER_WINDOW,
+    FAIL_SMALL_STEP, FAIL_STALL, FAIL_START, FAIL_TIME_EVENTS, FAIL_ZENO, F_ATOL, F_CHATTER_WINDOW,
     F_DT, F_FIRST, F_H, F_MAXSTEP, F_RTOL, F_T, F_T0, F_TEND, F_TFAIL, G_ARMED, G_BEFORE,
     G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
     I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
@@ -319,15 +319,17 @@ def _advance_ndf(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     ``(h, 1.0)`` (the method keeps its own next step size) and leaves ``f(t + h, x1)`` in
     ``K[ROW_END]``.
 
-    At a segment start (``ist[I_JAGE] < 0``: the start, after an event) the history is
+    At a segment start (``ist[I_JAGE] == -1``: the start, after an event) the history is
     restarted at order 1 with the step ``fst[F_H]`` and the Jacobian marked stale (the
-    event may have changed the equations); otherwise the method's own Jacobian reuse
+    event may have changed the equations); ``-2`` (a step retried shorter, see
+    :func:`spidersim.solver.events.left_zero_unseen`) restarts the history only; otherwise the method's own Jacobian reuse
     applies (recomputed only when Newton fails with an old one).
     """
     V, iw, fw = B[0], B[1], B[2]
     if ist[I_JAGE] < 0:
         _bdf.restart(t, x, K[0], fst[F_H], V, JW, iw, fw)
-        _bdf.invalidate_jacobian(iw)
+        if ist[I_JAGE] == -1:          # -2: a retried step, the equations are the same
+            _bdf.invalidate_jacobian(iw)
         ist[I_JAGE] = 0
     nfev, njac, nlu = iw[_bdf.I_NFEV], iw[_bdf.I_NJAC], iw[_bdf.I_NLU]
     nrej = iw[_bdf.I_NREJECT] + iw[_bdf.I_NNEWTON]
@@ -553,6 +555,33 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                                    G[G_NEW])
                 tbuf[row0] = t_new
                 ist[I_ROWS] = row0 + 1
+            i_unseen = -1
+            if _events.zero_start_candidates(G[G_OLD, :ng], G[G_NEW, :ng], g_dir,
+                                             G[G_ARMED, :ng]):
+                # which way the guards leave zero: a short Euler step along f(t, x) = K[0]
+                # (the start's own direction, not the method's interpolant)
+                dt_probe = _events.UNSEEN_PROBE * h
+                for j in range(x.size):
+                    xs[j] = x[j] + dt_probe * K[0, j]
+                _sf.guards(fn, t + dt_probe, xs, sig, p, modes, G[G_TMP])
+                _sf.outputs(fn, t_new, x1, sig, p, modes)     # sig back at the step end
+                i_unseen = _events.left_zero_unseen(G[G_OLD, :ng], G[G_NEW, :ng], g_dir,
+                                                    G[G_ARMED, :ng], G[G_TMP, :ng])
+            if i_unseen >= 0 and h <= _events.UNSEEN_STEP * max(1.0, abs(t_new)):
+                ist[I_ROWS] = row0              # events faster than the time resolution
+                ist[I_BLOCK] = i_unseen
+                fst[F_T] = t
+                xs[:] = x
+                return FAIL_ZENO
+            if i_unseen >= 0:
+                ist[I_ROWS] = row0              # retry shorter from (t, x): K[0] is intact
+                ist[I_STEPS] -= 1
+                ist[I_NEW_STEPS] -= 1
+                ist[I_REJECTED] += 1
+                fst[F_H] = 0.125 * h
+                if ist[I_METHOD] == METHOD_NDF:
+                    ist[I_JAGE] = -2            # restart the history, keep the Jacobian
+                continue
             nh = _events.crossings(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng], hit)
             if nh:
                 ist[I_ROWS] = row0           # the step's end lies beyond the event

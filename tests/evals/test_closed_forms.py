@@ -24,7 +24,7 @@ import spidersim
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DIAGRAMS = os.path.join(ROOT, "diagrams")
-METHODS = ["LSODA", "RK45", "DOP853", "Radau", "BDF"]
+METHODS = ["LSODA", "RK45", "DOP853", "Radau", "BDF", "NDF"]
 BOUND = 5.0
 
 

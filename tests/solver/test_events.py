@@ -13,15 +13,18 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 BALL = os.path.join(ROOT, "diagrams", "bouncing_ball.yaml")
 
 
-@pytest.fixture(params=["scipy-loop", "compiled-loop", "compiled-ros34pw2"])
+@pytest.fixture(params=["scipy-loop", "compiled-loop", "compiled-ros34pw2", "compiled-ndf"])
 def engine(request):
     """Each event test runs on both loops: SciPy's steppers driven from Python
     (interpreted diagram, the file's method) and the compiled loop, with the Dormand-Prince
-    method and with the stiff ROS34PW2 method (same event semantics, its own dense output)."""
+    method and with the stiff ROS34PW2 and NDF methods (same event semantics, each its own
+    dense output)."""
     if request.param == "scipy-loop":
         return {"jit": False}
     if request.param == "compiled-ros34pw2":
         return {"jit": True, "method": "ROS34PW2"}
+    if request.param == "compiled-ndf":
+        return {"jit": True, "method": "NDF"}
     return {"jit": True, "method": "DP54"}
 
 

@@ -79,7 +79,7 @@ def guards(t, x, sig, p, modes, g):
 @_jit
 def apply_event(t, x, sig, p, modes, k, direction):
     x[0] = 0.0
-    x[1] = -p[1] * x[1]
+    x[1] = p[1] * abs(x[1])
     if abs(x[1]) < p[2]:
         x[1] = 0.0
         modes[0] = 1.0
@@ -197,7 +197,7 @@ def ball(tmp_path_factory):
     return build("hand_ball", BALL, tmp_path_factory.mktemp("ball"), 2, 3, 1, 1)
 
 
-@pytest.fixture(params=["DP54", "ROS34PW2"])
+@pytest.fixture(params=["DP54", "ROS34PW2", "NDF"])
 def method(request):
     """The closed-form tests run with both methods of the compiled loop."""
     return request.param
