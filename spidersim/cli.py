@@ -412,7 +412,8 @@ def _check_t_end(d, t_end):
     where, line = (("--t-end", None) if t_end is not None else
                    ("simulation.t_end", d.spec.simulation_lines.get("t_end")))
     t_end = d.simulation["t_end"] if t_end is None else t_end
-    if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
+    if not (isinstance(t_end, (int, float)) and not isinstance(t_end, bool)
+            and math.isfinite(t_end) and t_end > 0):
         raise DiagramError(f"{where}: t_end must be a finite time > 0 s, got {t_end!r}",
                            file=d.file, line=line)
     return t_end
