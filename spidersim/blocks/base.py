@@ -656,7 +656,7 @@ class Block:
             if arr.size == 1 and n != 1:
                 arr = np.full(n, arr[0])
             if arr.size != n:
-                fail(f"must have {n} elements ({shape}), got {arr.size}")
+                fail(f"must have {n} elements ({_size_text(shape)}), got {arr.size}")
         if arr.size == 0:
             fail("must not be empty")
         return arr
@@ -675,8 +675,8 @@ class Block:
             if d != "*":
                 n = cls._dim(d, known)
                 if arr.shape[k] != n:
-                    fail(f"must have {n} {'rows' if k == 0 else 'columns'} ({d}), "
-                         f"got shape {arr.shape}")
+                    fail(f"must have {n} {'rows' if k == 0 else 'columns'} "
+                         f"({_size_text(d)}), got shape {arr.shape}")
         return arr
 
     @staticmethod
