@@ -129,6 +129,17 @@ def _quantity(value, scope, decl, file, line, what, block, record):
     return (np.asarray(x, dtype=float) * f).tolist()
 
 
+def _check_rectangular(values):
+    """A list value is an array of numbers: every row of the same length, at every depth
+    (``[1, [2, 3]]`` or ``[[1, 2], [3]]`` is no array; numpy refuses them with a
+    ValueError about an inhomogeneous shape). An ExprError says so."""
+    try:
+        np.asarray(values, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ExprError("a list value must be a number list or a matrix (rows of equal "
+                        "length, numbers only), got a ragged or mixed list") from None
+
+
 def _plain_value(value, scope, file, line, what, block=None):
     """A value without a unit: an expression (evaluated in ``scope``), a list (element by
     element, an error in an element located like one in the whole value: same file, line
@@ -137,7 +148,9 @@ def _plain_value(value, scope, file, line, what, block=None):
     if isinstance(value, str):
         return evaluate(value, scope)
     if isinstance(value, list):
-        return [_eval_value(v, scope, None, file, line, what, block) for v in value]
+        out = [_eval_value(v, scope, None, file, line, what, block) for v in value]
+        _check_rectangular(out)
+        return out
     if value is None:
         raise ExprError("no value given (empty entry)")
     if isinstance(value, (bool, int, float)):

@@ -184,6 +184,17 @@ def test_plain_values():
         F._plain_value([None], {}, "f", 1, "p")
 
 
+@pytest.mark.parametrize("value", [[1, [2, 3]], [[1, 2], [3]], [[1], 2]])
+def test_ragged_lists_are_refused(value):
+    """A list value is a number list or a matrix: rows of unequal length at any depth are
+    an ExprError (numpy's inhomogeneous-shape ValueError escaped as an internal error when
+    such a diagram parameter was used); a rectangular nested list stays."""
+    from spidersim.text.expr import ExprError
+    with pytest.raises(ExprError, match="ragged or mixed list"):
+        F._plain_value(value, {}, "f", 1, "p")
+    assert F._plain_value([[1, 2], [3, 4]], {}, "f", 1, "p") == [[1, 2], [3, 4]]
+
+
 def test_top_level_overrides_are_evaluated_and_marked_used():
     """Only keys without a dot are top-level; they are evaluated without a scope (so an
     expression of numbers works) and marked used; an unknown one suggests near names."""
