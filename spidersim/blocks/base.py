@@ -635,9 +635,10 @@ class Block:
 
     @classmethod
     def _normalise_scalar(cls, decl, arr, fail):
-        """A real scalar (a one-element list is accepted), within the bounds, as a float."""
+        """A real scalar (a one-element flat list is accepted; a nested one, ``[[[1]]]``,
+        is not a scalar), within the bounds, as a float."""
         if arr.ndim != 0:
-            if arr.size == 1:
+            if arr.size == 1 and arr.ndim == 1:
                 arr = arr.reshape(())
             else:
                 fail(f"must be a scalar, got an array of shape {arr.shape}")
