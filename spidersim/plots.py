@@ -143,9 +143,10 @@ def _check_peaks(p, k, file, line):
 
 
 def _check_plot_texts(p, k, file, line):
-    """``title`` and ``ylabel``: texts (a number is accepted as its text)."""
+    """``title`` and ``ylabel``: texts (a number is accepted as its text; a boolean, YAML's
+    yes/no/true/false, is not)."""
     for key in ("title", "ylabel"):
-        if key in p and not isinstance(p[key], (str, int, float)):
+        if key in p and (isinstance(p[key], bool) or not isinstance(p[key], (str, int, float))):
             raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
                                f"{_kind_of(p[key])}", file=file, line=_key_line(p, key, line))
 
