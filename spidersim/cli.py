@@ -460,11 +460,17 @@ def _valid_analysis_time(at, t_end):
 
 
 def _check_analysis(d, t_end):
-    """Every ``analysis`` entry names signals of the diagram and a valid ``at``."""
+    """Every ``analysis`` entry has a loop or inputs and outputs, names signals of the
+    diagram and a valid ``at``."""
     from .linreport import analysis_request
     for name in d.spec.analysis:
         lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
         inputs, outputs, opened, at, loop = analysis_request(d, name)
+        if loop is None and not (inputs and outputs):
+            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
+                               f"'outputs' (at least one of each), got "
+                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                               file=d.file, line=lines(name))
         for s_ in inputs + outputs + opened + ([loop] if loop is not None else []):
             _check_analysis_signal(d, name, s_, lines(name))
         if not _valid_analysis_time(at, t_end):
@@ -532,6 +538,11 @@ def cmd_linearize(args):
     for name in names:
         if name is not None:
             inputs, outputs, opened, at, loop = analysis_request(d, name)
+        if loop is None and not (inputs and outputs):
+            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
+                               f"'outputs' (at least one of each), got "
+                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                               file=d.file, line=lines(name))
             if isinstance(at, str):
                 at = parse_at(at)
         else:
