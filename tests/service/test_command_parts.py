@@ -204,3 +204,25 @@ def test_command_numbers_refuse_booleans():
         C._numbers([0, True], "time", None)
     with pytest.raises(ParameterError, match="command.distance must hold numbers"):
         C._scalar_with_unit(True, "distance", "m", None)
+
+
+@pytest.mark.parametrize("body", [
+    '{"model": "servo", "t_end": true}',
+    '{"model": "servo", "t_end": "2"}',
+    '{"model": "servo", "command": {"kind": "table", "time": [0, true], "value": [0, 1]}}',
+    '{"model": "servo", "command": {"kind": "cartesian_line", "direction": [1, 0, 0], '
+    '"distance": false}}',
+    '{"model": "servo", "parameters": {"motor.R": {"value": true, "unit": "Ohm"}}}',
+])
+def test_request_numbers_refuse_booleans_and_texts(body):
+    """A request's numbers are JSON numbers: pydantic's lax mode read ``"t_end": true`` as
+    1.0 s and ``[0, true]`` as ``[0, 1]`` before any check of ours saw them; now the
+    request is invalid (422), naming the field."""
+    from pydantic import ValidationError
+
+    from spidersim.service.app import RunRequest
+    with pytest.raises(ValidationError, match="valid number"):
+        RunRequest.model_validate_json(body)
+    ok = RunRequest.model_validate_json('{"model": "servo", "t_end": 2, "command": {"kind": '
+                                        '"table", "time": [0, 1.5], "value": [0, 1]}}')
+    assert ok.t_end == 2.0 and ok.command.time == [0.0, 1.5]
