@@ -46,6 +46,12 @@ def _chain(model):
     return _CHAINS[key]
 
 
+#: most frames of one animation (each is drawn: 10**30 frames would never finish)
+MAX_FRAMES = 10000
+#: highest frame rate [1/s] of an animation (inf or nan is no rate)
+MAX_FPS = 100
+
+
 def check_animation_spec(spec, size=None, where="animation", file=None, line=None):
     """Validate an animation entry; raise :class:`DiagramError` on the first problem.
 
@@ -83,11 +89,13 @@ def check_animation_spec(spec, size=None, where="animation", file=None, line=Non
              f"'{spec.get('model', 'spider')}' has {chain.n} joints; name the joint angles "
              f"of an Arm block (e.g. arm.q)")
     frames = spec.get("frames", 60)
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        fail(f"frames must be a positive integer, got {frames!r}")
+    if (isinstance(frames, bool) or not isinstance(frames, int)
+            or not 1 <= frames <= MAX_FRAMES):
+        fail(f"frames must be an integer 1..{MAX_FRAMES}, got {frames!r:.40}")
     fps = spec.get("fps", 15)
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0:
-        fail(f"fps must be a positive number, got {fps!r}")
+    if (isinstance(fps, bool) or not isinstance(fps, (int, float))
+            or not 0 < fps <= MAX_FPS):
+        fail(f"fps must be a number > 0 and <= {MAX_FPS}, got {fps!r:.40}")
     if not isinstance(spec.get("trace", False), bool):
         fail(f"trace must be true or false, got {spec.get('trace')!r}")
     lo, hi = spec.get("t_min"), spec.get("t_max")

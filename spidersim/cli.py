@@ -412,7 +412,8 @@ def _check_t_end(d, t_end):
     where, line = (("--t-end", None) if t_end is not None else
                    ("simulation.t_end", d.spec.simulation_lines.get("t_end")))
     t_end = d.simulation["t_end"] if t_end is None else t_end
-    if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
+    if not (isinstance(t_end, (int, float)) and not isinstance(t_end, bool)
+            and math.isfinite(t_end) and t_end > 0):
         raise DiagramError(f"{where}: t_end must be a finite time > 0 s, got {t_end!r}",
                            file=d.file, line=line)
     return t_end
@@ -459,11 +460,17 @@ def _valid_analysis_time(at, t_end):
 
 
 def _check_analysis(d, t_end):
-    """Every ``analysis`` entry names signals of the diagram and a valid ``at``."""
+    """Every ``analysis`` entry has a loop or inputs and outputs, names signals of the
+    diagram and a valid ``at``."""
     from .linreport import analysis_request
     for name in d.spec.analysis:
         lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
         inputs, outputs, opened, at, loop = analysis_request(d, name)
+        if loop is None and not (inputs and outputs):
+            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
+                               f"'outputs' (at least one of each), got "
+                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                               file=d.file, line=lines(name))
         for s_ in inputs + outputs + opened + ([loop] if loop is not None else []):
             _check_analysis_signal(d, name, s_, lines(name))
         if not _valid_analysis_time(at, t_end):
@@ -531,6 +538,11 @@ def cmd_linearize(args):
     for name in names:
         if name is not None:
             inputs, outputs, opened, at, loop = analysis_request(d, name)
+        if loop is None and not (inputs and outputs):
+            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
+                               f"'outputs' (at least one of each), got "
+                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                               file=d.file, line=lines(name))
             if isinstance(at, str):
                 at = parse_at(at)
         else:
@@ -641,6 +653,36 @@ def cmd_serve(args):
     return 0
 
 
+def positive_float(text):
+    """argparse type of a time or a limit: a finite number > 0 (``nan``, ``inf``, ``0``,
+    ``-1`` and ``true`` are refused with the option's name, exit status 2)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got '{text}'") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got '{text}'")
+    return v
+
+
+def count(low, high=None):
+    """argparse type of an integer in ``[low, high]`` (a count of workers, bytes, jobs; a
+    port)."""
+    span = f">= {low}" if high is None else f"in {low}..{high}"
+
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer {span}, got "
+                                             f"'{text}'") from None
+        if v < low or (high is not None and v > high):
+            raise argparse.ArgumentTypeError(f"expected an integer {span}, got {v}")
+        return v
+    parse.__name__ = f"integer {span}"
+    return parse
+
+
 def build_parser():
     ap = argparse.ArgumentParser(prog="spidersim", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -650,7 +692,7 @@ def build_parser():
                    help="repeat a run from its report.json (or its results folder)")
     r.add_argument("--set", action="append", metavar="PATH=VALUE",
                    help="override a parameter (name, block.param or sub.block.param)")
-    r.add_argument("--t-end", type=float, help="simulated time [s]")
+    r.add_argument("--t-end", type=positive_float, help="simulated time [s]")
     r.add_argument("--out", help="results folder (default results/<diagram name>)")
     r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF; "
                    "DP54, ROS34PW2 (stiff), NDF (stiff, variable order): the compiled loop")
@@ -661,7 +703,8 @@ def build_parser():
     r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE names "
                    "a model of its library) and download the results")
     r.add_argument("--token", help="service token (default: $SPIDERSIM_TOKEN)")
-    r.add_argument("--timeout", type=float, default=3600, help="seconds to wait (--remote)")
+    r.add_argument("--timeout", type=positive_float, default=3600,
+                   help="seconds to wait (--remote)")
     r.set_defaults(fn=cmd_run)
     c = sub.add_parser("check", help="validate a diagram and print its structure")
     c.add_argument("file")
@@ -688,33 +731,34 @@ def build_parser():
     sw.add_argument("file")
     sw.add_argument("--vary", action="append", metavar="PATH=V1,V2,...", required=True,
                     help="parameter and its values (repeat for a grid; first slowest)")
-    sw.add_argument("--workers", type=int, default=None,
+    sw.add_argument("--workers", type=count(0), default=None,
                     help="local Dask worker processes (default: CPUs, at most 4; "
                          "0: serial in this process)")
     sw.add_argument("--scheduler", metavar="ADDRESS",
                     help="use a running Dask scheduler (tcp://host:8786) instead")
     sw.add_argument("--set", action="append", metavar="PATH=VALUE",
                     help="base parameter value for every run")
-    sw.add_argument("--t-end", type=float, help="simulated time of each run [s]")
+    sw.add_argument("--t-end", type=positive_float, help="simulated time of each run [s]")
     sw.add_argument("--out", help="results folder (default results/<diagram>_sweep)")
     sw.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sw.set_defaults(fn=cmd_sweep)
 
     sv = sub.add_parser("serve", help="remote simulation service (HTTP, web page, API)")
     sv.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
-    sv.add_argument("--port", type=int, default=8050)
+    sv.add_argument("--port", type=count(1, 65535), default=8050)
     sv.add_argument("--models", action="append", metavar="DIR",
                     help="folder (or file) of models (repeatable; default: shipped models)")
     sv.add_argument("--data", help="database and results (default ~/.spidersim/service)")
     sw_ = sv.add_mutually_exclusive_group()
-    sw_.add_argument("--workers", type=int, default=None, help="worker processes (default 2)")
+    sw_.add_argument("--workers", type=count(1), default=None, help="worker processes (default 2)")
     sw_.add_argument("--scheduler", metavar="ADDRESS", help="run jobs on this Dask scheduler")
     sv.add_argument("--add-user", metavar="NAME", help="create a user / new token and exit")
-    sv.add_argument("--max-t-end", type=float, default=60.0, help="simulated s per run")
-    sv.add_argument("--max-jobs", type=int, default=8, help="queued+running jobs per user")
-    sv.add_argument("--max-body", type=int, default=256 * 1024, help="request bytes")
-    sv.add_argument("--max-signals", type=int, default=64, help="logged signals per run")
-    sv.add_argument("--job-timeout", type=float, default=3600.0, help="wall s per job")
+    sv.add_argument("--max-t-end", type=positive_float, default=60.0,
+                    help="simulated s per run")
+    sv.add_argument("--max-jobs", type=count(1), default=8, help="queued+running jobs per user")
+    sv.add_argument("--max-body", type=count(1), default=256 * 1024, help="request bytes")
+    sv.add_argument("--max-signals", type=count(1), default=64, help="logged signals per run")
+    sv.add_argument("--job-timeout", type=positive_float, default=3600.0, help="wall s per job")
     sv.add_argument("--no-jit", action="store_true", help="interpreted runs (debugging)")
     sv.set_defaults(fn=cmd_serve)
 

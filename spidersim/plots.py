@@ -117,9 +117,14 @@ def _check_plot_keys(p, k, file, line):
 
 def _check_plot_values(p, k, file, line):
     """The optional values of entry ``k``: ``t_min``, ``t_max`` [s] and ``f_max`` [Hz]
-    finite numbers, ``peaks`` an integer 0..20, ``title`` and ``ylabel`` texts."""
+    finite numbers, ``peaks`` an integer 0..20, ``title`` and ``ylabel`` texts,
+    ``one_panel`` true or false (the text ``"no"`` would count as true)."""
     _check_plot_numbers(p, k, file, line)
     _check_plot_texts(p, k, file, line)
+    if "one_panel" in p and not isinstance(p["one_panel"], bool):
+        raise DiagramError(f"plots[{k}]: 'one_panel' must be true or false, got "
+                           f"{_kind_of(p['one_panel'])}", file=file,
+                           line=_key_line(p, "one_panel", line))
 
 
 def _check_plot_numbers(p, k, file, line):
@@ -143,9 +148,10 @@ def _check_peaks(p, k, file, line):
 
 
 def _check_plot_texts(p, k, file, line):
-    """``title`` and ``ylabel``: texts (a number is accepted as its text)."""
+    """``title`` and ``ylabel``: texts (a number is accepted as its text; a boolean, YAML's
+    yes/no/true/false, is not)."""
     for key in ("title", "ylabel"):
-        if key in p and not isinstance(p[key], (str, int, float)):
+        if key in p and (isinstance(p[key], bool) or not isinstance(p[key], (str, int, float))):
             raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
                                f"{_kind_of(p[key])}", file=file, line=_key_line(p, key, line))
 

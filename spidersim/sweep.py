@@ -125,11 +125,19 @@ def parse_metrics(diagram) -> list[Metric]:
         if idx is not None and idx >= n:
             fail(f"index {idx} out of range for '{sig}' ({n} element(s))")
         red = entry.get("reduce", "max")
-        if red not in REDUCERS:
-            fail(f"unknown reduce '{red}'; one of {', '.join(REDUCERS)}")
-        out.append(Metric(str(name), sig, idx if n > 1 else None, red,
-                          str(entry.get("unit", ""))))
+        if not isinstance(red, str) or red not in REDUCERS:
+            fail(f"unknown reduce {_shown(red)}; one of {', '.join(REDUCERS)}")
+        unit = entry.get("unit", "")
+        if isinstance(unit, bool) or not isinstance(unit, (str, int)):
+            fail(f"'unit' must be a text (it labels the axis), got {_shown(unit)}")
+        out.append(Metric(str(name), sig, idx if n > 1 else None, red, str(unit)))
     return out
+
+
+def _shown(v):
+    """A value in a message: a text quoted, a list or mapping by its kind."""
+    return (f"'{v}'" if isinstance(v, str) else "a list" if isinstance(v, list)
+            else "a mapping" if isinstance(v, dict) else repr(v))
 
 
 def parse_vary(items) -> list[tuple[str, list]]:

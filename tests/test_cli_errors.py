@@ -307,3 +307,29 @@ def test_run_unsolvable_loop_is_reported_and_keeps_data(tmp_path, capsys, monkey
                        "fb.y -> sum.u2")
     assert (out_dir / "result.npz").exists()
     assert "status: failed" in (out_dir / "report.txt").read_text()
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["run", "d.yaml", "--t-end", "nan"], "argument --t-end: expected a finite number > 0"),
+    (["run", "d.yaml", "--t-end", "true"], "argument --t-end: expected a number > 0"),
+    (["run", "d.yaml", "--t-end", "-1"], "argument --t-end: expected a finite number > 0"),
+    (["sweep", "d.yaml", "--vary", "k=1", "--t-end", "inf"],
+     "argument --t-end: expected a finite number > 0, got 'inf'"),
+    (["sweep", "d.yaml", "--vary", "k=1", "--workers", "-1"],
+     "argument --workers: expected an integer >= 0, got -1"),
+    (["run", "d.yaml", "--remote", "http://x", "--timeout", "nan"], "argument --timeout"),
+    (["serve", "--max-t-end", "nan"], "argument --max-t-end: expected a finite number > 0"),
+    (["serve", "--job-timeout", "0"], "argument --job-timeout: expected a finite number > 0"),
+    (["serve", "--max-jobs", "0"], "argument --max-jobs: expected an integer >= 1"),
+    (["serve", "--max-body", "1.5"], "argument --max-body: expected an integer >= 1"),
+    (["serve", "--port", "70000"], "argument --port: expected an integer in 1..65535"),
+])
+def test_numeric_options_refuse_nan_inf_and_out_of_range(argv, words, capsys):
+    """Numeric options are finite and in range before anything runs: ``--max-t-end nan``
+    made every run pass the service's limit (``t_end > nan`` is False), ``--job-timeout
+    nan`` never timed out, ``--t-end true`` and ``-1`` are no times. Exit status 2 and the
+    option's name, no traceback."""
+    with pytest.raises(SystemExit) as ei:
+        main(argv)
+    err = capsys.readouterr().err
+    assert ei.value.code == 2 and words in err and "Traceback" not in err

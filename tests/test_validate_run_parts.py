@@ -30,9 +30,10 @@ def test_method_from_the_file_or_the_command_line():
     assert cli._check_method(diagram(method="LSODA"), None) == "LSODA"
 
 
-@pytest.mark.parametrize("t_end", [0, -1.0, math.inf, math.nan, "1"])
+@pytest.mark.parametrize("t_end", [0, -1.0, math.inf, math.nan, "1", True])
 def test_t_end_must_be_a_finite_positive_time(t_end):
-    """Zero, negative, infinite, NaN, text: refused, naming the source (``--t-end``)."""
+    """Zero, negative, infinite, NaN, text, a boolean (``True`` is an int to Python, not a
+    time: it was accepted as 1 s): refused, naming the source (``--t-end``)."""
     with pytest.raises(DiagramError, match="--t-end: t_end must be a finite time > 0 s"):
         cli._check_t_end(diagram(t_end=1.0), t_end)
 
@@ -59,3 +60,12 @@ def test_analysis_time():
                for at in (None, "initial", "trim", {"x": 1}, 0, 2.0))
     assert not any(cli._valid_analysis_time(at, 2.0)
                    for at in ("end", -0.1, 2.5, True, [1]))
+
+
+def test_t_end_bool_from_the_settings_is_refused_at_its_line():
+    """A boolean that reached the settings (the API, not the YAML loader, which refuses it
+    earlier) is refused at the line of ``t_end``, not run for 1 s."""
+    with pytest.raises(DiagramError, match="simulation.t_end: t_end must be a finite time "
+                                           "> 0 s, got True") as ei:
+        cli._check_t_end(diagram(t_end=True), None)
+    assert ei.value.line == 10

@@ -635,9 +635,10 @@ class Block:
 
     @classmethod
     def _normalise_scalar(cls, decl, arr, fail):
-        """A real scalar (a one-element list is accepted), within the bounds, as a float."""
+        """A real scalar (a one-element flat list is accepted; a nested one, ``[[[1]]]``,
+        is not a scalar), within the bounds, as a float."""
         if arr.ndim != 0:
-            if arr.size == 1:
+            if arr.size == 1 and arr.ndim == 1:
                 arr = arr.reshape(())
             else:
                 fail(f"must be a scalar, got an array of shape {arr.shape}")
@@ -656,7 +657,7 @@ class Block:
             if arr.size == 1 and n != 1:
                 arr = np.full(n, arr[0])
             if arr.size != n:
-                fail(f"must have {n} elements ({shape}), got {arr.size}")
+                fail(f"must have {n} elements ({_size_text(shape)}), got {arr.size}")
         if arr.size == 0:
             fail("must not be empty")
         return arr
@@ -675,8 +676,8 @@ class Block:
             if d != "*":
                 n = cls._dim(d, known)
                 if arr.shape[k] != n:
-                    fail(f"must have {n} {'rows' if k == 0 else 'columns'} ({d}), "
-                         f"got shape {arr.shape}")
+                    fail(f"must have {n} {'rows' if k == 0 else 'columns'} "
+                         f"({_size_text(d)}), got shape {arr.shape}")
         return arr
 
     @staticmethod

@@ -99,7 +99,7 @@ def _unit_factor(unit, decl, record):
         return U.factor(given, U.base(given))
     if decl.kind != "real":
         raise U.UnitError(f"a {decl.kind} parameter takes no unit")
-    if decl.unit == U.ANY or "@" in decl.unit or callable(decl.unit):
+    if callable(decl.unit) or decl.unit == U.ANY or "@" in decl.unit:
         if record is not None:
             record(unit)
         return None
@@ -129,13 +129,28 @@ def _quantity(value, scope, decl, file, line, what, block, record):
     return (np.asarray(x, dtype=float) * f).tolist()
 
 
-def _plain_value(value, scope, file, line, what):
+def _check_rectangular(values):
+    """A list value is an array of numbers: every row of the same length, at every depth
+    (``[1, [2, 3]]`` or ``[[1, 2], [3]]`` is no array; numpy refuses them with a
+    ValueError about an inhomogeneous shape). An ExprError says so."""
+    try:
+        np.asarray(values, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ExprError("a list value must be a number list or a matrix (rows of equal "
+                        "length, numbers only), got a ragged or mixed list") from None
+
+
+def _plain_value(value, scope, file, line, what, block=None):
     """A value without a unit: an expression (evaluated in ``scope``), a list (element by
-    element), a number or a boolean; an empty entry or anything else is an ExprError."""
+    element, an error in an element located like one in the whole value: same file, line
+    and ``block``), a number or a boolean; an empty entry or anything else is an
+    ExprError."""
     if isinstance(value, str):
         return evaluate(value, scope)
     if isinstance(value, list):
-        return [_eval_value(v, scope, None, file, line, what) for v in value]
+        out = [_eval_value(v, scope, None, file, line, what, block) for v in value]
+        _check_rectangular(out)
+        return out
     if value is None:
         raise ExprError("no value given (empty entry)")
     if isinstance(value, (bool, int, float)):
@@ -154,7 +169,7 @@ def _eval_value(value, scope, decl, file, line, what, block=None, record=None):
     if isinstance(value, dict):
         return _quantity(value, scope, decl, file, line, what, block, record)
     try:
-        return _plain_value(value, scope, file, line, what)
+        return _plain_value(value, scope, file, line, what, block)
     except ExprError as exc:
         lead = ("expected a number or an expression of parameters; "
                 if isinstance(value, str) else "")

@@ -49,6 +49,20 @@ def _check_microgravity_keys(sec, err):
                       f"mass: the station mass in kg)")
 
 
+def _found(v):
+    """What a value of the wrong type is, for a message: ``a list``, ``a mapping``, ``the
+    boolean True``, ``nothing (an empty entry)`` or its short repr."""
+    if isinstance(v, bool):
+        return f"the boolean {v!r}"
+    if isinstance(v, (list, tuple)):
+        return "a list"
+    if isinstance(v, dict):
+        return "a mapping"
+    if v is None:
+        return "nothing (an empty entry)"
+    return repr(v)[:60]
+
+
 def _positive_setting(sec, k, default, scope, err):
     """Setting ``k`` of a section (``default`` when absent): a number or an expression of
     the parameters in ``scope``, finite and > 0, as a float. Booleans are refused."""
@@ -205,7 +219,11 @@ class Diagram:
 
     def _check_microgravity_signal(self, signal, err):
         """The microgravity ``signal`` is logged; a signal of the diagram that is not
-        logged is told to be added to ``log``, an unknown one gets near names."""
+        logged is told to be added to ``log``, an unknown one gets near names; anything
+        but a text (a list, a mapping, a number) is refused before it is looked up."""
+        if not isinstance(signal, str):
+            raise err(f"'signal' must be a signal name 'block.port', got {_found(signal)}",
+                      "signal")
         if signal in self.logged_sizes():
             return
         known = {r[0] for r in self._signal_table()}

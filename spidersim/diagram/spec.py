@@ -187,6 +187,21 @@ def _check_sections(data, file):
         raise DiagramError("the diagram has no 'blocks' section", file=file, line=1)
 
 
+def _text(data, key, default, file):
+    """Free-text section ``key`` (``name``, ``description``): a text, or a number taken as
+    its text; ``default`` when absent or empty (the name may not be empty). A boolean,
+    a list or a mapping is a DiagramError at its line."""
+    v = data.get(key)
+    if v is None and not (key == "name" and key in data):
+        return default
+    if isinstance(v, bool) or not isinstance(v, (str, int, float)):
+        found = ("empty" if v is None else f"the boolean {v!r}" if isinstance(v, bool)
+                 else "a list" if isinstance(v, list) else "a mapping")
+        raise DiagramError(f"section '{key}' must be a text, got {found}", file=file,
+                           line=data.line_of(key))
+    return str(v)
+
+
 def _base_dir(file):
     """Folder that relative subsystem paths of ``file`` start from (the current folder for
     a diagram given as text, ``file == "<string>"``)."""
@@ -428,8 +443,8 @@ def _parse_data(data, file: str) -> DiagramSpec:
     metrics = _section(data, "metrics", LineDict, file)
     microgravity = _section(data, "microgravity", LineDict, file)
     return DiagramSpec(
-        file=file, name=str(data.get("name", os.path.splitext(os.path.basename(file))[0])),
-        description=str(data.get("description", "")), parameters=dict(params),
+        file=file, name=_text(data, "name", os.path.splitext(os.path.basename(file))[0], file),
+        description=_text(data, "description", "", file), parameters=dict(params),
         param_lines={k: params.line_of(k) for k in params}, subsystems=subsystems,
         subsystem_lines={k: subs_raw.line_of(k) for k in subs_raw}, blocks=blocks,
         connections=conns, inputs=inputs, outputs=outputs, port_lines=port_lines,

@@ -38,10 +38,14 @@ class Limits(BaseModel):
 
 
 # ---------------------------------------------------------------------------- request types
+#: a number of a request: JSON int or float; true/false and texts ("2") are refused (lax
+#: pydantic would read true as 1.0, so ``"t_end": true`` ran for 1 s)
+Number = Annotated[float, Field(strict=True)]
+
 class Quantity(BaseModel):
     """A value with its unit (Modelica notation), converted to the declared unit."""
     model_config = ConfigDict(extra="forbid")
-    value: Union[float, list[float]]
+    value: Union[Number, list[Number]]
     unit: str = Field(max_length=100, description="e.g. mOhm, deg, rpm, mm, N.m")
 
 
@@ -49,8 +53,8 @@ class TableCommand(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Literal["table"]
     block: Optional[str] = Field(None, description="source block to replace")
-    time: list[float] = Field(description="strictly increasing times [s]")
-    value: list[float] = Field(description="values at those times (unit of the input fed)")
+    time: list[Number] = Field(description="strictly increasing times [s]")
+    value: list[Number] = Field(description="values at those times (unit of the input fed)")
     unit: Optional[str] = Field(None, max_length=100,
                                 description="unit of the values (default: the model's)")
 
@@ -59,9 +63,9 @@ class JointPathCommand(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Literal["joint_path"]
     block: Optional[str] = Field(None, description="trajectory block")
-    points: list[float] = Field(description="via points (joint units); more than 2 "
+    points: list[Number] = Field(description="via points (joint units); more than 2 "
                                 "replace the block by a ViaPointProfile")
-    times: list[float] = Field(description="times of the via points [s], strictly increasing")
+    times: list[Number] = Field(description="times of the via points [s], strictly increasing")
     unit: Optional[str] = Field(None, max_length=100,
                                 description="unit of the points (default: the joint's, rad)")
 
@@ -70,12 +74,12 @@ class CartesianLineCommand(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Literal["cartesian_line"]
     ik: Optional[str] = None
-    direction: list[float] = Field(description="line direction, base frame")
-    distance: Optional[Union[float, Quantity]] = Field(None, description="path length [m]")
-    speed: Optional[Union[float, Quantity]] = Field(None, description="cruise speed [m/s]")
-    accel: Optional[Union[float, Quantity]] = Field(None,
+    direction: list[Number] = Field(description="line direction, base frame")
+    distance: Optional[Union[Number, Quantity]] = Field(None, description="path length [m]")
+    speed: Optional[Union[Number, Quantity]] = Field(None, description="cruise speed [m/s]")
+    accel: Optional[Union[Number, Quantity]] = Field(None,
                                                     description="path acceleration [m/s2]")
-    t_start: Optional[Union[float, Quantity]] = Field(None, description="start time [s]")
+    t_start: Optional[Union[Number, Quantity]] = Field(None, description="start time [s]")
 
 
 class NamedCommand(BaseModel):
@@ -96,7 +100,7 @@ class RunRequest(BaseModel):
     model: str = Field(description="model name from GET /models")
     parameters: dict[str, Value] = Field({}, description="'name' or 'block.param' -> value")
     initial: dict[str, Value] = Field({}, description="'block.state' -> initial value")
-    t_end: Optional[float] = Field(None, description="simulated time [s]")
+    t_end: Optional[Number] = Field(None, description="simulated time [s]")
     log: Optional[list[str]] = Field(None, description="signals to record")
     command: Optional[Command] = None
     plots: bool = Field(True, description="draw the model's plots")

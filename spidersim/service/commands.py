@@ -107,11 +107,49 @@ def _line_blocks(spec):
     return pairs
 
 
-def _argument_decl(v):
-    """A declared argument of a named command: ``{doc, unit, default}`` (texts, '' when
-    not given; default None)."""
-    return {"doc": str((v or {}).get("doc", "")), "unit": str((v or {}).get("unit", "")),
-            "default": (v or {}).get("default")}
+#: keys of an argument declaration of a named command
+ARGUMENT_KEYS = ("doc", "unit", "default")
+
+
+def _found(v):
+    """What a value of the wrong type is, for a message."""
+    if isinstance(v, bool):
+        return f"the boolean {v!r}"
+    if isinstance(v, (list, tuple)):
+        return "a list"
+    if isinstance(v, dict):
+        return "a mapping"
+    return repr(v)[:60]
+
+
+def _argument_decl(v, command, name, spec, where):
+    """A declared argument ``name`` of named command ``command``: ``{doc, unit, default}``
+    (texts, '' when not given; default None). An empty declaration is one without doc,
+    unit or default; anything but a mapping of those keys (e.g. ``t_latch: 3``, a value
+    where the declaration belongs) is a ParameterError located at ``where``."""
+    def fail(msg):
+        raise ParameterError(f"command '{command}': argument '{name}' {msg}",
+                             file=getattr(spec, "file", None), line=where)
+
+    if v is None:
+        v = {}
+    if not isinstance(v, dict):
+        fail(f"must be declared by a mapping {{doc: ..., unit: ..., default: ...}} (or "
+             f"nothing), got {_found(v)}; a default value is written {{default: {v!r:.20}}}")
+    bad = [str(k) for k in v if k not in ARGUMENT_KEYS]
+    if bad:
+        fail(f"has unknown key(s) {', '.join(sorted(bad))}; keys are "
+             f"{', '.join(ARGUMENT_KEYS)}")
+    for k in ("doc", "unit"):
+        if not isinstance(v.get(k, ""), str):
+            fail(f"'{k}' must be a text, got {_found(v[k])}")
+    if v.get("unit"):
+        try:
+            U.parse(v["unit"])
+        except U.UnitError as exc:
+            fail(f"'unit': {exc}")
+    return {"doc": v.get("doc", ""), "unit": v.get("unit", ""),
+            "default": v.get("default")}
 
 
 def _command_entry(name, c, spec, where):
@@ -127,13 +165,23 @@ def _command_entry(name, c, spec, where):
                              line=where)
     args = c.get("arguments") or {}
     if isinstance(args, list):
+        if not all(isinstance(a, str) for a in args):
+            raise ParameterError(f"command '{name}': a list of 'arguments' must hold "
+                                 f"parameter paths (texts)", file=getattr(spec, "file", None),
+                                 line=where)
         args = {a: {} for a in args}
     sets = c.get("set") or {}
     if not isinstance(args, dict) or not isinstance(sets, dict):
         raise ParameterError(f"command '{name}': 'arguments' and 'set' must be mappings",
                              file=spec.file, line=where)
+    t_end = c.get("t_end")
+    if t_end is not None and not _is_time(t_end):
+        raise ParameterError(f"command '{name}': t_end must be a finite time > 0 s, got "
+                             f"{_found(t_end)}", file=getattr(spec, "file", None),
+                             line=where)
     return {"doc": str(c.get("doc", "")), "set": dict(sets),
-            "arguments": {str(k): _argument_decl(v) for k, v in args.items()},
+            "arguments": {str(k): _argument_decl(v, name, str(k), spec, where)
+                          for k, v in args.items()},
             "t_end": c.get("t_end")}
 
 
@@ -175,9 +223,12 @@ def _numbers(v, what, spec, n_max=MAX_TABLE):
         _fail(f"command.{what} must be a non-empty list of numbers", spec)
     if len(v) > n_max:
         _fail(f"command.{what} has {len(v)} values, at most {n_max} allowed", spec)
+    if any(isinstance(x, (bool, np.bool_)) for x in v):
+        _fail(f"command.{what} must hold numbers, got a boolean (true/false is not a "
+              f"number; write 1 or 0)", spec)
     try:
         a = np.array(v, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         _fail(f"command.{what} must hold numbers only, got {v!r:.80}", spec)
     if a.ndim != 1 or not np.all(np.isfinite(a)):
         _fail(f"command.{what} must be a flat list of finite numbers", spec)
@@ -450,16 +501,21 @@ def _log_only(spec, log):
         split_signal(s)[0] in logged for s in p.get("signals", []))]
 
 
+def _is_time(v):
+    """``v`` is a number (not a boolean: JSON/YAML ``true`` is not 1 s), finite and > 0."""
+    return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+            and np.isfinite(v) and v > 0)
+
+
 def _run_length(req, t_cmd, d, spec):
     """The run length [s]: the request's ``t_end``, else the command's, else the model's;
-    it must be a positive finite number."""
+    it must be a positive finite number (a boolean, a text or a list is refused)."""
     t_end = req.get("t_end")
     if t_end is None:
         t_end = t_cmd if t_cmd is not None else d.simulation["t_end"]
-    t_end = float(t_end)
-    if not (np.isfinite(t_end) and t_end > 0):
-        _fail(f"t_end must be a positive number of seconds, got {t_end}", spec)
-    return t_end
+    if not _is_time(t_end):
+        _fail(f"t_end must be a positive number of seconds, got {_found(t_end)}", spec)
+    return float(t_end)
 
 
 def prepare(model, req):

@@ -124,14 +124,30 @@ def _int_as_float(v):
     return float(v) if isinstance(v, int) and not isinstance(v, bool) else v
 
 
+def _has_bool(v):
+    """``v`` is a boolean or a list holding one (at any depth)."""
+    if isinstance(v, (bool, np.bool_)):
+        return True
+    return isinstance(v, (list, tuple)) and any(_has_bool(x) for x in v)
+
+
+def _operand(v, text):
+    """``v`` as an operand of arithmetic or of a function: a boolean (a parameter set to
+    true/false) is not a number, so ``2*flag`` is an ExprError rather than 2 or 0."""
+    if _has_bool(v):
+        raise ExprError(f"a boolean (true/false) is not a number in '{_short(text)}'; "
+                        f"write 1 or 0 if a number is meant")
+    return v
+
+
 def _binop(node, names, text):
     """``a op b`` for ``+ - * / // % **``; with a list on either side, element-wise
     (numpy broadcasting) and a list again."""
     op = _BINOPS.get(type(node.op))
     if op is None:
         raise _not_allowed(node, text)
-    a = _int_as_float(_eval(node.left, names, text))
-    b = _int_as_float(_eval(node.right, names, text))
+    a = _int_as_float(_operand(_eval(node.left, names, text), text))
+    b = _int_as_float(_operand(_eval(node.right, names, text), text))
     if isinstance(a, list) or isinstance(b, list):
         return op(np.asarray(a, float), np.asarray(b, float)).tolist()
     return op(a, b)
@@ -142,7 +158,7 @@ def _unaryop(node, names, text):
     op = _UNOPS.get(type(node.op))
     if op is None:
         raise _not_allowed(node, text)
-    v = _eval(node.operand, names, text)
+    v = _operand(_eval(node.operand, names, text), text)
     if isinstance(v, list):
         return op(np.asarray(v, float)).tolist()
     return op(v)
@@ -177,7 +193,8 @@ def _call(node, names, text):
     if fn is None:
         raise ExprError(f"unknown function '{node.func.id}' in '{text}' "
                         f"(allowed: {', '.join(sorted(FUNCTIONS))})")
-    return fn(*[_eval(a, names, text) for a in node.args])
+    args = [_eval(a, names, text) for a in node.args]
+    return fn(*(args if fn is len else [_operand(a, text) for a in args]))
 
 
 #: syntax node type -> its evaluator ``f(node, names, text)``; any other node is refused

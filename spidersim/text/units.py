@@ -78,14 +78,25 @@ def _to_pint(text):
     return "".join(out)
 
 
-@functools.lru_cache(maxsize=4096)
 def parse(text: str) -> pint.Unit:
     """The pint unit of a Modelica unit text (``"N.m/rad"`` -> newton * meter / radian).
 
-    Raises :class:`UnitError` for text that is not a unit (unknown names, ``*``, ``@`` rules).
+    Raises :class:`UnitError` for text that is not a unit (unknown names, ``*``, ``@`` rules)
+    and for anything that is not a short text (a number, a list, a mapping: checked before
+    the cache look-up, which would raise TypeError on an unhashable value).
     """
     if not isinstance(text, str) or not text.strip() or len(text) > _MAX_TEXT:
-        raise UnitError(f"a unit must be a short text such as 'N.m' or 'rad/s', got {text!r}")
+        shown = text if isinstance(text, str) else (
+            "a mapping" if isinstance(text, dict) else "a list" if isinstance(text, list)
+            else repr(text))
+        raise UnitError(f"a unit must be a short text such as 'N.m' or 'rad/s', got "
+                        f"{shown!s:.60}")
+    return _parse_text(text)
+
+
+@functools.lru_cache(maxsize=4096)
+def _parse_text(text: str) -> pint.Unit:
+    """:func:`parse` of a text, cached."""
     if text.strip() == "1":
         return _REGISTRY.dimensionless
     if "@" in text or text.strip() == ANY:

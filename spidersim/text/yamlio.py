@@ -102,6 +102,17 @@ def _expanded_size(root):
     return memo.get(id(root), 0)
 
 
+def _key_not_a_name(key, knode):
+    """The message for a mapping key that YAML read as a number, a boolean or null: every
+    key of a diagram (block names, parameters, settings, signals) is a name."""
+    written = knode.value if isinstance(knode, yaml.ScalarNode) else key
+    what = ("a boolean (YAML reads yes/no/on/off/true/false so)" if isinstance(key, bool)
+            else "empty (null)" if key is None else "an integer" if isinstance(key, int)
+            else "a number" if isinstance(key, float) else f"a {type(key).__name__}")
+    return (f"mapping key '{written}' is {what}, not a name: keys (block names, parameters, "
+            f"settings) are identifiers; quote it ('{written}') if the text is meant")
+
+
 def _construct_mapping(loader, node):
     loader.flatten_mapping(node)
     d = LineDict()
@@ -114,6 +125,8 @@ def _construct_mapping(loader, node):
         except TypeError:
             raise DiagramError(f"mapping key {key!r} is not a scalar",
                                line=knode.start_mark.line + 1) from None
+        if not isinstance(key, str):
+            raise DiagramError(_key_not_a_name(key, knode), line=knode.start_mark.line + 1)
         if key in d:
             raise DiagramError(f"duplicate key '{key}' (first on line {d.lines[key]})",
                                line=knode.start_mark.line + 1)

@@ -158,6 +158,18 @@ def test_normalise_matrix_reads_flat_lists_as_rows_or_columns():
         Block._normalise_matrix(("*", "m"), np.ones((2, 3)), {"m": 2}, fail)
 
 
+def test_size_messages_print_the_dimension_text():
+    """A size computed from parameters is named by its text in the message (``joints``),
+    not by the Dim object's dump with a function address."""
+    joints = Dim("joints", lambda p: 7)
+    with pytest.raises(ValueError, match=r"must have 7 elements \(joints\), got 3$") as ei:
+        Block._normalise_vector(joints, np.ones(3), {}, fail)
+    assert "function" not in str(ei.value) and "Dim(" not in str(ei.value)
+    with pytest.raises(ValueError, match=r"must have 7 rows \(joints\), got shape") as ei:
+        Block._normalise_matrix((joints, "*"), np.ones((2, 2)), {}, fail)
+    assert "function" not in str(ei.value)
+
+
 def test_as_float_array_refuses_booleans_and_strings():
     """Booleans (alone or inside a list) and strings are not numbers for a real parameter;
     overflowing numbers become inf (refused later by the finiteness check)."""

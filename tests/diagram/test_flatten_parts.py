@@ -148,6 +148,30 @@ def test_unit_factor_to_declared_unit_or_si():
         F._unit_factor("V", Param(1.0, "Ohm"), None)
 
 
+def test_unit_factor_with_a_unit_rule_records_without_converting():
+    """A declared unit that is a rule (a function of the block's parameters, not a text)
+    is inherited like ``*``: recorded, no factor. The rule is tested before the text
+    tests (``"@" in unit`` on a function was a TypeError)."""
+    from spidersim.blocks.base import Param
+    seen = []
+    assert F._unit_factor("N", Param(1.0, lambda p: "N"), seen.append) is None
+    assert seen == ["N"]
+
+
+def test_error_in_a_list_element_keeps_the_block():
+    """An error inside one element of a list-valued block parameter is located like one
+    in the whole value: file, line and the block's path (the list branch passed none)."""
+    spec = parse_text("blocks:\n  c: {type: Constant, value: [1, 'nope + 1', 3]}\n",
+                      file="d.yaml")
+    with pytest.raises(ParameterError) as ei:
+        F.flatten(spec)
+    assert ei.value.block == "c" and ei.value.line == 2 and ei.value.file == "d.yaml"
+    assert "nope" in ei.value.message
+    with pytest.raises(ParameterError) as ei:
+        F._eval_value([[1, "2 +"]], {}, None, "f", 3, "p", block="x.y")
+    assert ei.value.block == "x.y" and ei.value.line == 3
+
+
 def test_plain_values():
     """Expressions see the scope, lists are evaluated element by element, numbers and
     booleans stay; an empty entry says so."""
@@ -158,6 +182,17 @@ def test_plain_values():
         F._plain_value(None, {}, "f", 1, "p")
     with pytest.raises(ParameterError, match="p: no value given"):
         F._plain_value([None], {}, "f", 1, "p")
+
+
+@pytest.mark.parametrize("value", [[1, [2, 3]], [[1, 2], [3]], [[1], 2]])
+def test_ragged_lists_are_refused(value):
+    """A list value is a number list or a matrix: rows of unequal length at any depth are
+    an ExprError (numpy's inhomogeneous-shape ValueError escaped as an internal error when
+    such a diagram parameter was used); a rectangular nested list stays."""
+    from spidersim.text.expr import ExprError
+    with pytest.raises(ExprError, match="ragged or mixed list"):
+        F._plain_value(value, {}, "f", 1, "p")
+    assert F._plain_value([[1, 2], [3, 4]], {}, "f", 1, "p") == [[1, 2], [3, 4]]
 
 
 def test_top_level_overrides_are_evaluated_and_marked_used():

@@ -156,3 +156,73 @@ def test_initial_states_through_their_parameters_and_run_length():
             C._run_length({}, None, d, None)] == [2.0, 5.0, 7.0]
     with pytest.raises(ParameterError, match="t_end must be a positive number"):
         C._run_length({"t_end": -1}, None, d, None)
+
+
+@pytest.mark.parametrize("decl, words", [
+    (3, "argument 't_latch' must be declared by a mapping .* got 3; a default value is "
+        "written \\{default: 3\\}"),
+    ([1, 2], "argument 't_latch' must be declared by a mapping .* got a list"),
+    ({"defualt": 3}, "argument 't_latch' has unknown key\\(s\\) defualt; keys are doc, "
+                     "unit, default"),
+    ({"unit": 5}, "argument 't_latch' 'unit' must be a text, got 5"),
+    ({"unit": "xyz"}, "argument 't_latch' 'unit': unknown unit 'xyz'"),
+])
+def test_argument_declaration_that_is_not_a_mapping(decl, words):
+    """An argument declared by a plain value (``t_latch: 3``: the default written where the
+    declaration belongs), a list, an unknown key, a unit that is not a text or not a unit:
+    a ParameterError naming the command and the argument at the command's line (was an
+    AttributeError from ``3.get``)."""
+    with pytest.raises(ParameterError, match="command 'c': " + words) as ei:
+        C._command_entry("c", {"arguments": {"t_latch": decl}},
+                         SimpleNamespace(file="m.yaml"), 5)
+    assert ei.value.line == 5 and ei.value.file == "m.yaml"
+    assert C._command_entry("c", {"arguments": {"t_latch": None}}, None, 5)["arguments"] == {
+        "t_latch": {"doc": "", "unit": "", "default": None}}
+
+
+@pytest.mark.parametrize("t_end", [True, "12", [3], math.nan, 0])
+def test_command_t_end_must_be_a_time(t_end):
+    """A command's ``t_end`` is a finite time > 0 s; ``true`` is not 1 s, a text or a list
+    is not a time (was float(True) = 1 s, or a TypeError at run time)."""
+    with pytest.raises(ParameterError, match="command 'c': t_end must be a finite time > 0 s"):
+        C._command_entry("c", {"t_end": t_end}, SimpleNamespace(file="m.yaml"), 5)
+
+
+@pytest.mark.parametrize("t_end", [True, False, "2", [1], {"a": 1}, math.inf])
+def test_request_t_end_booleans_and_texts_refused(t_end):
+    """A request's ``t_end`` of JSON ``true`` ran for 1 s and a text was a ValueError:
+    both are ParameterErrors now, like a negative time."""
+    d = SimpleNamespace(simulation={"t_end": 7.0})
+    with pytest.raises(ParameterError, match="t_end must be a positive number of seconds"):
+        C._run_length({"t_end": t_end}, None, d, None)
+
+
+def test_command_numbers_refuse_booleans():
+    """``[0, true]`` as table times is not ``[0, 1]``: a boolean among the numbers of a
+    command is refused, naming the field."""
+    with pytest.raises(ParameterError, match="command.time must hold numbers, got a boolean"):
+        C._numbers([0, True], "time", None)
+    with pytest.raises(ParameterError, match="command.distance must hold numbers"):
+        C._scalar_with_unit(True, "distance", "m", None)
+
+
+@pytest.mark.parametrize("body", [
+    '{"model": "servo", "t_end": true}',
+    '{"model": "servo", "t_end": "2"}',
+    '{"model": "servo", "command": {"kind": "table", "time": [0, true], "value": [0, 1]}}',
+    '{"model": "servo", "command": {"kind": "cartesian_line", "direction": [1, 0, 0], '
+    '"distance": false}}',
+    '{"model": "servo", "parameters": {"motor.R": {"value": true, "unit": "Ohm"}}}',
+])
+def test_request_numbers_refuse_booleans_and_texts(body):
+    """A request's numbers are JSON numbers: pydantic's lax mode read ``"t_end": true`` as
+    1.0 s and ``[0, true]`` as ``[0, 1]`` before any check of ours saw them; now the
+    request is invalid (422), naming the field."""
+    from pydantic import ValidationError
+
+    from spidersim.service.app import RunRequest
+    with pytest.raises(ValidationError, match="valid number"):
+        RunRequest.model_validate_json(body)
+    ok = RunRequest.model_validate_json('{"model": "servo", "t_end": 2, "command": {"kind": '
+                                        '"table", "time": [0, 1.5], "value": [0, 1]}}')
+    assert ok.t_end == 2.0 and ok.command.time == [0.0, 1.5]

@@ -106,3 +106,14 @@ def test_whole_expressions():
     assert evaluate("[a, L[0] + 1, -n]", NAMES) == [2.0, 2.0, -7.0]
     with pytest.raises(ExprError, match="division by zero in '1/0'"):
         evaluate("1/0", NAMES)
+
+
+@pytest.mark.parametrize("text", ["2*flag", "-flag", "flag + 1", "max(flag, 0)", "2*flags",
+                                  "sin(flag)"])
+def test_booleans_are_not_numbers_in_arithmetic(text):
+    """A parameter set to true/false used in arithmetic or a function (``2*flag``) is an
+    ExprError, not silently 2 or 0 (Python counts True as 1); ``len`` still counts a list
+    of booleans."""
+    with pytest.raises(ExprError, match="a boolean \\(true/false\\) is not a number"):
+        evaluate(text, {"flag": True, "flags": [1.0, False]})
+    assert evaluate("len(flags)", {"flags": [True, False]}) == 2
