@@ -2,6 +2,7 @@
 imported as it is; it is discarded, compiled again, and the run still gives its result."""
 import glob
 import os
+import shutil
 import subprocess
 import sys
 
@@ -50,13 +51,29 @@ def _no_hash(py, marker, other):
     os.remove(py[:-3] + ".sha256")
 
 
-@pytest.mark.parametrize("tamper", [_truncate, _empty, _append, _swap, _no_hash],
-                         ids=lambda f: f.__name__.strip("_"))
-def test_tampered_entry_is_discarded_and_recompiled(tmp_path, tamper):
-    cache, other_cache = tmp_path / "cache", tmp_path / "other"
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory):
+    """Two cache folders made once per module by real runs (the CLI in a fresh process):
+    one holding the entry of ``three_lags.yaml``, one that of ``algebraic_loop.yaml``.
+    Tests copy the first (``_copy``) instead of each writing the same entry again; the
+    second is only read (the ``swap`` tampering)."""
+    base = tmp_path_factory.mktemp("pristine")
+    cache, other = base / "cache", base / "other"
     first = _run(cache)
     assert first.returncode == 0, first.stderr
-    assert _run(other_cache, OTHER).returncode == 0
+    assert _run(other, OTHER).returncode == 0
+    return cache, other
+
+
+def _copy(pristine, dest):
+    shutil.copytree(pristine[0], dest)
+    return dest
+
+
+@pytest.mark.parametrize("tamper", [_truncate, _empty, _append, _swap, _no_hash],
+                         ids=lambda f: f.__name__.strip("_"))
+def test_tampered_entry_is_discarded_and_recompiled(tmp_path, tamper, pristine):
+    cache, other_cache = _copy(pristine, tmp_path / "cache"), pristine[1]
     marker = tmp_path / "marker"
     py = _entry(cache)
     tamper(py, marker, _entry(other_cache))
@@ -70,9 +87,8 @@ def test_tampered_entry_is_discarded_and_recompiled(tmp_path, tamper):
     assert third.returncode == 0 and "cache:" not in third.stderr
 
 
-def test_untouched_entry_is_loaded_without_a_word(tmp_path):
-    cache = tmp_path / "cache"
-    assert _run(cache).returncode == 0
+def test_untouched_entry_is_loaded_without_a_word(tmp_path, pristine):
+    cache = _copy(pristine, tmp_path / "cache")
     again = _run(cache)
     assert again.returncode == 0 and "cache:" not in again.stderr
 
@@ -91,9 +107,8 @@ def test_unusable_cache_falls_back_to_a_temporary_folder(tmp_path, kind):
     assert "not a writable folder" in res.stderr and "Traceback" not in res.stderr
 
 
-def test_cache_info_and_clear(tmp_path):
-    cache = tmp_path / "cache"
-    assert _run(cache).returncode == 0
+def test_cache_info_and_clear(tmp_path, pristine):
+    cache = _copy(pristine, tmp_path / "cache")
     keep = cache / "mine.txt"
     keep.write_text("not spidersim's")
     env = dict(os.environ, SPIDERSIM_CACHE=str(cache))
