@@ -538,11 +538,12 @@ def cmd_linearize(args):
     for name in names:
         if name is not None:
             inputs, outputs, opened, at, loop = analysis_request(d, name)
-        if loop is None and not (inputs and outputs):
-            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
-                               f"'outputs' (at least one of each), got "
-                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
-                               file=d.file, line=lines(name))
+            if loop is None and not (inputs and outputs):
+                lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
+                raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' "
+                                   f"and 'outputs' (at least one of each), got "
+                                   f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                                   file=d.file, line=lines(name))
             if isinstance(at, str):
                 at = parse_at(at)
         else:

@@ -41,6 +41,7 @@ import math
 import numpy as np
 
 from . import bdf, rosenbrock
+from .sysfn import entry_point
 from .events import UNSEEN_STEP
 from .loop_body import run_loop
 from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
@@ -155,7 +156,6 @@ class CompiledLoop:
                 s.modes, pause_steps)
 
     def call(self, pause_steps=PAUSE_STEPS):
-        from .system import entry_point
         args = (self.entry,) + self.arguments(pause_steps)
         e = entry_point(run_loop, args)
         return int((e or run_loop)(*args))

@@ -187,3 +187,20 @@ def _copy_row(x, sig, s_idx, x_idx, buf, row):
         buf[row, k] = x[i]
         k += 1
     return ok
+
+
+_ENTRY: dict = {}
+
+
+def entry_point(dispatcher, args):
+    """The machine code of ``dispatcher`` for the types of ``args`` (looked up once per
+    process and dispatcher: the callers always pass the same types), or None when it is not
+    compiled for them yet."""
+    e = _ENTRY.get(dispatcher)
+    if e is None:
+        import numba
+        over = dispatcher.overloads.get(tuple(numba.typeof(a) for a in args))
+        if over is None:
+            return None
+        e = _ENTRY[dispatcher] = over.entry_point
+    return e

@@ -30,28 +30,12 @@ from __future__ import annotations
 import numpy as np
 
 from . import sysfn
+from .sysfn import entry_point
 
 #: the Python-side calls of a compiled system, compiled once for every diagram
 _OPS = {name: getattr(sysfn, name) for name in (
     "rhs", "outputs", "record", "record_guards", "guards", "next_time", "time_events",
     "initialize", "apply_event")}
-
-
-_ENTRY: dict = {}
-
-
-def entry_point(dispatcher, args):
-    """The machine code of ``dispatcher`` for the types of ``args`` (looked up once per
-    process and dispatcher: the callers always pass the same types), or None when it is not
-    compiled for them yet."""
-    e = _ENTRY.get(dispatcher)
-    if e is None:
-        import numba
-        over = dispatcher.overloads.get(tuple(numba.typeof(a) for a in args))
-        if over is None:
-            return None
-        e = _ENTRY[dispatcher] = over.entry_point
-    return e
 
 
 class CompiledSystem:
