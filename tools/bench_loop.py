@@ -12,8 +12,8 @@ For each problem, interleaved in one process (best of 7):
   step by step (events located with brentq on its dense output), the usual Python way;
 * **spidersim LSODA**: the diagram with SciPy's LSODA in spidersim's Python loop.
 
-``lugre``, ``servo_stiff`` and ``spider`` time the stiff method instead: spidersim
-``ROS34PW2`` against the same equations as one hand-written numba function driven by SciPy's
+``lugre``, ``servo_stiff`` and ``spider`` time the stiff methods instead: spidersim
+``NDF`` and ``ROS34PW2`` against the same equations as one hand-written numba function driven by SciPy's
 LSODA (LuGre, servo; none for spider.yaml) and spidersim LSODA, interleaved, with steps, RHS calls, Jacobians and LU
 factorisations (``spider`` is not in the default set: it takes minutes).
 
@@ -370,7 +370,8 @@ def _stiff(title, path, t_end, rtol, atol, repeat=5, dp54=True, hand=None):
     import spidersim
     d = spidersim.load(os.path.join(ROOT, path))
     kw = dict(t_end=t_end, rtol=rtol, atol=atol)
-    variants = [("spidersim ROS34PW2", lambda: d.simulate(method="ROS34PW2", **kw))]
+    variants = [("spidersim NDF", lambda: d.simulate(method="NDF", **kw)),
+                ("spidersim ROS34PW2", lambda: d.simulate(method="ROS34PW2", **kw))]
     if dp54:
         variants.append(("spidersim DP54", lambda: d.simulate(method="DP54", **kw)))
     if hand is not None:
