@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 from .errors import DiagramError
-from .outputs import atomic_path, write_atomic
+from .outputs import save_figure, write_atomic
 
 ANALYSIS_KEYS = ("inputs", "outputs", "open", "at", "loop")
 
@@ -114,12 +114,7 @@ def bode_png(sys, path, title=""):
     am.legend(fontsize="small")
     am.set_title(f"Bode: {title}" if title else "Bode")
     fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def save_matrices(sys, folder, stem="linearization"):

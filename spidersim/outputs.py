@@ -102,3 +102,15 @@ def atomic_path(path):
     except BaseException:
         _remove(tmp)
         raise
+
+
+def save_figure(fig, path, dpi=110):
+    """Write a matplotlib figure to ``path`` atomically (:func:`atomic_path`) and close it,
+    also when writing fails; returns ``path``."""
+    import matplotlib.pyplot as plt
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        plt.close(fig)
+    return path

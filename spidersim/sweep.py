@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import DiagramError, SpidersimError
-from .outputs import atomic_path, safe_stem, write_atomic
+from .outputs import safe_stem, save_figure, write_atomic
 from .plots import signal_values, split_signal
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
@@ -305,12 +305,7 @@ class SweepResult:
             ax.legend()
         fig.tight_layout()
         path = _figure_path(folder, m, fixed)
-        try:
-            with atomic_path(path) as tmp:
-                fig.savefig(tmp, dpi=110)
-        finally:
-            plt.close(fig)
-        return path
+        return save_figure(fig, path)
 
 
 class Curve(NamedTuple):

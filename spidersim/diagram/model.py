@@ -21,6 +21,7 @@ from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
 from .units import UNKNOWN, infer_units
 from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
+from ..text.yamlio import found
 
 #: loop residual tolerances are this fraction of the integrator's atol and rtol
 LOOP_TOL_FACTOR = 1e-3
@@ -47,20 +48,6 @@ def _check_microgravity_keys(sec, err):
         if k not in sec:
             raise err(f"'{k}' is required (signal: the base force, e.g. arm.base_force; "
                       f"mass: the station mass in kg)")
-
-
-def _found(v):
-    """What a value of the wrong type is, for a message: ``a list``, ``a mapping``, ``the
-    boolean True``, ``nothing (an empty entry)`` or its short repr."""
-    if isinstance(v, bool):
-        return f"the boolean {v!r}"
-    if isinstance(v, (list, tuple)):
-        return "a list"
-    if isinstance(v, dict):
-        return "a mapping"
-    if v is None:
-        return "nothing (an empty entry)"
-    return repr(v)[:60]
 
 
 def _positive_setting(sec, k, default, scope, err):
@@ -222,7 +209,7 @@ class Diagram:
         logged is told to be added to ``log``, an unknown one gets near names; anything
         but a text (a list, a mapping, a number) is refused before it is looked up."""
         if not isinstance(signal, str):
-            raise err(f"'signal' must be a signal name 'block.port', got {_found(signal)}",
+            raise err(f"'signal' must be a signal name 'block.port', got {found(signal)}",
                       "signal")
         if signal in self.logged_sizes():
             return

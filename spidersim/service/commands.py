@@ -60,6 +60,7 @@ from spidersim.diagram.spec import BlockSpec
 from spidersim.diagram.units import UNKNOWN
 from spidersim.errors import ParameterError
 from spidersim.text import units as U
+from spidersim.text.yamlio import found
 
 TABLE_TYPES = ("Step", "Ramp", "Sine", "Pulse", "Constant", "TimeTable")
 PATH_TYPES = ("TrapezoidalProfile", "QuinticProfile")
@@ -111,17 +112,6 @@ def _line_blocks(spec):
 ARGUMENT_KEYS = ("doc", "unit", "default")
 
 
-def _found(v):
-    """What a value of the wrong type is, for a message."""
-    if isinstance(v, bool):
-        return f"the boolean {v!r}"
-    if isinstance(v, (list, tuple)):
-        return "a list"
-    if isinstance(v, dict):
-        return "a mapping"
-    return repr(v)[:60]
-
-
 def _argument_decl(v, command, name, spec, where):
     """A declared argument ``name`` of named command ``command``: ``{doc, unit, default}``
     (texts, '' when not given; default None). An empty declaration is one without doc,
@@ -135,14 +125,14 @@ def _argument_decl(v, command, name, spec, where):
         v = {}
     if not isinstance(v, dict):
         fail(f"must be declared by a mapping {{doc: ..., unit: ..., default: ...}} (or "
-             f"nothing), got {_found(v)}; a default value is written {{default: {v!r:.20}}}")
+             f"nothing), got {found(v)}; a default value is written {{default: {v!r:.20}}}")
     bad = [str(k) for k in v if k not in ARGUMENT_KEYS]
     if bad:
         fail(f"has unknown key(s) {', '.join(sorted(bad))}; keys are "
              f"{', '.join(ARGUMENT_KEYS)}")
     for k in ("doc", "unit"):
         if not isinstance(v.get(k, ""), str):
-            fail(f"'{k}' must be a text, got {_found(v[k])}")
+            fail(f"'{k}' must be a text, got {found(v[k])}")
     if v.get("unit"):
         try:
             U.parse(v["unit"])
@@ -177,7 +167,7 @@ def _command_entry(name, c, spec, where):
     t_end = c.get("t_end")
     if t_end is not None and not _is_time(t_end):
         raise ParameterError(f"command '{name}': t_end must be a finite time > 0 s, got "
-                             f"{_found(t_end)}", file=getattr(spec, "file", None),
+                             f"{found(t_end)}", file=getattr(spec, "file", None),
                              line=where)
     return {"doc": str(c.get("doc", "")), "set": dict(sets),
             "arguments": {str(k): _argument_decl(v, name, str(k), spec, where)
@@ -514,7 +504,7 @@ def _run_length(req, t_cmd, d, spec):
     if t_end is None:
         t_end = t_cmd if t_cmd is not None else d.simulation["t_end"]
     if not _is_time(t_end):
-        _fail(f"t_end must be a positive number of seconds, got {_found(t_end)}", spec)
+        _fail(f"t_end must be a positive number of seconds, got {found(t_end)}", spec)
     return float(t_end)
 
 

@@ -96,6 +96,7 @@ import numpy as np
 
 from ._jit import njit
 from .newton import lu_factor, lu_solve
+from .dp54 import initial_h0
 from .rosenbrock import n_groups, perturb_group, store_group
 from .sysfn import derivatives
 
@@ -245,15 +246,8 @@ def first_step(fn, t, x, f0, span, rtol, atol, V, sig, p, modes):
     y, f1 = V[ROW_Y], V[ROW_F]
     for i in range(n):
         sc[i] = atol + rtol * abs(x[i])
-    d0 = rms(x, sc)
     d1 = rms(f0, sc)
-    if d0 < 1e-5 or d1 < 1e-5:
-        h0 = 1e-6
-    else:
-        h0 = 0.01 * d0 / d1
-    h0 = min(h0, span)
-    for i in range(n):
-        y[i] = x[i] + h0 * f0[i]
+    h0 = initial_h0(x, f0, rtol, atol, span, y)       # the rule's first half, y = x + h0 f0
     derivatives(fn, t + h0, y, sig, p, modes, f1)
     for i in range(n):
         f1[i] -= f0[i]

@@ -205,3 +205,17 @@ def load_text(text: str, file: str = "<string>"):
     finally:
         loader.dispose()
     return data
+
+
+def found(v):
+    """What a value of the wrong type is, for a message: ``a list``, ``a mapping``, ``the
+    boolean True``, ``nothing (an empty entry)`` or its short repr."""
+    if isinstance(v, bool):
+        return f"the boolean {v!r}"
+    if isinstance(v, (list, tuple)):
+        return "a list"
+    if isinstance(v, dict):
+        return "a mapping"
+    if v is None:
+        return "nothing (an empty entry)"
+    return repr(v)[:60]
