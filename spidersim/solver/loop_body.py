@@ -442,6 +442,107 @@ def _grid_to(fn, t_a, t_b, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx,
 
 
 @njit
+def _start(fn, t, x, K, xs, G, g_dir, g_block, timed_block, fired, bmask, hit, tbuf, buf,
+           ev_t, ev_i, ist, s_idx, x_idx, sig, p, modes):
+    """The start of a run: modes made consistent, time events due at ``t`` fired, the first
+    row, ``K[0] = f(t, x)`` and the guards; returns 0 or a failure code."""
+    ng = ist[I_NG]
+    _sf.initialize(fn, t, x, sig, p, modes)
+    if _sf.next_time(fn, t, p, modes) <= t + _tol(t):
+        code = _fire_due(fn, t, x, G, g_dir, g_block, timed_block, fired, bmask,
+                         ev_t, ev_i, ist, hit, sig, p, modes)
+        if code:
+            return code
+    if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+        xs[:] = x
+        return FAIL_START
+    ist[I_GRID] = 1
+    _sf.derivatives(fn, t, x, sig, p, modes, K[0])
+    ist[I_NFEV] += 1
+    if ng:
+        _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
+    ist[I_STARTED] = 1
+    ist[I_FRESH] = 1
+    return 0
+
+
+@njit
+def _segment_start(fn, t, t_seg, x, K, B, ist, fst, sig, p, modes):
+    """A new segment (the start, after an event or time event): the first step size
+    (``fst[F_FIRST]``, or the method's rule from ``K[0] = f(t, x)``) and a stale Jacobian
+    (modes may have changed the equations)."""
+    ist[I_SEGMENTS] += 1
+    if fst[F_FIRST] > 0.0:
+        fst[F_H] = min(fst[F_FIRST], t_seg - t)
+    elif ist[I_METHOD] == METHOD_NDF:      # its own first-step rule (order 1)
+        fst[F_H] = _bdf.first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
+                                   fst[F_RTOL], fst[F_ATOL], B[0], sig, p, modes)
+        ist[I_NFEV] += 1
+    else:
+        fst[F_H] = _first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
+                               fst[F_RTOL], fst[F_ATOL], K, sig, p, modes)
+        ist[I_NFEV] += 1
+    ist[I_FRESH] = 0
+    ist[I_JAGE] = -1
+
+
+@njit
+def _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p, modes):
+    """The guard that left zero and returned unseen in the step ``(t, x) -> (t_new, x1)``,
+    or -1 (:func:`spidersim.solver.events.left_zero_unseen`). The probe is a short Euler
+    step along ``f(t, x) = K[0]`` (the start's own direction, not the method's
+    interpolant) into ``G[G_TMP]``; ``sig`` is left at the step end."""
+    if not _events.zero_start_candidates(G[G_OLD, :ng], G[G_NEW, :ng], g_dir,
+                                         G[G_ARMED, :ng]):
+        return -1
+    dt_probe = _events.UNSEEN_PROBE * h
+    for j in range(x.size):
+        xs[j] = x[j] + dt_probe * K[0, j]
+    _sf.guards(fn, t + dt_probe, xs, sig, p, modes, G[G_TMP])
+    _sf.outputs(fn, t_new, x1, sig, p, modes)
+    return _events.left_zero_unseen(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng],
+                                    G[G_TMP, :ng])
+
+
+@njit
+def _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+    """Go on from the state ``x`` after the events at ``t``: its row (without a grid),
+    ``K[0] = f(t, x)``, the guards, a new segment; False when the row is not finite."""
+    if not grid:
+        if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
+            return False
+    _sf.derivatives(fn, t, x, sig, p, modes, K[0])
+    ist[I_NFEV] += 1
+    _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
+    ist[I_FRESH] = 1
+    return True
+
+
+@njit
+def _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired, bmask, hit, grid,
+                     tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx, sig, p, modes):
+    """Fire the time events due at ``t`` (:func:`_fire_due`), record the row after them
+    (on a grid only at a grid time), ``K[0] = f(t, x)``, the guards, a new segment; returns
+    0 or a failure code."""
+    code = _fire_due(fn, t, x, G, g_dir, g_block, timed_block, fired, bmask,
+                     ev_t, ev_i, ist, hit, sig, p, modes)
+    if code:
+        return code
+    if grid:
+        if abs(fst[F_T0] + ist[I_GRID] * fst[F_DT] - t) <= _tol(t):
+            _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+            ist[I_GRID] += 1
+    else:
+        _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+    _sf.derivatives(fn, t, x, sig, p, modes, K[0])
+    ist[I_NFEV] += 1
+    if ist[I_NG]:
+        _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
+    ist[I_FRESH] = 1
+    return 0
+
+
+@njit
 def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
              pause_steps):
@@ -459,22 +560,10 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
     grid = fst[F_DT] > 0.0
     ev_reserve = 4 * (ng + timed_block.size) + 64
     if ist[I_STARTED] == 0:
-        _sf.initialize(fn, t, x, sig, p, modes)
-        if _sf.next_time(fn, t, p, modes) <= t + _tol(t):
-            code = _fire_due(fn, t, x, G, g_dir, g_block, timed_block, fired, bmask,
-                            ev_t, ev_i, ist, hit, sig, p, modes)
-            if code:
-                return code
-        if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
-            xs[:] = x
-            return FAIL_START
-        ist[I_GRID] = 1
-        _sf.derivatives(fn, t, x, sig, p, modes, K[0])
-        ist[I_NFEV] += 1
-        if ng:
-            _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
-        ist[I_STARTED] = 1
-        ist[I_FRESH] = 1
+        code = _start(fn, t, x, K, xs, G, g_dir, g_block, timed_block, fired, bmask, hit,
+                      tbuf, buf, ev_t, ev_i, ist, s_idx, x_idx, sig, p, modes)
+        if code:
+            return code
     ist[I_NEW_STEPS] = 0
     while True:
         tol = _tol(t)
@@ -491,39 +580,17 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
             fst[F_T] = t
             return PAUSE
         if t_next <= t + tol:            # time events due now
-            code = _fire_due(fn, t, x, G, g_dir, g_block, timed_block, fired, bmask,
-                            ev_t, ev_i, ist, hit, sig, p, modes)
+            code = _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired,
+                                    bmask, hit, grid, tbuf, buf, ev_t, ev_i, ist, fst,
+                                    s_idx, x_idx, sig, p, modes)
             if code:
                 fst[F_T] = t
                 xs[:] = x
                 return code
-            if grid:
-                if abs(fst[F_T0] + ist[I_GRID] * fst[F_DT] - t) <= tol:
-                    _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
-                    ist[I_GRID] += 1
-            else:
-                _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
-            _sf.derivatives(fn, t, x, sig, p, modes, K[0])
-            ist[I_NFEV] += 1
-            if ng:
-                _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
-            ist[I_FRESH] = 1
             continue
         t_seg = min(t_next, t_end)
         if ist[I_FRESH]:
-            ist[I_SEGMENTS] += 1
-            if fst[F_FIRST] > 0.0:
-                fst[F_H] = min(fst[F_FIRST], t_seg - t)
-            elif ist[I_METHOD] == METHOD_NDF:      # its own first-step rule (order 1)
-                fst[F_H] = _bdf.first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
-                                           fst[F_RTOL], fst[F_ATOL], B[0], sig, p, modes)
-                ist[I_NFEV] += 1
-            else:
-                fst[F_H] = _first_step(fn, t, x, K[0], min(t_seg - t, fst[F_MAXSTEP]),
-                                           fst[F_RTOL], fst[F_ATOL], K, sig, p, modes)
-                ist[I_NFEV] += 1
-            ist[I_FRESH] = 0
-            ist[I_JAGE] = -1              # modes may have changed: a new Jacobian
+            _segment_start(fn, t, t_seg, x, K, B, ist, fst, sig, p, modes)
         fst[F_HCAP] = fst[F_MAXSTEP]
         if grid:                          # the rows of one step must fit in the buffer
             room = tbuf.size - ist[I_ROWS] - ROW_RESERVE
@@ -555,18 +622,8 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                                    G[G_NEW])
                 tbuf[row0] = t_new
                 ist[I_ROWS] = row0 + 1
-            i_unseen = -1
-            if _events.zero_start_candidates(G[G_OLD, :ng], G[G_NEW, :ng], g_dir,
-                                             G[G_ARMED, :ng]):
-                # which way the guards leave zero: a short Euler step along f(t, x) = K[0]
-                # (the start's own direction, not the method's interpolant)
-                dt_probe = _events.UNSEEN_PROBE * h
-                for j in range(x.size):
-                    xs[j] = x[j] + dt_probe * K[0, j]
-                _sf.guards(fn, t + dt_probe, xs, sig, p, modes, G[G_TMP])
-                _sf.outputs(fn, t_new, x1, sig, p, modes)     # sig back at the step end
-                i_unseen = _events.left_zero_unseen(G[G_OLD, :ng], G[G_NEW, :ng], g_dir,
-                                                    G[G_ARMED, :ng], G[G_TMP, :ng])
+            i_unseen = _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p,
+                                      modes)
             if i_unseen >= 0 and h <= _events.UNSEEN_STEP * max(1.0, abs(t_new)):
                 ist[I_ROWS] = row0              # events faster than the time resolution
                 ist[I_BLOCK] = i_unseen
@@ -594,15 +651,10 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                     return code
                 t = t_ev
                 x[:] = xs
-                if not grid:
-                    if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p,
-                                modes):
-                        fst[F_T] = t
-                        return FAIL_NONFINITE
-                _sf.derivatives(fn, t, x, sig, p, modes, K[0])
-                ist[I_NFEV] += 1
-                _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
-                ist[I_FRESH] = 1
+                if not _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx,
+                                           x_idx, sig, p, modes):
+                    fst[F_T] = t
+                    return FAIL_NONFINITE
                 fst[F_T] = t
                 continue
             for i in range(ng):
