@@ -230,30 +230,13 @@ def _ripple_hand_written():
     from numba import njit
     from scipy.integrate import LSODA
 
-    p, R, L, Kt, J = 7, 1.5, 1.5e-3, 0.15, 10.0
-    h3, unb, off_a = 0.008, 0.015, 0.015 * 2.0
-    kp, ki, kb, V, Imax = 1.5e-3 * 2 * np.pi * 2000, 1.5 * 2 * np.pi * 2000, 1000.0, 28.0, 4.0
-    I_cmd, tau_load = 2.0, 0.15 * 2.0
+    sys.path.insert(0, os.path.join(ROOT, "tools"))
+    from bench_codegen import ripple_f          # the equations, written once
 
     @njit(cache=True)
     def f(t, y):
-        ia, ib, w, th, Ia, Ib = y
-        te = p * th
-        fa = -np.sin(te) - h3 * np.sin(3 * te)
-        fb = np.cos(te) - h3 * np.cos(3 * te)
-        ka, kb_ = Kt * (1 + 0.5 * unb), Kt * (1 - 0.5 * unb)
-        amp = min(max(I_cmd, -Imax), Imax)
-        ea = -amp * np.sin(te) - (ia + off_a)
-        eb = amp * np.cos(te) - ib
-        va_u, vb_u = kp * ea + Ia, kp * eb + Ib
-        va, vb = min(max(va_u, -V), V), min(max(vb_u, -V), V)
         out = np.empty(6)
-        out[0] = (va - R * ia - ka * w * fa) / L
-        out[1] = (vb - R * ib - kb_ * w * fb) / L
-        out[2] = (ka * fa * ia + kb_ * fb * ib - tau_load) / J
-        out[3] = w
-        out[4] = ki * ea + kb * (va - va_u)
-        out[5] = ki * eb + kb * (vb - vb_u)
+        ripple_f(t, y, out)
         return out
 
     def run(t_end=1.0):

@@ -24,10 +24,12 @@ import math
 import os
 import statistics
 import sys
-import time
 
 import numba
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_common import interleaved  # noqa: E402
 from numba import njit
 from scipy.integrate import BDF, LSODA, Radau, solve_ivp
 
@@ -223,15 +225,7 @@ def bench(title, f, n, y0, t_end, rtol, atol, t_out, reference, repeat=5):
         ("numba RHS + SciPy BDF", lambda: scipy_run(BDF, rhs, y0, t_end, rtol, atol, t_out)),
         ("compiled ROS34PW2", ros_run),
     ]
-    for _name, fn in variants:
-        fn()                                           # compile or load, warm up
-    times = {name: [] for name, _ in variants}
-    outs = {}
-    for _ in range(repeat):                            # interleaved
-        for name, fn in variants:
-            t0 = time.perf_counter()
-            outs[name] = fn()
-            times[name].append(time.perf_counter() - t0)
+    times, outs = interleaved(variants, repeat)
     print(f"== {title} ==")
     print(f"{'variant':30s} {'best [ms]':>10s} {'median':>9s} {'steps':>7s} {'RHS':>7s} "
           f"{'Jac':>5s} {'LU':>6s} {'max err/tol':>12s}")

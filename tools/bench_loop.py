@@ -30,6 +30,9 @@ import sys
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_common import interleaved  # noqa: E402
 from numba import njit
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -380,15 +383,7 @@ def _stiff(title, path, t_end, rtol, atol, repeat=5, dp54=True, hand=None):
                          _lsoda_hand(f, no_guard, no_jump, np.array(y0, float),
                                      np.array(tev, float), t_end, rtol, atol)))
     variants.append(("spidersim LSODA", lambda: d.simulate(method="LSODA", **kw)))
-    for _name, fn in variants:
-        fn()                                         # compile or load, warm up
-    res = {name: [] for name, _ in variants}
-    outs = {}
-    for _ in range(repeat):                          # interleaved
-        for name, fn in variants:
-            t0 = time.perf_counter()
-            outs[name] = fn()
-            res[name].append(time.perf_counter() - t0)
+    res, outs = interleaved(variants, repeat)
     print(f"== {title} ==")
     print(f"{'variant':26s} {'best [ms]':>10s} {'median [ms]':>12s} {'steps':>7s} "
           f"{'RHS':>8s} {'Jac':>6s} {'LU':>6s} {'x real time':>12s}")

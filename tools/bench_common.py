@@ -1,0 +1,20 @@
+"""Shared by the benchmark scripts: variants timed interleaved in one process."""
+from __future__ import annotations
+
+import time
+
+
+def interleaved(variants, repeat):
+    """Call every ``(name, fn)`` once to compile or load it, then ``repeat`` rounds of one
+    call each, interleaved (a load change hits every variant alike). Returns ``(times,
+    outs)``: wall times per name and each variant's last return value."""
+    for _name, fn in variants:
+        fn()
+    times = {name: [] for name, _ in variants}
+    outs = {}
+    for _ in range(repeat):
+        for name, fn in variants:
+            t0 = time.perf_counter()
+            outs[name] = fn()
+            times[name].append(time.perf_counter() - t0)
+    return times, outs
