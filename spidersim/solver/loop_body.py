@@ -14,7 +14,7 @@ import numpy as np
 
 from ._jit import njit
 from . import dp54 as _dp54
-from . import newton as _newton
+from .dense_lu import lu_solve as _lu_solve
 from . import events as _events
 from . import rosenbrock as _ros
 from . import bdf as _bdf
@@ -245,12 +245,12 @@ def _step_ros34pw2(fn, t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
     piv = K[_ros.ROW_PIV]
     y = K[_ros.ROW_TRIAL]
     K[1, :] = K[0]
-    _newton.lu_solve(LU, piv, K[1])
+    _lu_solve(LU, piv, K[1])
     for s in range(1, 4):
         _ros.stage_state(s, x, K, y)
         _sf.derivatives(fn, t + _ros.alpha_of(s) * h, y, sig, p, modes, K[s + 1])
         _ros.stage_rhs(s, K, h, K[s + 1])
-        _newton.lu_solve(LU, piv, K[s + 1])
+        _lu_solve(LU, piv, K[s + 1])
     _ros.solution(x, K, x1)
     return _ros.error_norm(x, x1, K, rtol, atol)
 

@@ -56,6 +56,7 @@ import math
 import numpy as np
 
 from ._jit import njit
+from .dense_lu import lu_factor, lu_solve  # noqa: F401  (re-exported: the loop solver's LU)
 
 #: iteration limit of one solve
 MAX_ITERATIONS = 30
@@ -179,69 +180,6 @@ class Workspace:
             return None
         return {"status": status, "t": float(ws[FAIL_T]), "iterations": int(ws[FAIL_ITERS]),
                 "norm": float(ws[NORM]), "residuals": self.array(ws, RFAIL).copy()}
-
-
-@njit
-def lu_factor(a, piv):
-    """In-place LU factorisation with partial pivoting, ``P a = L U``.
-
-    Parameters
-    ----------
-    a : (n, n) float array
-        Overwritten by ``L`` (unit diagonal, below) and ``U`` (on and above the diagonal).
-    piv : (n,) float array
-        ``piv[k]``: the row swapped with row ``k`` at step ``k``.
-
-    Returns
-    -------
-    bool
-        False if a pivot column is all zero or not finite (singular matrix).
-    """
-    n = a.shape[0]
-    for k in range(n):
-        m = k
-        big = abs(a[k, k])
-        for i in range(k + 1, n):
-            if abs(a[i, k]) > big:
-                big = abs(a[i, k])
-                m = i
-        piv[k] = m
-        if big == 0.0 or not math.isfinite(big):
-            return False
-        if m != k:
-            for j in range(n):
-                tmp = a[k, j]
-                a[k, j] = a[m, j]
-                a[m, j] = tmp
-        for i in range(k + 1, n):
-            a[i, k] /= a[k, k]
-            f = a[i, k]
-            for j in range(k + 1, n):
-                a[i, j] -= f * a[k, j]
-    return True
-
-
-@njit
-def lu_solve(a, piv, b):
-    """Solve ``a x = b`` in place in ``b`` from the factors of :func:`lu_factor`: apply the
-    row swaps, then ``L y = P b`` forward and ``U x = y`` backward."""
-    n = a.shape[0]
-    for k in range(n):
-        m = int(piv[k])
-        if m != k:
-            tmp = b[k]
-            b[k] = b[m]
-            b[m] = tmp
-    for i in range(n):
-        acc = b[i]
-        for j in range(i):
-            acc -= a[i, j] * b[j]
-        b[i] = acc
-    for i in range(n - 1, -1, -1):
-        acc = b[i]
-        for j in range(i + 1, n):
-            acc -= a[i, j] * b[j]
-        b[i] = acc / a[i, i]
 
 
 @njit

@@ -3,7 +3,7 @@
 Plain functions on preallocated arrays, compiled by numba, with the contract of
 :mod:`.dp54` (work-array layout, trial step and error norm, step-size factor, dense output;
 the first step is :mod:`.dp54`'s rule) plus the Jacobian: finite differences over column
-groups coloured once from the structural sparsity, and a dense LU (:func:`.newton.lu_factor`,
+groups coloured once from the structural sparsity, and a dense LU (:func:`.dense_lu.lu_factor`,
 partial pivoting, in place) reused while ``h`` and the Jacobian are unchanged.
 
 Method (Rang & Angermann, BIT 45, 2005; Hairer & Wanner, *Solving ODEs II*, IV.7)
@@ -49,7 +49,7 @@ import numpy as np
 
 from ._jit import njit
 from .stepsize import factor as _factor
-from .newton import lu_factor, lu_solve
+from .dense_lu import lu_factor, lu_solve
 
 # --- the published coefficients (Rang & Angermann 2005, ROS34PW2) -------------------------
 GAMMA = 0.43586652150845900

@@ -227,21 +227,6 @@ def test_workspace_layout_is_one_partition():
         assert np.array_equal(N.evaluation(ws, n), L.array(ws, N.EVAL))
 
 
-def test_lu_factor_and_solve_against_numpy():
-    """Guards the LU with partial pivoting (a zero leading pivot needs a row swap) and the
-    detection of a singular matrix."""
-    rng = np.random.default_rng(3)
-    a = rng.normal(size=(5, 5))
-    a[0, 0] = 0.0
-    b = rng.normal(size=5)
-    lu, piv, x = a.copy(), np.zeros(5), b.copy()
-    assert N.lu_factor(lu, piv)
-    N.lu_solve(lu, piv, x)
-    assert np.allclose(x, np.linalg.solve(a, b), rtol=1e-12, atol=1e-12)
-    s = np.array([[1.0, 2.0], [2.0, 4.0]])
-    assert not N.lu_factor(s, np.zeros(2))
-
-
 def test_compiled_driver_matches_python_driver():
     """Guards the nopython use of the solver (as in the generated modules): a numba driver
     with a compiled residual gives the same unknowns, iterations and evaluations as the
