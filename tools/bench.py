@@ -289,7 +289,7 @@ def bench_spider():
     best, med, r = _best(lambda: d.simulate(t_end=10.0, jit=True), repeat=2)
     s = r.stats
     print("== spider: spider.yaml, 10 s simulated (7 joints + arm + 30 kg payload), "
-          "LSODA 1e-6/1e-8 ==")
+          "NDF 1e-6/1e-8 ==")
     print(f"wall time {best:.2f} s (median {med:.2f} s); steps {s['steps']}, RHS calls "
           f"{s['rhs_calls']}, Jacobians {s['jacobian_calls']}; compile {compile_s:.1f} s "
           f"(this process: cold or from cache)")
@@ -307,7 +307,7 @@ def bench_spider():
     for _ in range(n):
         fd(*args)
     per = (time.perf_counter() - t0) / n
-    print(f"arm forward dynamics (CRBA by RNEA columns + Cholesky + base wrench), "
+    print(f"arm forward dynamics (composite-rigid-body M + Cholesky + two RNEA passes: bias and base wrench), "
           f"compiled: {1e6 * per:.1f} us per call from Python (target <= 30 us)")
     print()
 

@@ -188,29 +188,105 @@ def add_reactions(n, ws, tau_r, tau, base):
 
 
 def mass_matrix(q, P, ws, M, tmp, base):
-    """Joint-space inertia ``M(q)``: column j is the RNEA torque for ``qdd = e_j`` with
-    ``qd = 0``, no gravity and no external wrench (n passes; ``tmp`` holds 3 n floats)."""
+    """Joint-space inertia ``M(q)`` by the composite-rigid-body algorithm (Walker & Orin's
+    method 3, in the base frame); also leaves :func:`fk` of ``q`` in ``ws`` and zeroes
+    ``base`` (6). ``tmp`` is not used (kept for the callers' signature).
+
+    With ``qd = 0`` and no gravity, a unit acceleration of joint ``j`` moves links
+    ``j..n-1`` (1-based: the links after joint ``j``) as one rigid body, the *composite*
+    ``C_j`` (mass ``m_j``, centre ``c_j``, inertia ``I_j`` about ``c_j``), turning about the
+    axis ``z_{j-1}`` through ``o_{j-1}``. The wrench that does it, about ``o_{j-1}``::
+
+        F_j = m_j  z_{j-1} x (c_j - o_{j-1})
+        N_j = I_j z_{j-1} + (c_j - o_{j-1}) x F_j
+
+    passes unchanged through the joints before ``j`` (their links do not accelerate), so
+    ``M_ij = M_ji = z_{i-1} . (N_j + (o_{j-1} - o_{i-1}) x F_j)`` for ``i <= j``. The
+    composites are built from the tip: ``m_j = m_link + m_(j+1)``, ``c_j`` the mass-weighted
+    centre, ``I_j`` the two inertias moved to ``c_j`` (parallel axes:
+    ``I + m (|d|^2 1 - d d^T)``). O(n^2); the RNEA-column reference it replaced took n
+    passes of inverse dynamics (``tests/multibody``: equal to round-off).
+    """
     n = q.size
-    zero = tmp[:n]
-    e = tmp[n:2 * n]
-    col = tmp[2 * n:3 * n]
-    for k in range(n):
-        zero[k] = 0.0
-        e[k] = 0.0
-    # base is zeroed before each column and serves as the zero gravity (3) and zero
-    # external wrench (6): rnea reads both before it writes the base wrench into it
-    g0 = base[:3]
-    fz = base
+    fk(q, P, ws)
+    for k in range(6):
+        base[k] = 0.0
+    # composite of links k..n-1 into ws slots 33..45 of link k+1: mass, centre (3), inertia
+    # about the centre (9, base frame); the RNEA rewrites these slots later
+    mc = 0.0
+    ccx = ccy = ccz = 0.0
+    I00 = I01 = I02 = I11 = I12 = I22 = 0.0
+    for k in range(n - 1, -1, -1):
+        b = (k + 1) * WS_PER_LINK
+        m = P[k, 3]
+        lcx, lcy, lcz = P[k, 4], P[k, 5], P[k, 6]
+        gx = ws[b + 9] + ws[b] * lcx + ws[b + 1] * lcy + ws[b + 2] * lcz
+        gy = ws[b + 10] + ws[b + 3] * lcx + ws[b + 4] * lcy + ws[b + 5] * lcz
+        gz = ws[b + 11] + ws[b + 6] * lcx + ws[b + 7] * lcy + ws[b + 8] * lcz
+        # link inertia about its COM in the base frame: R I R^T (symmetric: 6 entries)
+        L00 = L01 = L02 = L11 = L12 = L22 = 0.0
+        for r in range(3):
+            for c in range(r, 3):
+                acc = 0.0
+                for a in range(3):
+                    ra = ws[b + 3 * r + a]
+                    for e in range(3):
+                        acc += ra * P[k, 7 + 3 * a + e] * ws[b + 3 * c + e]
+                if r == 0 and c == 0:
+                    L00 = acc
+                elif r == 0 and c == 1:
+                    L01 = acc
+                elif r == 0:
+                    L02 = acc
+                elif c == 1:
+                    L11 = acc
+                elif r == 1:
+                    L12 = acc
+                else:
+                    L22 = acc
+        mt = mc + m
+        if mt > 0.0:
+            nx = (m * gx + mc * ccx) / mt
+            ny = (m * gy + mc * ccy) / mt
+            nz = (m * gz + mc * ccz) / mt
+        else:
+            nx, ny, nz = gx, gy, gz
+        # parallel axes: the link from gx.., the outer composite from ccx.. to the new centre
+        dx, dy, dz = gx - nx, gy - ny, gz - nz
+        ex, ey, ez = ccx - nx, ccy - ny, ccz - nz
+        d2, e2 = dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez
+        I00 = L00 + I00 + m * (d2 - dx * dx) + mc * (e2 - ex * ex)
+        I11 = L11 + I11 + m * (d2 - dy * dy) + mc * (e2 - ey * ey)
+        I22 = L22 + I22 + m * (d2 - dz * dz) + mc * (e2 - ez * ez)
+        I01 = L01 + I01 - m * dx * dy - mc * ex * ey
+        I02 = L02 + I02 - m * dx * dz - mc * ex * ez
+        I12 = L12 + I12 - m * dy * dz - mc * ey * ez
+        mc, ccx, ccy, ccz = mt, nx, ny, nz
+        ws[b + 33] = mc
+        ws[b + 34], ws[b + 35], ws[b + 36] = ccx, ccy, ccz
+        ws[b + 37], ws[b + 38], ws[b + 39] = I00, I01, I02
+        ws[b + 40], ws[b + 41], ws[b + 42] = I11, I12, I22
     for j in range(n):
-        for k in range(6):
-            base[k] = 0.0
-        e[j] = 1.0
-        rnea(q, zero, e, g0, fz, P, ws, col, base)
-        for k in range(n):
-            M[k, j] = col[k]
-        e[j] = 0.0
-        for k in range(6):
-            base[k] = 0.0
+        bj = j * WS_PER_LINK                      # frame j-1 (0-based joint j turns about z_j)
+        b = (j + 1) * WS_PER_LINK                 # the composite's slots
+        zx, zy, zz = ws[bj + 2], ws[bj + 5], ws[bj + 8]
+        ox, oy, oz = ws[bj + 9], ws[bj + 10], ws[bj + 11]
+        m = ws[b + 33]
+        rx, ry, rz = ws[b + 34] - ox, ws[b + 35] - oy, ws[b + 36] - oz
+        F = _cross(zx, zy, zz, rx, ry, rz)
+        Fx, Fy, Fz = m * F[0], m * F[1], m * F[2]
+        c0 = _cross(rx, ry, rz, Fx, Fy, Fz)
+        Nx = ws[b + 37] * zx + ws[b + 38] * zy + ws[b + 39] * zz + c0[0]
+        Ny = ws[b + 38] * zx + ws[b + 40] * zy + ws[b + 41] * zz + c0[1]
+        Nz = ws[b + 39] * zx + ws[b + 41] * zy + ws[b + 42] * zz + c0[2]
+        for i in range(j + 1):
+            bi = i * WS_PER_LINK
+            px, py, pz = ox - ws[bi + 9], oy - ws[bi + 10], oz - ws[bi + 11]
+            c1 = _cross(px, py, pz, Fx, Fy, Fz)
+            v = (ws[bi + 2] * (Nx + c1[0]) + ws[bi + 5] * (Ny + c1[1])
+                 + ws[bi + 8] * (Nz + c1[2]))
+            M[i, j] = v
+            M[j, i] = v
 
 
 def cholesky_factor(A):

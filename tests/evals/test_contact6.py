@@ -355,7 +355,9 @@ def test_release_on_the_unilateral_multiplier():
     np.testing.assert_allclose(r["wall.lam"][before][:, [0, 1, 3, 4, 5]],
                                np.tile(lam0[[0, 1, 3, 4, 5]], (before.sum(), 1)),
                                rtol=1e-7, atol=1e-7)
-    after = r.t > t_rel
+    # after the located release (within 1e-9 s of t_rel, asserted above; a grid sample
+    # can fall between the two): exactly zero
+    after = r.t > off[0]
     assert np.abs(r["wall.lam"][after, 2]).max() == 0.0
     # the flange leaves along +z_c, the other five still held
     ez = r["wall.error"][after, 2]
