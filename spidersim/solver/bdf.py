@@ -356,6 +356,111 @@ def _change_h(V, order, factor, h, iw, fw):
 
 
 @njit
+def _predict(V, order, rtol, atol):
+    """Predictor ``y0 = sum_(j<=k) D[j]`` into ``V[ROW_Y]``, ``psi = sum_j gamma_j D[j] /
+    alpha_k`` into ``V[ROW_PSI]``, the scale of the predictor into ``V[ROW_SCALE]``."""
+    n = V.shape[1]
+    y, psi, sc = V[ROW_Y], V[ROW_PSI], V[ROW_SCALE]
+    a = ALPHA[order]
+    for i in range(n):
+        acc = V[0, i]
+        ps = 0.0
+        for j in range(1, order + 1):
+            acc += V[j, i]
+            ps += GAMMA[j] * V[j, i]
+        y[i] = acc
+        psi[i] = ps / a
+        sc[i] = atol + rtol * abs(acc)
+
+
+@njit
+def _factor(c, V, JW, iw, fw):
+    """LU factors of ``I - c J`` into ``JW[1]`` unless they are those of this ``c`` already
+    (``fw[F_CLU]``); False if singular (then ``fw[F_CLU] = 0``)."""
+    if c == fw[F_CLU]:
+        return True
+    J, LU = JW[0], JW[1]
+    n = V.shape[1]
+    for i in range(n):
+        for j in range(n):
+            LU[i, j] = -c * J[i, j]
+        LU[i, i] += 1.0
+    ok = lu_factor(LU, V[ROW_PIV])
+    iw[I_NLU] += 1
+    fw[F_CLU] = c if ok else 0.0
+    return ok
+
+
+@njit
+def _accept(fn, t_new, x1, f1, V, order, iw, sig, p, modes):
+    """Move the history to ``t_new`` with the converged correction ``d``:
+    ``D[k+2] = d - D[k+1]; D[k+1] = d; D[i] += D[i+1]`` (``i = k..0``); ``x1 = D[0]`` and,
+    when asked (``iw[I_WANT_F1]``), ``f1 = f(t_new, x1)``."""
+    n = V.shape[1]
+    d = V[ROW_D]
+    for i in range(n):
+        V[order + 2, i] = d[i] - V[order + 1, i]
+        V[order + 1, i] = d[i]
+    for j in range(order, -1, -1):
+        for i in range(n):
+            V[j, i] += V[j + 1, i]
+    for i in range(n):
+        x1[i] = V[0, i]
+    if iw[I_WANT_F1]:
+        derivatives(fn, t_new, x1, sig, p, modes, f1)
+        for i in range(n):
+            V[ROW_FCUR, i] = f1[i]
+        iw[I_NFEV] += 1
+    else:
+        iw[I_FCUR_VALID] = 0
+    iw[I_NSTEPS] += 1
+    iw[I_NEQUAL] += 1
+
+
+@njit
+def _next_order_and_h(V, order, err, safety, h, rtol, atol, iw, fw):
+    """After ``k + 1`` steps of equal size and order: the order among ``k - 1, k, k + 1``
+    whose error estimate allows the largest step, and that step (module docstring);
+    returns the next ``h`` (``iw[I_ORDER]`` updated, the history rescaled)."""
+    if iw[I_NEQUAL] < order + 1:
+        return h
+    fac_m = 0.0
+    if order > 1:
+        e = _error_norm(V, order, rtol, atol, order - 1)
+        fac_m = math.inf if e == 0.0 else e ** (-1.0 / order)
+    fac_k = math.inf if err == 0.0 else err ** (-1.0 / (order + 1))
+    fac_p = 0.0
+    if order < iw[I_MAXORDER]:
+        e = _error_norm(V, order, rtol, atol, order + 1)
+        fac_p = math.inf if e == 0.0 else e ** (-1.0 / (order + 2))
+    delta = 0
+    best = fac_k
+    if fac_m > best:
+        delta, best = -1, fac_m
+    if fac_p > best:
+        delta, best = 1, fac_p
+    fac = min(MAX_FACTOR, safety * best)
+    if delta == 0 and 1.0 <= fac <= fw[F_HOLD_MAX]:
+        return h                               # keep h and the LU factors
+    order += delta
+    iw[I_ORDER] = order
+    return _change_h(V, order, fac, h, iw, fw)
+
+
+@njit
+def _bounded_h(t, max_step, V, order, iw, fw):
+    """The step size to try first: ``fw[F_H]`` within ``max_step`` and at least ten
+    spacings of floating-point numbers at ``t`` (the history rescaled if it changed)."""
+    h = fw[F_H]
+    h_min = 10.0 * (np.nextafter(t, math.inf) - t)
+    if h > max_step:
+        h = _change_h(V, order, max_step / h, h, iw, fw)
+    if h < h_min:
+        h = _change_h(V, order, h_min / h, h, iw, fw)
+    return h
+
+
+@njit
 def advance(fn, t, t_seg, x1, f1, rtol, atol, max_step, V, JW, iw, fw, jpat, sig, p, modes):
     """One accepted step from ``(t, D[0])`` (after :func:`restart` or a previous
     ``advance``), never past ``t_seg`` nor longer than ``max_step``.
@@ -364,23 +469,24 @@ def advance(fn, t, t_seg, x1, f1, rtol, atol, max_step, V, JW, iw, fw, jpat, sig
     history moved there (``D[0] = x1``) and rescaled to the next step size ``fw[F_H]`` and
     order ``iw[I_ORDER]``. Returns 0.0 when the step size fell below ten spacings of
     floating-point numbers at ``t`` (nothing moved). Counters in ``iw``.
+
+    Each try: predict (:func:`_predict`), factor ``I - c J`` if ``c = h / alpha_k`` changed
+    (:func:`_factor`), Newton (:func:`_newton`; on failure a fresh Jacobian, or half the
+    step if it was fresh), error test (rejected: a smaller step); then :func:`_accept` and
+    :func:`_next_order_and_h`.
     """
     n = V.shape[1]
     J, LU = JW[0], JW[1]
     order = iw[I_ORDER]
     fixed = iw[I_FIXED] != 0
-    h = fw[F_H]
+    h = _bounded_h(t, max_step, V, order, iw, fw)
     h_min = 10.0 * (np.nextafter(t, math.inf) - t)
-    if h > max_step:
-        h = _change_h(V, order, max_step / h, h, iw, fw)
-    if h < h_min:
-        h = _change_h(V, order, h_min / h, h, iw, fw)
     current_jac = False
     if iw[I_JVALID] == 0:
         jacobian(fn, t, V, J, jpat, iw, sig, p, modes)
         current_jac = True
         fw[F_CLU] = 0.0
-    y, psi, d, sc = V[ROW_Y], V[ROW_PSI], V[ROW_D], V[ROW_SCALE]
+    y, sc = V[ROW_Y], V[ROW_SCALE]
     while True:
         if h < h_min:
             fw[F_H] = h
@@ -389,30 +495,11 @@ def advance(fn, t, t_seg, x1, f1, rtol, atol, max_step, V, JW, iw, fw, jpat, sig
         if t_new > t_seg:
             t_new = t_seg
             h = _change_h(V, order, (t_seg - t) / h, h, iw, fw)
-        # predictor, psi, scale of the predictor
-        a = ALPHA[order]
-        for i in range(n):
-            acc = V[0, i]
-            ps = 0.0
-            for j in range(1, order + 1):
-                acc += V[j, i]
-                ps += GAMMA[j] * V[j, i]
-            y[i] = acc
-            psi[i] = ps / a
-            sc[i] = atol + rtol * abs(acc)
-        c = h / a
-        ok = True
-        if c != fw[F_CLU]:
-            for i in range(n):
-                for j in range(n):
-                    LU[i, j] = -c * J[i, j]
-                LU[i, i] += 1.0
-            ok = lu_factor(LU, V[ROW_PIV])
-            iw[I_NLU] += 1
-            fw[F_CLU] = c if ok else 0.0
+        _predict(V, order, rtol, atol)
+        c = h / ALPHA[order]
         converged = False
         it = NEWTON_MAXITER
-        if ok:
+        if _factor(c, V, JW, iw, fw):
             converged, it = _newton(fn, t_new, c, NEWTON_TOL, V, LU, iw, sig, p, modes)
         if not converged:
             iw[I_NNEWTON] += 1
@@ -434,48 +521,10 @@ def advance(fn, t, t_seg, x1, f1, rtol, atol, max_step, V, JW, iw, fw, jpat, sig
             iw[I_NREJECT] += 1
             continue
         break
-    # accepted: move the history to t_new
-    for i in range(n):
-        V[order + 2, i] = d[i] - V[order + 1, i]
-        V[order + 1, i] = d[i]
-    for j in range(order, -1, -1):
-        for i in range(n):
-            V[j, i] += V[j + 1, i]
-    for i in range(n):
-        x1[i] = V[0, i]
-    if iw[I_WANT_F1]:
-        derivatives(fn, t_new, x1, sig, p, modes, f1)
-        for i in range(n):
-            V[ROW_FCUR, i] = f1[i]
-        iw[I_NFEV] += 1
-    else:
-        iw[I_FCUR_VALID] = 0
-    iw[I_NSTEPS] += 1
-    iw[I_NEQUAL] += 1
+    _accept(fn, t_new, x1, f1, V, order, iw, sig, p, modes)
     h_taken = t_new - t
-    if not fixed and iw[I_NEQUAL] >= order + 1:
-        fac_m = 0.0
-        if order > 1:
-            e = _error_norm(V, order, rtol, atol, order - 1)
-            fac_m = math.inf if e == 0.0 else e ** (-1.0 / order)
-        fac_k = math.inf if err == 0.0 else err ** (-1.0 / (order + 1))
-        fac_p = 0.0
-        if order < iw[I_MAXORDER]:
-            e = _error_norm(V, order, rtol, atol, order + 1)
-            fac_p = math.inf if e == 0.0 else e ** (-1.0 / (order + 2))
-        delta = 0
-        best = fac_k
-        if fac_m > best:
-            delta, best = -1, fac_m
-        if fac_p > best:
-            delta, best = 1, fac_p
-        fac = min(MAX_FACTOR, safety * best)
-        if delta == 0 and 1.0 <= fac <= fw[F_HOLD_MAX]:
-            pass                               # keep h and the LU factors
-        else:
-            order += delta
-            iw[I_ORDER] = order
-            h = _change_h(V, order, fac, h, iw, fw)
+    if not fixed:
+        h = _next_order_and_h(V, order, err, safety, h, rtol, atol, iw, fw)
     fw[F_H] = h
     return h_taken
 
