@@ -30,6 +30,14 @@ UNSEEN_PROBE = 1e-3
 CHATTER_COUNT = 50
 
 
+def zeno_message(block, name, t):
+    """The error of a guard that returns unseen in steps shorter than ``UNSEEN_STEP``."""
+    return (f"chattering: block '{block}' fires events ('{name}') faster than the time "
+            f"resolution at t = {t:.9g} s (Zeno behaviour: its guard returns to the "
+            f"firing side within a step of {UNSEEN_STEP * max(1.0, abs(t)):.3g} s); give the "
+            f"block a rest mode or threshold, or stop the run earlier")
+
+
 @njit
 def crossings(g_old, g_new, direction, armed, out):
     """Indices of the guards that crossed into ``out`` (ascending); returns how many.
@@ -59,7 +67,7 @@ def left_zero_unseen(g_old, g_new, direction, armed, g_probe):
     :func:`crossings` cannot see. ``g_probe`` holds the guards a short Euler step along
     ``f(t, x)`` after the start: a candidate that is there on the other side of zero did
     leave and return. (A candidate that went straight to its firing side, e.g. a saturation whose
-    input keeps rising past the corner, did not.) The compiled loop retries such a step
+    input keeps rising past the corner, did not.) Both loops retry such a step
     shorter; when it cannot be shortened any more (``UNSEEN_STEP``) the events come faster
     than the time resolution: chattering.
     """

@@ -42,7 +42,7 @@ import numpy as np
 
 from . import bdf, rosenbrock
 from .sysfn import entry_point
-from .events import UNSEEN_STEP
+from .events import zeno_message
 from .loop_body import run_loop
 from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
     METHOD_DP54, METHOD_ROS34PW2, METHODS, DONE, ROWS_FULL, EVENTS_FULL, PAUSE,
@@ -285,10 +285,7 @@ def _fail(system, run, code, st, wall0, IntegrationError):
         raise IntegrationError(msg, partial=run.result(st, "failed", msg), block=block)
     if code == FAIL_ZENO:
         block, name, _d = system.event_table[int(run.ist[I_BLOCK])]
-        msg = (f"chattering: block '{block}' fires events ('{name}') faster than the time "
-               f"resolution at t = {t:.9g} s (Zeno behaviour: its guard returns to the "
-               f"firing side within a step of {UNSEEN_STEP * max(1.0, abs(t)):.3g} s); give the "
-               f"block a rest mode or threshold, or stop the run earlier")
+        msg = zeno_message(block, name, t)
         raise IntegrationError(msg, partial=run.result(st, "failed", msg), block=block)
     if code == FAIL_TIME_EVENTS:
         msg = f"time events keep firing at t = {t:.9g} s without time advancing"

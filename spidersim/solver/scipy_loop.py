@@ -29,7 +29,8 @@ import numpy as np
 
 from ..errors import AlgebraicLoopError, IntegrationError
 from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT, STALL_STEP,
-                     crossed, crossings, locate)
+                     UNSEEN_PROBE, UNSEEN_STEP, crossed, crossings, left_zero_unseen, locate,
+                     zeno_message, zero_start_candidates)
 from .result import Result
 
 
@@ -37,6 +38,14 @@ def _tol(t):
     """Two times closer than this are the same instant."""
     return 1e-12 * max(1.0, abs(t))
 
+
+
+class _Retry:
+    """Go back to ``(t, x)`` and integrate with steps of at most ``h_cap`` (a guard
+    returned unseen within the step just taken)."""
+
+    def __init__(self, t, x, h_cap):
+        self.t, self.x, self.h_cap = t, x, h_cap
 
 class Recorder:
     """Logged rows in a preallocated buffer that doubles when full (sized for the whole
@@ -108,6 +117,7 @@ class SciPyLoop:
         n_g = self.n_g = system.n_g
         self.directions = np.array([d for _, _, d in system.event_table], dtype=float)
         self.armed = np.ones(n_g, dtype=bool)
+        self.h_cap = None                 # max_step of the next segment's first solver
         self.armed_all = True
         self.hit_buf = np.empty(max(1, n_g), dtype=np.int64)
         self.g_new = np.zeros(n_g)
@@ -336,6 +346,11 @@ class SciPyLoop:
             recorded = True
         else:
             g_new[:] = self.system.guards(solver.t, solver.y)
+        retry = self._unseen_return(solver, t_old, g_old, g_new)
+        if retry is not None:
+            if recorded:
+                self.rec.n = n_before
+            return retry, False
         hit = None
         if crossings(g_old, g_new, self.directions, self.armed, self.hit_buf):
             if recorded:                  # the step's end lies beyond the event
@@ -349,6 +364,33 @@ class SciPyLoop:
             self._rearm(g_new)
         return hit, recorded
 
+    def _unseen_return(self, solver, t_old, g_old, g_new):
+        """A guard that left zero and returned unseen within the step just taken
+        (:func:`.events.left_zero_unseen`, probed a short Euler step along ``f(t_old,
+        x_old)``): a :class:`_Retry` from ``(t_old, x_old)`` with steps at most 1/8 of this
+        one, or the Zeno failure when the step cannot be shortened; None otherwise."""
+        if not zero_start_candidates(g_old, g_new, self.directions, self.armed):
+            return None
+        s = self.system
+        h = solver.t - t_old
+        x_old = np.asarray(solver.dense_output()(t_old), dtype=float)
+        f_old = s.rhs(t_old, x_old)
+        dt = UNSEEN_PROBE * h
+        g_probe = s.guards(t_old + dt, x_old + dt * f_old)
+        self.st["rhs_calls"] += 1
+        i = left_zero_unseen(g_old, g_new, self.directions, self.armed, g_probe)
+        if i < 0:
+            s.guards(solver.t, solver.y)          # the diagram's signals back at the step end
+            return None
+        if h <= UNSEEN_STEP * max(1.0, abs(solver.t)):
+            block, name, _d = s.event_table[i]
+            msg = zeno_message(block, name, t_old)
+            self.st["t_reached"] = t_old
+            self.st["events"] = len(self.events)
+            raise IntegrationError(msg, partial=self._partial(msg), block=block)
+        self.st["rejected_steps"] = self.st.get("rejected_steps", 0) + 1
+        return _Retry(t_old, x_old, 0.125 * h)
+
     def _segment(self, t, x):
         """Integrate from (t, x) to the next time event, the end, or the first state event.
 
@@ -357,8 +399,12 @@ class SciPyLoop:
         s = self.system
         t_seg = min(s.next_time(t), self.t_end)
         self.st["segments"] += 1
+        kw = self.kw
+        if self.h_cap is not None:                 # retrying an unseen return: shorter
+            kw = dict(kw, max_step=min(kw.get("max_step", np.inf), self.h_cap))
+            self.h_cap = None
         try:
-            solver = self.cls(s.rhs, t, x, t_seg, **self.kw)
+            solver = self.cls(s.rhs, t, x, t_seg, **kw)
         except ValueError as exc:
             self._fail(str(exc), t, x)
         g_old = s.guards(t, x) if self.n_g else None
@@ -367,6 +413,10 @@ class SciPyLoop:
             recorded = False
             if self.n_g:
                 hit, recorded = self._detect(solver, t_old, g_old)
+                if isinstance(hit, _Retry):
+                    self._count(solver)
+                    self.h_cap = hit.h_cap
+                    return solver, "retry", hit.t, hit.x
                 if hit is not None:
                     self._count(solver)
                     t, x = hit
@@ -408,7 +458,7 @@ class SciPyLoop:
                     self.rec.add(t, x)
                 interrupted = True
                 break
-            if outcome == "event":
+            if outcome in ("event", "retry"):
                 continue
             if t >= self.t_end and s.next_time(t) > t + _tol(t):
                 break
