@@ -24,6 +24,12 @@ ripple
 spider
     10 s of ``spider.yaml``: wall time, steps, RHS calls, compile time, real-time factor
     (target >= 1.0 on one core), and the arm's forward dynamics per call (target <= 30 us).
+spider16
+    10 s of ``spider.yaml`` in its two sensing variants, one after the other in one
+    process: as shipped (16-bit converters, joint controllers sampled at 1 kHz, DP54) and
+    idealized (``res_bits 0``, ``Ts_ctrl 0``: exact angles, continuous cascade, NDF); wall
+    time, real-time factor (issue 14 targets: >= 2 with 16 bits, >= 10 ideal) and the
+    solver counters (steps, RHS calls, Jacobians, LU, time events, segments).
 contact
     ``diagrams/force_control_rigid_ideal.yaml`` (arm pressed on a rigid plane by the hybrid
     controller): wall time, Newton iterations per RHS evaluation, largest penetration.
@@ -289,7 +295,7 @@ def bench_spider():
     best, med, r = _best(lambda: d.simulate(t_end=10.0, jit=True), repeat=2)
     s = r.stats
     print("== spider: spider.yaml, 10 s simulated (7 joints + arm + 30 kg payload), "
-          "LSODA 1e-6/1e-8 ==")
+          f"{s['method']} {s['rtol']:g}/{s['atol']:g} ==")
     print(f"wall time {best:.2f} s (median {med:.2f} s); steps {s['steps']}, RHS calls "
           f"{s['rhs_calls']}, Jacobians {s['jacobian_calls']}; compile {compile_s:.1f} s "
           f"(this process: cold or from cache)")
@@ -309,6 +315,27 @@ def bench_spider():
     per = (time.perf_counter() - t0) / n
     print(f"arm forward dynamics (CRBA by RNEA columns + Cholesky + base wrench), "
           f"compiled: {1e6 * per:.1f} us per call from Python (target <= 30 us)")
+    print()
+
+
+def bench_spider16():
+    """spider.yaml 10 s with 16-bit resolvers and sampled control, and idealized."""
+    import spidersim
+
+    print("== spider16: spider.yaml, 10 s simulated, 1e-6/1e-8, one process ==")
+    print(f"{'variant':52s} {'wall s':>7s} {'x real':>7s} {'steps':>7s} {'RHS':>8s} "
+          f"{'Jac':>5s} {'LU':>6s} {'t.ev.':>6s} {'segm.':>6s}")
+    for label, over, method in (
+            ("16 bits, 1 kHz sampled cascade (as shipped)", {}, "DP54"),
+            ("ideal angles, continuous cascade", {"res_bits": 0, "Ts_ctrl": 0}, "NDF")):
+        d = spidersim.load(os.path.join(ROOT, "spider.yaml"), set=over)
+        d.compile(jit=True)
+        d.simulate(t_end=0.01, method=method)            # the loop's first call
+        best, _, r = _best(lambda: d.simulate(t_end=10.0, method=method), repeat=2)
+        s = r.stats
+        print(f"{label + ', ' + method:52s} {best:7.2f} {10.0 / best:7.2f} {s['steps']:7d} "
+              f"{s['rhs_calls']:8d} {s['jacobian_calls']:5d} {s['lu_decompositions']:6d} "
+              f"{s['time_events']:6d} {s['segments']:6d}")
     print()
 
 
@@ -381,7 +408,8 @@ def bench_compile():
 
 
 BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball,
-           "ripple": bench_ripple, "spider": bench_spider, "contact": bench_contact,
+           "ripple": bench_ripple, "spider": bench_spider, "spider16": bench_spider16,
+           "contact": bench_contact,
            "memory": bench_memory, "compile": bench_compile, "sweep": bench_sweep}
 
 
