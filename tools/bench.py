@@ -24,6 +24,12 @@ ripple
 spider
     10 s of ``spider.yaml``: wall time, steps, RHS calls, compile time, real-time factor
     (target >= 1.0 on one core), and the arm's forward dynamics per call (target <= 30 us).
+spider16
+    10 s of ``spider.yaml`` in its two sensing variants, one after the other in one
+    process: as shipped (16-bit converters, joint controllers sampled at 1 kHz, DP54) and
+    idealized (``res_bits 0``, ``Ts_ctrl 0``: exact angles, continuous cascade, NDF); wall
+    time, real-time factor (issue 14 targets: >= 2 with 16 bits, >= 10 ideal) and the
+    solver counters (steps, RHS calls, Jacobians, LU, time events, segments).
 contact
     ``diagrams/force_control_rigid_ideal.yaml`` (arm pressed on a rigid plane by the hybrid
     controller): wall time, Newton iterations per RHS evaluation, largest penetration.
@@ -312,6 +318,27 @@ def bench_spider():
     print()
 
 
+def bench_spider16():
+    """spider.yaml 10 s with 16-bit resolvers and sampled control, and idealized."""
+    import spidersim
+
+    print("== spider16: spider.yaml, 10 s simulated, 1e-6/1e-8, one process ==")
+    print(f"{'variant':52s} {'wall s':>7s} {'x real':>7s} {'steps':>7s} {'RHS':>8s} "
+          f"{'Jac':>5s} {'LU':>6s} {'t.ev.':>6s} {'segm.':>6s}")
+    for label, over, method in (
+            ("16 bits, 1 kHz sampled cascade (as shipped)", {}, "DP54"),
+            ("ideal angles, continuous cascade", {"res_bits": 0, "Ts_ctrl": 0}, "NDF")):
+        d = spidersim.load(os.path.join(ROOT, "spider.yaml"), set=over)
+        d.compile(jit=True)
+        d.simulate(t_end=0.01, method=method)            # the loop's first call
+        best, _, r = _best(lambda: d.simulate(t_end=10.0, method=method), repeat=2)
+        s = r.stats
+        print(f"{label + ', ' + method:52s} {best:7.2f} {10.0 / best:7.2f} {s['steps']:7d} "
+              f"{s['rhs_calls']:8d} {s['jacobian_calls']:5d} {s['lu_decompositions']:6d} "
+              f"{s['time_events']:6d} {s['segments']:6d}")
+    print()
+
+
 def bench_contact():
     from spidersim import load
     d = load(os.path.join(ROOT, "diagrams", "force_control_rigid_ideal.yaml"))
@@ -381,7 +408,8 @@ def bench_compile():
 
 
 BENCHES = {"servo": bench_servo, "loop": bench_loop, "ball": bench_ball,
-           "ripple": bench_ripple, "spider": bench_spider, "contact": bench_contact,
+           "ripple": bench_ripple, "spider": bench_spider, "spider16": bench_spider16,
+           "contact": bench_contact,
            "memory": bench_memory, "compile": bench_compile, "sweep": bench_sweep}
 
 

@@ -256,6 +256,20 @@ class JointCascade(Block):
         dI/dt = ki_w e + kb (i_cmd - v)                         (back-calculation)
 
     ``i_cmd`` is the current amplitude for the driver (torque / K_t).
+
+    Digital controller (``Ts > 0``): the inputs are read only at the samples
+    ``t_k = k Ts`` (time events, ``k = 0, 1, ...``), the command is computed at once and held
+    (zero-order hold) until the next sample; the integral is the forward-Euler discrete
+    equivalent of the same law::
+
+        w_ref_k = ratio (kp_q (q_ref_k - q_k) + ff qd_ref_k),   e_k = w_ref_k - w_m_k
+        v_k = kp_w e_k + I_k,   i_cmd(t) = sat(v_k, +-I_max)  for t_k <= t < t_k+1
+        I_k+1 = I_k + Ts (ki_w e_k + kb (i_cmd_k - v_k)),        I_0 = 0
+
+    (the computation delay within a sample is neglected). Quantized measurements (a
+    resolver's staircase) then reach the continuous plant only through the held command, as
+    in the real joint electronics, and the integrator sees no discontinuity between
+    samples. ``Ts`` is structural (the outputs are direct feedthrough only when ``Ts = 0``).
     """
 
     category = "control"
@@ -267,26 +281,65 @@ class JointCascade(Block):
         "ff": Param(1.0, "1", "speed feed-forward weight (0 off, 1 on)", ge=0.0),
         "I_max": Param(4.0, "A", "current command limit", gt=0.0),
         "kb": Param(100.0, "1/s", "anti-windup back-calculation gain", ge=0.0),
+        "Ts": Param(0.0, "s", "sample period of the digital controller (0: continuous)",
+                    ge=0.0, structural=True),
     }
     renamed = {"N": "ratio"}
     inputs = {"q_ref": Port("rad", doc="load position reference"),
               "qd_ref": Port("rad/s", optional=True, doc="load speed reference (feed-forward)"),
               "q": Port("rad", doc="measured load position"),
               "w_m": Port("rad/s", doc="measured motor speed")}
-    outputs = {"i_cmd": Port("A", feedthrough="all", doc="current amplitude command"),
-               "w_ref": Port("rad/s", feedthrough=("q_ref", "qd_ref", "q"),
-                             doc="motor speed reference")}
-    states = {"I": State("A", doc="speed-loop integral term")}
+    outputs = {"i_cmd": Port("A", feedthrough=lambda p: "all" if p["Ts"] == 0 else (),
+                             doc="current amplitude command (held when sampled)"),
+               "w_ref": Port("rad/s", feedthrough=lambda p: ("q_ref", "qd_ref", "q")
+                             if p["Ts"] == 0 else (),
+                             doc="motor speed reference (held when sampled)")}
+    states = {"I": State("A", size=Dim("1 if Ts = 0 else 0", lambda p: 1 if p["Ts"] == 0
+                                       else 0), doc="speed-loop integral term (continuous)")}
+    modes = {"I_k": Mode(doc="speed-loop integral term (sampled, A)"),
+             "i_held": Mode(doc="held current command (sampled, A)"),
+             "w_held": Mode(doc="held speed reference (sampled, rad/s)"),
+             "k": Mode(doc="samples taken")}
+
+    @classmethod
+    def check(cls, params):
+        if params["Ts"] > 0 and params["Ts"] * params["kb"] >= 2.0:
+            raise ValueError(f"Ts kb = {params['Ts'] * params['kb']:g} >= 2: the sampled "
+                             "back-calculation (forward Euler) is unstable; lower Ts or kb")
 
     @staticmethod
-    def output(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ff, I_max, i_cmd, w_ref):
+    def output(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ff, I_max, Ts, i_held,
+               w_held, i_cmd, w_ref):
+        if Ts > 0.0:
+            i_cmd[0] = i_held[0]
+            w_ref[0] = w_held[0]
+            return
         wr = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0])
         v = kp_w * (wr - w_m[0]) + I[0]
         i_cmd[0] = min(max(v, -I_max), I_max)
         w_ref[0] = wr
 
     @staticmethod
-    def derivative(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ki_w, ff, I_max, kb, der_I):
+    def derivative(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ki_w, ff, I_max, kb, Ts,
+                   der_I):
+        if Ts > 0.0:
+            return
         e = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0]) - w_m[0]
         v = kp_w * e + I[0]
         der_I[0] = ki_w * e + kb * (min(max(v, -I_max), I_max) - v)
+
+    @staticmethod
+    def next_time(t, Ts, k):
+        return k[0] * Ts if Ts > 0.0 else math.inf
+
+    @staticmethod
+    def time_event(t, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ki_w, ff, I_max, kb, Ts, I_k,
+                   i_held, w_held, k):
+        wr = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0])
+        e = wr - w_m[0]
+        v = kp_w * e + I_k[0]
+        i = min(max(v, -I_max), I_max)
+        i_held[0] = i
+        w_held[0] = wr
+        I_k[0] += Ts * (ki_w * e + kb * (i - v))
+        k[0] += 1.0

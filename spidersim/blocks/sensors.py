@@ -132,11 +132,14 @@ class WrenchSensor(Block):
 
 
 class RDC(Block):
-    """Resolver-to-digital converter: a type-II tracking loop on the resolver angle::
+    """Resolver-to-digital converter: a type-II tracking loop on the resolver's analog angle,
+    with a digital angle output at ``bits`` resolution::
 
-        e        = sin(theta_q - theta_r)          (theta_q: the angle at ``bits`` resolution)
+        e           = sin(theta - theta_r)         (theta: the resolver's angle, continuous)
         dtheta_r/dt = w_r + 2 zeta w_n e
         dw_r/dt     = w_n^2 e,                      w_n = 2 pi f_n
+        theta_d     = q round(theta_r / q),         q = 2 pi / 2^bits   (theta_d = theta_r
+                                                                          for bits = 0)
 
     For small errors the tracked angle follows the true one through
     ``(2 zeta w_n s + w_n^2) / (s^2 + 2 zeta w_n s + w_n^2)``: zero steady error at constant
@@ -144,29 +147,43 @@ class RDC(Block):
     ``e(t) = w0 / w_d exp(-zeta w_n t) sin(w_d t)``, ``w_d = w_n sqrt(1 - zeta^2)``. The
     speed output is the loop's integrator ``w_r`` (what the converter's velocity output
     provides instead of a differentiated angle). ``sin`` of the error makes the loop track
-    through angle wrap-around. ``bits = 0`` tracks the exact angle; ``bits > 0`` the angle
-    quantized to ``2 pi / 2^bits`` (a staircase input: prefer sampled controllers then).
-    Outputs are states: no direct feedthrough.
+    through angle wrap-around.
+
+    Quantization as built: the converter compares the resolver's analog signals with its
+    angle counter, and what has ``bits`` bits is the counter, i.e. the digital output
+    ``theta_d``. The loop here tracks with the continuous ``theta_r`` and quantizes only
+    the output, so no discontinuity enters the tracking loop (the counter's own error of at
+    most half an LSB inside the loop is neglected: it is a bounded +-q/2 dither on ``e``
+    that the loop filters at ``f_n``). ``|theta_d - theta| <= q/2 + |theta - theta_r|``.
+    ``theta_d`` is a staircase: read it from sampled blocks (a sampled controller), whose
+    samples are time events, not from continuous dynamics. Outputs ``theta_r`` and ``w_r``
+    are states and ``theta_d`` depends on a state only: no direct feedthrough.
     """
 
     category = "sensors"
     parameters = {
         "f_n": Param(500.0, "Hz", "natural frequency of the tracking loop", gt=0.0),
         "zeta": Param(0.7, "1", "damping ratio of the tracking loop", gt=0.0),
-        "bits": Param(0, "1", "converter resolution in bits per revolution (0: exact)",
-                      kind="int", ge=0, le=40),
+        "bits": Param(0, "1", "resolution of the digital angle output theta_d in bits per "
+                      "revolution (0: theta_d = theta_r)", kind="int", ge=0, le=40),
         "theta0": Param(0.0, "rad", "initial tracked angle"),
         "w0": Param(0.0, "rad/s", "initial tracked speed"),
     }
-    inputs = {"theta": Port("rad", doc="resolver angle (true or measured)")}
-    outputs = {"theta_r": Port("rad", doc="tracked angle"),
-               "w_r": Port("rad/s", doc="tracked speed (velocity output)")}
+    inputs = {"theta": Port("rad", doc="resolver angle (analog, continuous)")}
+    outputs = {"theta_r": Port("rad", doc="tracked angle (continuous)"),
+               "w_r": Port("rad/s", doc="tracked speed (velocity output)"),
+               "theta_d": Port("rad", feedthrough=(),
+                               doc="digital angle: theta_r on the 2 pi / 2^bits grid")}
     states = {"theta_r": State("rad", initial="theta0", doc="tracked angle"),
               "w_r": State("rad/s", initial="w0", doc="loop integrator: the speed")}
 
     @staticmethod
-    def derivative(t, theta, theta_r, w_r, f_n, zeta, bits, der_theta_r, der_w_r):
+    def output(t, theta_r, bits, theta_d):
+        theta_d[0] = quantize_jit(theta_r[0], bits)
+
+    @staticmethod
+    def derivative(t, theta, theta_r, w_r, f_n, zeta, der_theta_r, der_w_r):
         wn = 2.0 * math.pi * f_n
-        e = math.sin(quantize_jit(theta[0], bits) - theta_r[0])
+        e = math.sin(theta[0] - theta_r[0])
         der_theta_r[0] = w_r[0] + 2.0 * zeta * wn * e
         der_w_r[0] = wn * wn * e

@@ -160,7 +160,8 @@ EXAMPLES = {
                           sizes={"wrench": 6, "rot": 9})],
     "Jacobian": [dict(params={}, sizes={"q": 7}, lo=-2.0, hi=2.0)],
     "JointCascade": [dict(params={"ratio": 100.0, "kp_q": 5.0, "kp_w": 0.1, "ki_w": 0.5,
-                                  "I_max": 1e4}, lo=-0.1, hi=0.1, moves=True)],
+                                  "I_max": 1e4}, lo=-0.1, hi=0.1, moves=True),
+                     dict(params={"ratio": 100.0, "Ts": 1e-3})],
 }
 
 CASES = [pytest.param(t, k, c, id=f"{t}-{k}") for t, cases in sorted(EXAMPLES.items())
