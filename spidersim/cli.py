@@ -499,9 +499,35 @@ def cmd_check(args):
     from . import load
     d = load(args.file, set=_parse_sets(args.set))
     validate_run(d)
+    cmds = _check_commands(d, args)
     print(d.summary())
+    if cmds:
+        print(f"named commands (spidersim serve): {', '.join(cmds)}")
     print("OK")
     return 0
+
+
+def _check_commands(d, args):
+    """The file's ``commands`` section as the service reads it, and each command's ``set``
+    values and argument defaults applied to the model (a path the model does not have, or
+    a value it refuses, is an error naming the command)."""
+    from . import load
+    from .service.commands import named_commands
+    cmds = named_commands(d.spec)
+    base = _parse_sets(args.set)
+    line = d.spec.data.line_of("commands") if hasattr(d.spec.data, "line_of") else None
+    for name, c in cmds.items():
+        trial = {str(k): v for k, v in c["set"].items()}
+        trial.update({k: a["default"] for k, a in c["arguments"].items()
+                      if a["default"] is not None})
+        if not trial:
+            continue
+        try:
+            load(args.file, set={**base, **trial})
+        except SpidersimError as exc:
+            raise SpidersimError(f"command '{name}': {exc.message}", file=d.file,
+                                 line=line, block=exc.block) from None
+    return cmds
 
 
 def cmd_blocks(args):

@@ -150,6 +150,34 @@ def test_set_from_the_command_line(tmp_path, capsys):
     assert "motor.Q" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("edit, message", [
+    ("      ref.aftr: {doc: position after the step, unit: rad, default: 1}",
+     "block type Step has no parameter 'aftr'"),
+    ("      ref.after: {doc: position after the step, unit: rad, default: [1, 2]}",
+     "block 'ref': command 'position_step': parameter 'after' must be a scalar"),
+])
+def test_check_reads_the_named_commands(tmp_path, capsys, edit, message):
+    """``spidersim check`` reads the ``commands`` section the service serves: a command
+    whose argument default names a parameter the model does not have (or gives it a value
+    it refuses) fails at the check, with the file, the section's line and the command's
+    name, not at the first request to the service. The intact file lists its commands."""
+    src = os.path.join(ROOT, "diagrams", "servo.yaml")
+    assert main(["check", src]) == 0
+    assert "named commands (spidersim serve): position_step" in capsys.readouterr().out
+    text = open(src).read()
+    good = "      ref.after: {doc: position after the step, unit: rad}"
+    assert good in text
+    bad = tmp_path / "servo.yaml"
+    bad.write_text(text.replace(good, edit))
+    assert main(["check", str(bad)]) == 2
+    err = capsys.readouterr().err
+    line = text.splitlines().index("commands:                  # named commands of the "
+                                   "remote service (spidersim serve)") + 1
+    assert f"servo.yaml:{line}: " in err and "command 'position_step'" in err
+    assert message in err
+    assert "Traceback" not in err
+
+
 @pytest.mark.parametrize("path", SUBSYSTEMS,
                          ids=[os.path.relpath(f, ROOT) for f in SUBSYSTEMS])
 def test_subsystem_files_are_used_and_checked(path, capsys):
