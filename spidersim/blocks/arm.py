@@ -104,6 +104,7 @@ import numpy as np
 from ..multibody.kernels import WS_ACC, WS_ALPHA, WS_O, WS_R, WS_W
 from ..multibody.kernels import WS_PER_LINK as _WS
 from ..multibody.kernels import jit_kernel
+from ..text.yamlio import readable, refuse_unreadable
 from .base import Block, Dim, Event, Mode, Param, Port, State, unit_vector
 
 # grasp mode layout: COM in the flange frame (3), payload axes in the flange frame R_rel
@@ -116,6 +117,7 @@ _CHAINS = {}
 def _chain(model):
     from ..multibody.chain import SPIDER, Chain
     path = SPIDER if model == "spider" else model
+    refuse_unreadable(path, "arm data file")          # also when cached
     if path not in _CHAINS:
         _CHAINS[path] = Chain.from_yaml(path)
     return _CHAINS[path]
@@ -201,7 +203,7 @@ class Arm(Block):
 
     category = "multibody"
     parameters = {
-        "model": Param("spider", kind="str", doc="'spider' (shipped SPIDER-like data) or the "
+        "model": Param("spider", kind="str", file=True, doc="'spider' (shipped SPIDER-like data) or the "
                                                  "path of an arm data file"),
         "gravity": Param([0.0, 0.0, 0.0], "m/s2", "gravity in the base frame", shape=3),
         "q0": Param(0.0, "rad", "initial joint angles", shape=_N),
@@ -297,6 +299,9 @@ class Arm(Block):
     @classmethod
     def check(cls, params):
         model = params["model"]
+        if model != "spider" and not readable(model):
+            raise ValueError(f"arm data file '{model}' is not among the files this server's "
+                             f"models may read (a request cannot name files of the server)")
         if model != "spider" and not os.path.isfile(model):
             raise ValueError(f"arm data file not found: {model} (use 'spider' for the "
                              f"shipped SPIDER-like arm)")
@@ -554,7 +559,7 @@ class CartesianLineIK(Block):
 
     category = "multibody"
     parameters = {
-        "model": Param("spider", kind="str", doc="arm data ('spider' or a path)"),
+        "model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)"),
         "q0": Param(0.0, "rad", "initial joint angles", shape=_N),
         "direction": Param([1.0, 0.0, 0.0], "1", "line direction (normalised)", shape=3),
         "K": Param(20.0, "1/s", "task-space error gain", ge=0.0),
@@ -625,7 +630,7 @@ class ForwardKinematics(Block):
     (row-major), base frame."""
 
     category = "multibody"
-    parameters = {"model": Param("spider", kind="str", doc="arm data ('spider' or a path)")}
+    parameters = {"model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)")}
     inputs = {"q": Port("rad", size=_N, doc="joint angles")}
     outputs = {"pos": Port("m", size=3, feedthrough=("q",), doc="flange origin"),
                "rot": Port("1", size=9, feedthrough=("q",), doc="flange rotation, row-major")}
@@ -650,7 +655,7 @@ class Jacobian(Block):
     angular), base frame: ``[v; w] = J(q) qd``."""
 
     category = "multibody"
-    parameters = {"model": Param("spider", kind="str", doc="arm data ('spider' or a path)")}
+    parameters = {"model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)")}
     inputs = {"q": Port("rad", size=_N, doc="joint angles")}
     outputs = {"J": Port("1", size=Dim("6 n", lambda p: 6 * _n(p)), feedthrough=("q",),
                          doc="Jacobian, row-major 6 x n")}

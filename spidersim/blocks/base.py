@@ -123,6 +123,10 @@ class Param:
     allow_inf : bool
         ``inf``/``-inf`` are meaningful values (an absent limit). Otherwise every element of a
         ``real`` parameter must be finite (``1e400`` overflows to ``inf`` and is refused).
+    file : bool
+        A ``str`` parameter naming a file read on the machine that runs the model (an arm
+        data file). The remote service refuses requests that change it: a file path of the
+        server is not the requester's to choose.
     """
 
     default: Any = REQUIRED
@@ -137,6 +141,7 @@ class Param:
     choices: tuple | None = None
     structural: bool = False
     allow_inf: bool = False
+    file: bool = False
 
     @property
     def is_structural(self):

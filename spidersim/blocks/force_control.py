@@ -38,7 +38,7 @@ class HybridForceController(Block):
 
     category = "control"
     parameters = {
-        "model": Param("spider", kind="str", doc="arm data ('spider' or a path)"),
+        "model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)"),
         "q0": Param(0.0, "rad", "pose whose flange orientation is held", shape=_N),
         "selection": Param([1.0, 1.0, 0.0, 1.0, 1.0, 1.0], "1",
                            "1: position-controlled, 0: force-controlled (x y z, rx ry rz)",

@@ -25,12 +25,85 @@ DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
 SPIDER = os.path.join(DATA, "spider_arm.yaml")
 
 
-def _num(v, what, file):
+#: most links a data file may describe
+MAX_LINKS = 64
+LINK_KEYS = ("d", "a", "alpha", "mass", "com", "inertia")
+FILE_KEYS = ("name", "gravity", "links")
+
+
+def _num(v, what, file, line=None):
+    """A finite number (or an expression of numbers) from a data file."""
     from ..text.expr import ExprError, evaluate
+    from ..text.yamlio import found
+    if isinstance(v, bool):
+        raise DiagramError(f"{what}: expected a number, got {found(v)} (true/false is not a "
+                           f"number)", file=file, line=line)
     try:
-        return float(evaluate(v, {})) if isinstance(v, str) else float(v)
-    except (ExprError, TypeError, ValueError):
-        raise DiagramError(f"{what}: expected a number, got {v!r}", file=file) from None
+        x = float(evaluate(v, {})) if isinstance(v, str) else float(v)
+    except (ExprError, TypeError, ValueError, OverflowError):
+        raise DiagramError(f"{what}: expected a number, got {found(v)}", file=file,
+                           line=line) from None
+    if not np.isfinite(x):
+        raise DiagramError(f"{what}: expected a finite number, got {x}", file=file, line=line)
+    return x
+
+
+def _vector3(v, what, file, line):
+    if not isinstance(v, list) or len(v) != 3:
+        from ..text.yamlio import found
+        raise DiagramError(f"{what}: expected 3 numbers [x, y, z], got {found(v)}", file=file,
+                           line=line)
+    return [_num(x, what, file, line) for x in v]
+
+
+def _inertia(v, what, file, line):
+    """Principal moments (3 numbers) or a symmetric 3 x 3 matrix [kg m^2], positive
+    semi-definite with moments obeying the triangle inequality (a rigid body's)."""
+    from ..text.yamlio import found
+    if isinstance(v, list) and len(v) == 3 and all(isinstance(r, list) for r in v):
+        if any(len(r) != 3 for r in v):
+            raise DiagramError(f"{what}: a matrix must be 3 x 3", file=file, line=line)
+        I = np.array([[_num(x, what, file, line) for x in r] for r in v])
+        scale = max(np.abs(I).max(), 1e-300)
+        if np.abs(I - I.T).max() > 1e-9 * scale:
+            raise DiagramError(f"{what}: the matrix is not symmetric", file=file, line=line)
+        moments = np.linalg.eigvalsh(0.5 * (I + I.T))
+    elif isinstance(v, list) and len(v) == 3:
+        I = np.array([_num(x, what, file, line) for x in v])
+        moments, scale = I, max(np.abs(I).max(), 1e-300)
+    else:
+        raise DiagramError(f"{what}: expected 3 principal moments or a 3 x 3 matrix, got "
+                           f"{found(v)}", file=file, line=line)
+    a, b, c = sorted(float(m) for m in moments)
+    if a < -1e-12 * scale or a + b < c * (1 - 1e-9):
+        raise DiagramError(f"{what}: moments {[round(m, 12) for m in (a, b, c)]} are not a "
+                           f"rigid body's (each must be >= 0 and at most the sum of the other "
+                           f"two)", file=file, line=line)
+    return I
+
+
+def _link(k, L, path, list_line=None):
+    """One entry of ``links``: ``(dh, mass, com, inertia)``, each checked (errors at the
+    entry's line, or the list's for an entry that is not a mapping)."""
+    from ..text.yamlio import found
+    line = getattr(L, "line", None) or list_line
+    if not isinstance(L, dict):
+        raise DiagramError(f"links[{k}] must be a mapping {{d, a, alpha, mass, com, "
+                           f"inertia}}, got {found(L)}", file=path, line=line)
+    bad = sorted(str(key) for key in L if key not in LINK_KEYS)
+    if bad:
+        raise DiagramError(f"links[{k}]: unknown key(s) {', '.join(bad)}; keys are "
+                           f"{', '.join(LINK_KEYS)}", file=path, line=line)
+    for key in LINK_KEYS:
+        if key not in L:
+            raise DiagramError(f"links[{k}] lacks '{key}'", file=path, line=line)
+    dh = [_num(L[key], f"links[{k}].{key}", path, line) for key in ("d", "a", "alpha")]
+    m = _num(L["mass"], f"links[{k}].mass", path, line)
+    if m < 0.0:
+        raise DiagramError(f"links[{k}].mass: expected a mass >= 0 kg, got {m}", file=path,
+                           line=line)
+    c = _vector3(L["com"], f"links[{k}].com", path, line)
+    return dh, m, c, _inertia(L["inertia"], f"links[{k}].inertia", path, line)
 
 
 def dh_transform(q, d, a, alpha):
@@ -81,28 +154,47 @@ class Chain:
     @classmethod
     def from_yaml(cls, path=None):
         """Load a chain data file (default: the SPIDER-like arm)."""
-        from ..text.yamlio import read_file
+        from ..text.yamlio import read_file, refuse_unreadable
         path = path or SPIDER
+        refuse_unreadable(path, "arm data file")
         if not os.path.isfile(path):
             raise DiagramError(f"arm data file not found: {path}")
         data = read_file(path)
-        links = data.get("links") if isinstance(data, dict) else None
+        if not isinstance(data, dict):
+            raise DiagramError("an arm data file is a mapping with 'links' (and optionally "
+                               "'name', 'gravity')", file=path)
+        bad = sorted(str(key) for key in data if key not in FILE_KEYS)
+        if bad:
+            raise DiagramError(f"unknown key(s) {', '.join(bad)}; keys are "
+                               f"{', '.join(FILE_KEYS)}", file=path,
+                               line=data.line_of(bad[0]) if hasattr(data, "line_of") else None)
+        links = data.get("links")
         if not isinstance(links, list) or not links:
             raise DiagramError("an arm data file needs a non-empty 'links' list", file=path)
-        dh, m, c, I = [], [], [], []
-        for k, L in enumerate(links):
-            for key in ("d", "a", "alpha", "mass", "com", "inertia"):
-                if key not in L:
-                    raise DiagramError(f"links[{k}] lacks '{key}'", file=path,
-                                       line=getattr(L, "line", None))
-            dh.append([_num(L[key], f"links[{k}].{key}", path) for key in ("d", "a", "alpha")])
-            m.append(_num(L["mass"], f"links[{k}].mass", path))
-            c.append([_num(v, f"links[{k}].com", path) for v in L["com"]])
-            I.append(np.array([[_num(v, f"links[{k}].inertia", path) for v in
-                                (row if isinstance(row, list) else [row])]
-                               for row in L["inertia"]]).squeeze())
-        g = [_num(v, "gravity", path) for v in data.get("gravity", [0, 0, 0])]
-        return cls(dh, m, c, I, g, name=str(data.get("name", "chain")))
+        if len(links) > MAX_LINKS:
+            raise DiagramError(f"'links' has {len(links)} entries, at most {MAX_LINKS} allowed",
+                               file=path)
+        dh, m, c, I = zip(*(_link(k, L, path, getattr(links, "line", None))
+                            for k, L in enumerate(links)))
+        line = data.line_of("gravity") if hasattr(data, "line_of") else None
+        g = _vector3(data.get("gravity", [0, 0, 0]), "gravity", path, line)
+        name = data.get("name", "chain")
+        if not isinstance(name, str):
+            raise DiagramError("'name' must be a text", file=path)
+        chain = cls(dh, m, c, I, g, name=name)
+        chain._check_inertia(path)
+        return chain
+
+    def _check_inertia(self, path):
+        """The mass matrix at q = 0 must be positive definite: every joint moves some
+        inertia (a chain whose last links are massless points is refused here, not by a
+        NaN in the middle of a run)."""
+        M = self.mass_matrix(np.zeros(self.n))
+        smallest = np.linalg.eigvalsh(0.5 * (M + M.T)).min()
+        if not smallest > 1e-12 * max(np.abs(M).max(), 1e-300):
+            raise DiagramError(f"the chain's joint-space mass matrix is singular at q = 0 "
+                               f"(smallest eigenvalue {smallest:.3g} kg m^2): some joint moves "
+                               f"no inertia", file=path)
 
     # ---------------------------------------------------------------- kinematics
     def fk(self, q):

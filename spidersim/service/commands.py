@@ -53,14 +53,17 @@ names with suggestions, bounds, shapes); problems with the command itself raise
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 import spidersim
+from spidersim.blocks import REGISTRY, lookup
 from spidersim.diagram.spec import BlockSpec
 from spidersim.diagram.units import UNKNOWN
 from spidersim.errors import ParameterError
 from spidersim.text import units as U
-from spidersim.text.yamlio import found
+from spidersim.text.yamlio import files_only_under, found
 
 TABLE_TYPES = ("Step", "Ramp", "Sine", "Pulse", "Constant", "TimeTable")
 PATH_TYPES = ("TrapezoidalProfile", "QuinticProfile")
@@ -508,10 +511,37 @@ def _run_length(req, t_cmd, d, spec):
     return float(t_end)
 
 
+def _model_roots(model, spec):
+    """Folders whose files a request's model may read: the model's folder, its subsystems'
+    folders and the package's data (the shipped arm)."""
+    from spidersim.multibody.chain import DATA
+    return {model.folder, DATA} | {os.path.dirname(f) for f in spec.subsystems.values()}
+
+
+def _refuse_file_parameters(spec, overrides):
+    """A request may not set a parameter that names a file of the server (``Param.file``,
+    e.g. ``arm.model``): refused by name before anything is loaded."""
+    for key in overrides:
+        block, _, pname = str(key).rpartition(".")
+        b = spec.blocks.get(block)
+        cls = lookup(b.type) if b is not None and b.type in REGISTRY else None
+        decl = cls.parameters.get(pname) if cls is not None else None
+        if decl is not None and decl.file:
+            _fail(f"parameter '{key}' names a file of the server; a request cannot set it",
+                  spec)
+
+
 def prepare(model, req):
-    """``(Diagram, t_end)`` for the request ``req`` (a dict) on ``model``."""
+    """``(Diagram, t_end)`` for the request ``req`` (a dict) on ``model``. Only files of
+    the model's folders are read meanwhile (:func:`.yamlio.files_only_under`)."""
     spec = model.spec()
+    with files_only_under(_model_roots(model, spec)):
+        return _prepare(spec, req)
+
+
+def _prepare(spec, req):
     overrides = dict(req.get("parameters") or {})
+    _refuse_file_parameters(spec, overrides)
     t_cmd = None
     if req.get("command") or req.get("initial"):
         d0 = spidersim.Diagram(spec, dict(overrides))

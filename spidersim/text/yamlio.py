@@ -11,6 +11,10 @@ per node, so an alias bomb of 10^9 elements is refused before anything is built)
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import os
+
 import yaml
 
 from ..errors import DiagramError
@@ -161,8 +165,43 @@ def decode(raw: bytes, file: str) -> str:
                            line=line) from None
 
 
+#: folders whose files may be read while a model is prepared for someone else (None: any)
+_ROOTS = contextvars.ContextVar("spidersim_file_roots", default=None)
+
+
+@contextlib.contextmanager
+def files_only_under(roots):
+    """Within the block, :func:`read_file` and :func:`readable` accept only files inside
+    ``roots`` (after resolving links): the service prepares a request's model so, and a
+    parameter of the request that names a file of the server (``Arm.model:
+    /etc/passwd``) is refused without the file being opened or its existence told."""
+    token = _ROOTS.set(tuple(os.path.realpath(r) for r in roots))
+    try:
+        yield
+    finally:
+        _ROOTS.reset(token)
+
+
+def readable(path: str) -> bool:
+    """Whether ``path`` may be read here (always, outside :func:`files_only_under`)."""
+    roots = _ROOTS.get()
+    if roots is None:
+        return True
+    real = os.path.realpath(path)
+    return any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
+
+
+def refuse_unreadable(path: str, what: str = "file"):
+    """:class:`DiagramError` unless :func:`readable`; names the path as given only."""
+    if not readable(path):
+        raise DiagramError(f"{what} '{path}' is not among the files this server's models may "
+                           f"read (a request cannot name files of the server)")
+
+
 def read_file(path: str):
-    """Read and parse a YAML file within bounds (see :func:`load_text`)."""
+    """Read and parse a YAML file within bounds (see :func:`load_text`); a file outside
+    :func:`files_only_under` is refused unopened."""
+    refuse_unreadable(path)
     try:
         with open(path, "rb") as fh:
             raw = fh.read(limits.MAX_FILE_BYTES + 1)

@@ -155,3 +155,44 @@ def test_joint_path_in_degrees(tmp_path):
     with pytest.raises(Exception, match="does not convert"):
         prepare(Model("move", str(f)), {"command": {
             "kind": "joint_path", "points": [0, 1], "times": [0, 1], "unit": "m"}})
+
+
+def test_a_request_cannot_make_the_server_read_its_files(tmp_path):
+    """The arm's data file is a parameter (``Arm.model``). A request naming a file of the
+    server (/etc/passwd, a secret next to the models) must be refused without the file
+    being opened: before this check the file was read and its first value came back in
+    the error ('expected a number, got <secret>'). Refused by name for the model's own
+    blocks, and through a subsystem by the folder restriction (the model's folders only);
+    a data file in the model's folder stays usable."""
+    import shutil
+    from spidersim.multibody.chain import SPIDER
+    models, secret = tmp_path / "models", tmp_path / "secret"
+    models.mkdir()
+    secret.mkdir()
+    (secret / "creds.yaml").write_text(
+        "links:\n  - {d: TOPSECRET, a: 0, alpha: 0, mass: 1, com: [0,0,0], "
+        "inertia: [1,1,1]}\n")
+    shutil.copy(SPIDER, models / "my_arm.yaml")
+    (models / "inner.yaml").write_text(
+        "blocks:\n  tau: {type: Constant, value: [0, 0, 0, 0, 0, 0, 0]}\n"
+        "  arm: {type: Arm}\nconnections: [tau.y -> arm.tau]\noutputs: {q: arm.q}\n")
+    (models / "flat.yaml").write_text(
+        "blocks:\n  tau: {type: Constant, value: [0, 0, 0, 0, 0, 0, 0]}\n"
+        "  arm: {type: Arm}\nconnections: [tau.y -> arm.tau]\n")
+    (models / "outer.yaml").write_text(
+        "subsystems: {inner: inner.yaml}\nblocks:\n  s: {type: inner}\n"
+        "  g: {type: Gain, k: 1}\nconnections: [s.q -> g.u]\n")
+    flat = Model("flat", str(models / "flat.yaml"))
+    outer = Model("outer", str(models / "outer.yaml"))
+    for target in ("/etc/passwd", str(secret / "creds.yaml"), "/nonexistent.yaml"):
+        with pytest.raises(spidersim.SpidersimError) as ei:
+            prepare(flat, {"parameters": {"arm.model": target}})
+        msg = flat.public_message(ei.value)
+        assert "names a file of the server" in msg and "TOPSECRET" not in msg
+        with pytest.raises(spidersim.SpidersimError) as ei:
+            prepare(outer, {"parameters": {"s.arm.model": target}})
+        msg = outer.public_message(ei.value)
+        assert "not among the files this server's models may read" in msg
+        assert "TOPSECRET" not in msg and "not found" not in msg
+    d, _ = prepare(outer, {"parameters": {"s.arm.model": str(models / "my_arm.yaml")}})
+    assert d.blocks["s.arm"].params["model"].endswith("my_arm.yaml")
