@@ -299,7 +299,8 @@ def bench_spider():
     print(f"wall time {best:.2f} s (median {med:.2f} s); steps {s['steps']}, RHS calls "
           f"{s['rhs_calls']}, Jacobians {s['jacobian_calls']}; compile {compile_s:.1f} s "
           f"(this process: cold or from cache)")
-    print(f"real-time factor (simulated / wall, target >= 10 with ideal resolvers): {10.0 / best:.2f}")
+    print(f"real-time factor (simulated / wall, target >= 10 with ideal resolvers): "
+          f"{10.0 / best:.2f}")
     arm = Chain.from_yaml()
     rng = np.random.default_rng(0)
     q, qd, tau = rng.normal(size=7), rng.normal(size=7), rng.normal(size=7)
@@ -313,7 +314,8 @@ def bench_spider():
     for _ in range(n):
         fd(*args)
     per = (time.perf_counter() - t0) / n
-    print(f"arm forward dynamics (composite-rigid-body M + Cholesky + two RNEA passes: bias and base wrench), "
+    print(f"arm forward dynamics (composite-rigid-body M + Cholesky + two RNEA passes: "
+          f"bias and base wrench), "
           f"compiled: {1e6 * per:.1f} us per call from Python (target <= 30 us)")
     print()
 

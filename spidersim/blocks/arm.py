@@ -203,8 +203,9 @@ class Arm(Block):
 
     category = "multibody"
     parameters = {
-        "model": Param("spider", kind="str", file=True, doc="'spider' (shipped SPIDER-like data) or the "
-                                                 "path of an arm data file"),
+        "model": Param("spider", kind="str", file=True,
+                       doc="'spider' (shipped SPIDER-like data) or the path of an arm data "
+                           "file"),
         "gravity": Param([0.0, 0.0, 0.0], "m/s2", "gravity in the base frame", shape=3),
         "q0": Param(0.0, "rad", "initial joint angles", shape=_N),
         "qd0": Param(0.0, "rad/s", "initial joint speeds", shape=_N),
@@ -630,7 +631,8 @@ class ForwardKinematics(Block):
     (row-major), base frame."""
 
     category = "multibody"
-    parameters = {"model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)")}
+    parameters = {"model": Param("spider", kind="str", file=True,
+                                 doc="arm data ('spider' or a path)")}
     inputs = {"q": Port("rad", size=_N, doc="joint angles")}
     outputs = {"pos": Port("m", size=3, feedthrough=("q",), doc="flange origin"),
                "rot": Port("1", size=9, feedthrough=("q",), doc="flange rotation, row-major")}
@@ -655,7 +657,8 @@ class Jacobian(Block):
     angular), base frame: ``[v; w] = J(q) qd``."""
 
     category = "multibody"
-    parameters = {"model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)")}
+    parameters = {"model": Param("spider", kind="str", file=True,
+                                 doc="arm data ('spider' or a path)")}
     inputs = {"q": Port("rad", size=_N, doc="joint angles")}
     outputs = {"J": Port("1", size=Dim("6 n", lambda p: 6 * _n(p)), feedthrough=("q",),
                          doc="Jacobian, row-major 6 x n")}

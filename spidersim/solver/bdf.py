@@ -64,7 +64,8 @@ current ``J`` halves ``h``. It is also computed when none is valid (first step;
 structural pattern ``jpat`` (:func:`.rosenbrock.perturb_group` and
 :func:`.rosenbrock.store_group`: one evaluation per group, the base value ``f(t, D[0])`` is
 kept from the previous step, so a Jacobian costs ``n_groups`` evaluations). The LU factors
-of ``I - c J`` (:func:`.dense_lu.lu_factor`: dense, partial pivoting, LAPACK from order 24) are redone only when
+of ``I - c J`` (:func:`.dense_lu.lu_factor`: dense, partial pivoting,
+LAPACK from order 24) are redone only when
 ``c = h / alpha_k`` changed (``h`` or the order changed) or ``J`` was recomputed.
 
 Dense output: the interpolating polynomial of the history,
