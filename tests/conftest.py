@@ -20,17 +20,18 @@ import os
 
 import pytest
 
-#: test modules of a minute or more on one core (cold cache, measured: setup of the studies,
-#: one interpreted LuGre run, a server under load), longest first
+#: test modules of a minute or more on one core, longest first (measured with ``--durations``
+#: from cold caches: the studies' fixtures, each compiling an arm diagram; a server under load;
+#: the cache tests' CLI processes; the rotor-reaction diagrams' compiles; the events' many small
+#: diagrams). test_joint.py left the list when its LuGre joint step became compiled.
 HEAVY = (
     "evals/test_drive_train_studies.py",
     "evals/test_fault_study.py",
-    "solver/test_events.py",
-    "evals/test_joint.py",
-    "solver/test_cache.py",
     "service/test_persistence_load.py",
     "evals/test_contact_studies.py",
+    "solver/test_cache.py",
     "evals/test_rotor_reaction.py",
+    "solver/test_events.py",
     "solver/test_loop.py",
 )
 

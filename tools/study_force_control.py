@@ -9,8 +9,9 @@ contact forces against the set point.
 
     python tools/study_force_control.py [--out DIR] [--skip-friction]
 
-The drive-train runs take minutes (seven drive trains with 2 kHz current loops and a rigid
-contact closed by Newton); progress is printed per run.
+The drive-train runs take seconds with the file's NDF (seven drive trains with 2 kHz current
+loops and a rigid contact closed by Newton: 4,476 steps without friction, 18,130 with LuGre;
+minutes with LSODA, which took 86,000 and 850,000); progress is printed per run.
 """
 from __future__ import annotations
 

@@ -26,6 +26,11 @@ KI_F = 2 * math.pi * 1.5
 
 @pytest.fixture(scope="module")
 def force_run():
+    """The friction-free study to 2.9 s (the 20 -> 50 N step and its settling; the file runs
+    to 4.5 s for the third step) with the file's NDF, which replaced LSODA: the same figures
+    (measured, NDF and LSODA alike: settling 310 ms, overshoot 1.75 %, steady error
+    -0.144 N, largest |tau_l - tau_cmd| 1.877 N.m) in 3,366 steps instead of 71,963
+    (1.9 s against 111 s on a loaded machine)."""
     d = spidersim.load(os.path.join(DIAGRAMS, "force_control_rigid.yaml"),
                        set={"friction": 0})
     return d.simulate(2.9)
@@ -55,6 +60,10 @@ def test_the_drive_trains_are_in_the_loop(force_run):
 
 @pytest.fixture(scope="module")
 def capture_run():
+    """payload_capture.yaml as shipped (NDF, which replaced LSODA: the same figures, measured
+    with both methods: approach lag 24.62 mm, flange 13.41 mm from the fixture at the latch,
+    payload carried 199.3 mm, in 22,233 steps instead of 44,771: 6.0 s against 27.7 s on a
+    loaded machine)."""
     return spidersim.load(os.path.join(DIAGRAMS, "payload_capture.yaml")).simulate()
 
 

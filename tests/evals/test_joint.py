@@ -3,8 +3,10 @@
 the 1995 stick-slip case, rate-dependent break-away), Harmonic Drive (stiffness laws,
 backlash and its events) and the whole joint (step tracking, linearized resonance).
 
-Parameters are PHYSICS.md's SPIDER-like values. All runs are interpreted (``jit=False``)
-except one compiled-vs-interpreted comparison.
+Parameters are PHYSICS.md's SPIDER-like values. The runs of small benches are interpreted
+(``jit=False``: a compile per structure would cost more than the run); the two steps of the
+whole joint (stiff LuGre friction, 2.5 s) run compiled, and one compiled-vs-interpreted
+comparison checks the compiled code against the interpreter.
 
 Reference numbers the tests compute themselves (and the measured values at the time of
 writing, for the record):
@@ -654,9 +656,13 @@ def test_joint_step_tracks_trapezoid():
     5.7e-5 with the continuous cascade). Stiction holds
     the motor until the speed-loop integral has built up T_s = 0.07 N.m, so the tracking
     error during the move is large (measured 2.33e-3 rad, 23 % of the move); it is bounded
-    here at 30 %."""
+    here at 30 %.
+
+    Run compiled: interpreted, this stiff LuGre joint was the suite's longest test (76 s on an
+    idle machine; compiled, its compile included, 21 s on a loaded one). The interpreter is
+    checked against the compiled code in test_compiled_matches_interpreted_ripple."""
     d = spidersim.load(os.path.join(DIAGRAMS, "joint_step.yaml"))
-    r = d.simulate(jit=False, output_interval=0.005)
+    r = d.simulate(output_interval=0.005)
     e = r["ref.q"] - r["link.phi"]
     assert r["ref.q"][-1] == pytest.approx(0.01)
     assert abs(e[-1]) < 1e-4, e[-1]
@@ -668,10 +674,10 @@ def test_joint_step_without_friction_tracks_closely():
     """The same move without friction and with ideal resolvers: the cascade (P on the load
     position with speed feed-forward, PI on the motor speed; sampled at 1 kHz) tracks the
     trapezoid within 2 % of the move (measured 1.2e-4 rad) and ends within 2e-5 rad
-    (measured 9.2e-6)."""
+    (measured 9.2e-6). Compiled, as the step above."""
     d = spidersim.load(os.path.join(DIAGRAMS, "joint_step.yaml"),
                        set={"joint.friction": 0, "joint.res_bits": 0})
-    r = d.simulate(jit=False, output_interval=0.005)
+    r = d.simulate(output_interval=0.005)
     e = r["ref.q"] - r["link.phi"]
     assert np.max(np.abs(e)) < 0.02 * 0.01, np.max(np.abs(e))
     assert abs(e[-1]) < 2e-5, e[-1]
