@@ -14,6 +14,8 @@ origin that the mounting applies to the arm; the arm applies the opposite to the
 """
 import math
 
+from numba import carray, cfunc
+
 ROW = 16
 WS_PER_LINK = 48
 # workspace layout per link k (0 = base): R 0..8, o 9..11, w 12..14, al 15..17, ap 18..20,
@@ -462,7 +464,7 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
             if key[k] != q[k]:
                 reuse = False
     if not reuse:
-        mass_matrix(q, P, ws, M, tmp, base)
+        _mass_matrix_linked(q, P, ws, M, tmp, base)   # linked: see _c_kernels
         cholesky_factor(M)
         if keep:
             for k in range(n):
@@ -509,3 +511,41 @@ orientation_error = jit_kernel(orientation_error)
 impact_projection = jit_kernel(impact_projection)
 relative_rotation = jit_kernel(relative_rotation)
 forward_dynamics = jit_kernel(forward_dynamics)
+_mass_matrix_linked = mass_matrix   # the jitted kernel, before _c_kernels rebinds the name
+
+
+# The arm's event kernels (and what they share with the Chain and the force control) are
+# called through C symbols (see .native): compiled once here, they are no longer linked into,
+# and optimised again with, every caller. Each wrapper takes the data pointer and the shape
+# of every array (.native.c_signature). forward_dynamics and flange_jacobian, on the
+# right-hand side's path, stay linked: through a symbol, spider.yaml's right-hand side was
+# 2-4 % slower (measured, tools/bench_codegen.py rhs); forward_dynamics calls mass_matrix
+# through its symbol.
+def _c_kernels():
+    from .native import c_signature, exported
+
+    def c_kernel(kinds):
+        return cfunc(c_signature(kinds), cache=True, nogil=True, error_model="numpy")
+
+    @c_kernel("211")
+    def cholesky_solve_c(M, r_M, c_M, b, n_b, x, n_x):
+        cholesky_solve(carray(M, (r_M, c_M)), carray(b, n_b), carray(x, n_x))
+
+    @c_kernel("121211")
+    def mass_matrix_c(q, n_q, P, r_P, c_P, ws, n_ws, M, r_M, c_M, tmp, n_tmp, base, n_base):
+        mass_matrix(carray(q, n_q), carray(P, (r_P, c_P)), carray(ws, n_ws),
+                    carray(M, (r_M, c_M)), carray(tmp, n_tmp), carray(base, n_base))
+
+    @c_kernel("i112111111")
+    def impact_projection_c(n, qd, n_qd, c, n_c, M, r_M, c_M, J, n_J, Jc, n_Jc, Y, n_Y, A,
+                            n_A, r, n_r, x, n_x):
+        impact_projection(n, carray(qd, n_qd), carray(c, n_c), carray(M, (r_M, c_M)),
+                          carray(J, n_J), carray(Jc, n_Jc), carray(Y, n_Y), carray(A, n_A),
+                          carray(r, n_r), carray(x, n_x))
+
+    return (exported(cholesky_solve, cholesky_solve_c, "211"),
+            exported(mass_matrix, mass_matrix_c, "121211"),
+            exported(impact_projection, impact_projection_c, "i112111111"))
+
+
+cholesky_solve, mass_matrix, impact_projection = _c_kernels()
