@@ -31,8 +31,8 @@ import re
 import textwrap
 
 from ..solver.newton import MAX_ITERATIONS, Workspace
-from ..solver.sysfn import (APPLY_EVENT, DERIVATIVES, GUARDS, INITIALIZE, NEXT_TIME,
-                            TIME_EVENTS)
+from ..solver.sysfn import (APPLY_EVENT, DERIVATIVES, GUARDS, GUARDS_AT_SIG, INITIALIZE,
+                            NEXT_TIME, TIME_EVENTS)
 from .graph import Layout
 from .grouping import Call, emit, group, table_text
 
@@ -298,7 +298,11 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
         tn = math.inf
 {ind(nt_lines)}
         return tn
-{te_text}{init_text}    outputs(t, x, sig, p, modes)
+{te_text}{init_text}    if task == {GUARDS_AT_SIG}:
+        g = out
+{ind(g_lines)}
+        return 0.0
+    outputs(t, x, sig, p, modes)
     if task == {DERIVATIVES}:
         xdot = out
 {ind(der_lines)}
@@ -367,7 +371,8 @@ if JIT:
         p = carray(p_ptr, N_P)
         modes = carray(modes_ptr, N_MODES)
         out = carray(out_ptr, N_X if task == {DERIVATIVES}
-                     else (N_G if task == {GUARDS} else N_TIMED))
+                     else (N_G if task == {GUARDS} or task == {GUARDS_AT_SIG}
+                           else N_TIMED))
 {textwrap.indent(ev_body, "    ")}
     SYSTEM = _system.address
 else:

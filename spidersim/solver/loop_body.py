@@ -513,7 +513,7 @@ def _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx, x_idx, sig,
             return False
     _sf.derivatives(fn, t, x, sig, p, modes, K[0])
     ist[I_NFEV] += 1
-    _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
+    _sf.guards_at_sig(fn, t, x, sig, p, modes, G[G_OLD])     # sig: the outputs of (t, x)
     ist[I_FRESH] = 1
     return True
 
@@ -537,7 +537,7 @@ def _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired, bmask, 
     _sf.derivatives(fn, t, x, sig, p, modes, K[0])
     ist[I_NFEV] += 1
     if ist[I_NG]:
-        _sf.guards(fn, t, x, sig, p, modes, G[G_OLD])
+        _sf.guards_at_sig(fn, t, x, sig, p, modes, G[G_OLD])  # sig: the outputs of (t, x)
     ist[I_FRESH] = 1
     return 0
 
@@ -594,7 +594,10 @@ def _after_step_guards(fn, t, h, t_new, x, x1, K, B, xs, G, g_dir, g_block, bmas
     ng = ist[I_NG]
     ok = True
     row0 = ist[I_ROWS]
-    if grid:
+    if grid and ist[I_METHOD] != METHOD_ROS34PW2:
+        # DP54's last stage and NDF's f1 were evaluated at (t_new, x1): sig holds its outputs
+        _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
+    elif grid:
         _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
     else:
         ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,

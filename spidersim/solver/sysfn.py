@@ -30,6 +30,8 @@ task                  what the system does                                      
                       ``out[k] = 1`` for timed block ``k`` that fired
 ``INITIALIZE``        blocks make their modes consistent with their inputs         0
 ``APPLY_EVENT``       apply event ``k`` with direction ``f`` on ``x``, ``modes``  0
+``GUARDS_AT_SIG``     the zero-crossing functions from the outputs already in      0
+                      ``sig`` (the caller's last evaluation was at ``(t, x)``)
 ====================  ==========================================================  ========
 
 The functions below are the only way spidersim calls a system function: ``call`` converts
@@ -46,8 +48,9 @@ import numpy as np
 from ._jit import njit
 
 OUTPUTS, DERIVATIVES, GUARDS, NEXT_TIME, TIME_EVENTS, INITIALIZE, APPLY_EVENT = range(7)
+GUARDS_AT_SIG = 7
 TASKS = ("OUTPUTS", "DERIVATIVES", "GUARDS", "NEXT_TIME", "TIME_EVENTS", "INITIALIZE",
-         "APPLY_EVENT")
+         "APPLY_EVENT", "GUARDS_AT_SIG")
 
 try:
     from numba import types
@@ -128,6 +131,14 @@ def rhs(fn, t, x, sig, p, modes):
 def guards(fn, t, x, sig, p, modes, g):
     """Outputs, then the zero-crossing functions into ``g``."""
     call(fn, GUARDS, t, x, sig, p, modes, g, 0, 0.0)
+
+
+@njit
+def guards_at_sig(fn, t, x, sig, p, modes, g):
+    """The zero-crossing functions into ``g`` from the outputs in ``sig``, which must be
+    those of ``(t, x)`` (the last ``derivatives`` call was there): one evaluation saved
+    per step."""
+    call(fn, GUARDS_AT_SIG, t, x, sig, p, modes, g, 0, 0.0)
 
 
 @njit

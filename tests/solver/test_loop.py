@@ -37,6 +37,8 @@ def _evaluate(task, t, x, sig, p, modes, out, k, f):
         time_events(t, x, sig, p, modes, f, out)
     elif task == 5:
         initialize(t, x, sig, p, modes)
+    elif task == 7:                        # GUARDS_AT_SIG: sig holds the outputs of (t, x)
+        guards(t, x, sig, p, modes, out)
     else:
         outputs(t, x, sig, p, modes)
         if task == 1:
