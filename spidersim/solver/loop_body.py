@@ -157,7 +157,8 @@ def _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
     if ng == 0:
         return 0
     for _ in range(MAX_EVENTS_AT_ONE_TIME):
-        _sf.guards(fn, t, x, sig, p, modes, G[G_TMP])
+        # the callers (and the end of each round) ran INITIALIZE: sig holds (t, x)'s outputs
+        _sf.guards_at_sig(fn, t, x, sig, p, modes, G[G_TMP])
         nh = _events.crossings(G[G_BEFORE, :ng], G[G_TMP, :ng], g_dir, G[G_NONE, :ng], hit)
         m = 0
         for j in range(nh):
@@ -175,7 +176,7 @@ def _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
         for j in range(m):
             bmask[g_block[hit[j]]] = 1
         _sf.initialize(fn, t, x, sig, p, modes)
-        _sf.guards(fn, t, x, sig, p, modes, G[G_BEFORE])
+        _sf.guards_at_sig(fn, t, x, sig, p, modes, G[G_BEFORE])
     return FAIL_SETTLE
 
 

@@ -28,7 +28,8 @@ task                  what the system does                                      
                                                                                    (``inf``)
 ``TIME_EVENTS``       apply the time events due by ``t + f`` (``f``: tolerance);   0
                       ``out[k] = 1`` for timed block ``k`` that fired
-``INITIALIZE``        blocks make their modes consistent with their inputs         0
+``INITIALIZE``        blocks make their modes consistent with their inputs, then   0
+                      every output into ``sig`` (as ``OUTPUTS``)
 ``APPLY_EVENT``       apply event ``k`` with direction ``f`` on ``x``, ``modes``  0
 ``GUARDS_AT_SIG``     the zero-crossing functions from the outputs already in      0
                       ``sig`` (the caller's last evaluation was at ``(t, x)``)

@@ -35,8 +35,9 @@ def _evaluate(task, t, x, sig, p, modes, out, k, f):
         return next_time(t, p, modes)
     if task == 4:
         time_events(t, x, sig, p, modes, f, out)
-    elif task == 5:
+    elif task == 5:                        # INITIALIZE, then the outputs (the contract)
         initialize(t, x, sig, p, modes)
+        outputs(t, x, sig, p, modes)
     elif task == 7:                        # GUARDS_AT_SIG: sig holds the outputs of (t, x)
         guards(t, x, sig, p, modes, out)
     else:
