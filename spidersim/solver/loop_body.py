@@ -543,10 +543,6 @@ def _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired, bmask, 
     return 0
 
 
-#: outcomes of :func:`_after_step_guards` besides a return code (codes are >= 0)
-_GO_ON, _RETRY, _RESUMED = -1, -2, -3
-
-
 @njit
 def _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst):
     """``ROWS_FULL``, ``EVENTS_FULL`` or ``PAUSE`` when the loop must hand back to the
@@ -585,79 +581,6 @@ def _stalled(h, t_new, ist):
 
 
 @njit
-def _after_step_guards(fn, t, h, t_new, x, x1, K, B, xs, G, g_dir, g_block, bmask, chat, hit,
-                       grid, tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx, sig, p, modes):
-    """The guards at the end of a step from ``(t, x)`` to ``(t_new, x1)``; returns
-    ``(outcome, ok)``: ``_GO_ON`` (no event; ``ok`` False if a recorded row was not
-    finite), ``_RETRY`` (a guard returned unseen within the step: retry from ``(t, x)``
-    with ``fst[F_H]`` shorter), ``_RESUMED`` (events located and applied: the loop goes on
-    from ``fst[F_T]``, ``x``) or a return code."""
-    ng = ist[I_NG]
-    ok = True
-    row0 = ist[I_ROWS]
-    if grid and ist[I_METHOD] != METHOD_ROS34PW2:
-        # DP54's last stage and NDF's f1 were evaluated at (t_new, x1): sig holds its outputs
-        _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
-    elif grid:
-        _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
-    else:
-        ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
-                               G[G_NEW])
-        tbuf[row0] = t_new
-        ist[I_ROWS] = row0 + 1
-    i_unseen = _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p, modes)
-    if i_unseen >= 0:
-        ist[I_ROWS] = row0
-        if h <= _events.UNSEEN_STEP * max(1.0, abs(t_new)):
-            ist[I_BLOCK] = i_unseen                 # events faster than the time resolution
-            fst[F_T] = t
-            xs[:] = x
-            return FAIL_ZENO, ok
-        ist[I_REJECTED] += 1                        # retry shorter from (t, x): K[0] intact
-        fst[F_H] = 0.125 * h
-        if ist[I_METHOD] == METHOD_NDF:
-            ist[I_JAGE] = -2                        # restart the history, keep the Jacobian
-        return _RETRY, ok
-    nh = _events.crossings(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng], hit)
-    if nh:
-        ist[I_ROWS] = row0                          # the step's end lies beyond the event
-        t_ev, code = _state_events(fn, t, h, x, x1, K, B, xs, G, g_dir, g_block, bmask, chat,
-                                   hit, nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx,
-                                   sig, p, modes)
-        fst[F_T] = t_ev
-        if code:
-            return code, ok
-        x[:] = xs
-        if not _resume_after_event(fn, t_ev, x, K, G, grid, tbuf, buf, ist, s_idx, x_idx,
-                                   sig, p, modes):
-            return FAIL_NONFINITE, ok
-        return _RESUMED, ok
-    for i in range(ng):
-        G[G_OLD, i] = G[G_NEW, i]
-        if G[G_NEW, i] != 0.0:
-            G[G_ARMED, i] = 1.0                     # re-armed once it has left zero
-    return _GO_ON, ok
-
-
-@njit
-def _record_step(fn, t, t_new, h, x, x1, K, B, ok, ng, grid, tbuf, buf, ist, fst, s_idx,
-                 x_idx, sig, p, modes):
-    """The output rows of the step to ``(t_new, x1)``: its end (no guards, no grid: with
-    guards :func:`_after_step_guards` wrote it), or the grid points it passed (dense
-    output); False if something recorded (or, on a grid, ``x1``) is not finite."""
-    if not grid:
-        if ng == 0:
-            ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
-        return ok
-    for i in range(x1.size):
-        if not math.isfinite(x1[i]):
-            return False
-    _grid_to(fn, t, t_new, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
-             modes)
-    return True
-
-
-@njit
 def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
              pause_steps):
@@ -668,12 +591,6 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
     Resumable: on ``ROWS_FULL``, ``EVENTS_FULL`` and ``PAUSE`` every quantity needed to go
     on is in the arrays, and the caller calls again (with grown buffers). On a failure,
     ``fst[F_T]`` is the time reached and ``xs`` the offending state.
-
-    One pass: hand back if a buffer is full (:func:`_pause_code`); fire the time events
-    due (:func:`_time_events_now`); else one step to at most the next time event
-    (:func:`_segment_start` first in a new segment, :func:`_advance`), the guards at its
-    end (:func:`_after_step_guards`: crossings located and applied, or an unseen return
-    retried), the output rows (:func:`_record_step`).
     """
     ng = ist[I_NG]
     t = fst[F_T]
@@ -720,22 +637,68 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
             xs[:] = x1
             return FAIL_STALL
         ok = True
+        row0 = ist[I_ROWS]
         if ng:
-            outcome, ok = _after_step_guards(fn, t, h, t_new, x, x1, K, B, xs, G, g_dir,
-                                             g_block, bmask, chat, hit, grid, tbuf, buf,
-                                             ev_t, ev_i, ist, fst, s_idx, x_idx, sig, p,
-                                             modes)
-            if outcome == _RETRY:
+            if grid and ist[I_METHOD] != METHOD_ROS34PW2:
+                # DP54's last stage and NDF's f1 were evaluated at (t_new, x1): sig holds
+                # its outputs
+                _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
+            elif grid:
+                _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
+            else:
+                ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
+                                   G[G_NEW])
+                tbuf[row0] = t_new
+                ist[I_ROWS] = row0 + 1
+            i_unseen = _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p,
+                                      modes)
+            if i_unseen >= 0 and h <= _events.UNSEEN_STEP * max(1.0, abs(t_new)):
+                ist[I_ROWS] = row0              # events faster than the time resolution
+                ist[I_BLOCK] = i_unseen
+                fst[F_T] = t
+                xs[:] = x
+                return FAIL_ZENO
+            if i_unseen >= 0:
+                ist[I_ROWS] = row0              # retry shorter from (t, x): K[0] is intact
                 ist[I_STEPS] -= 1
                 ist[I_NEW_STEPS] -= 1
+                ist[I_REJECTED] += 1
+                fst[F_H] = 0.125 * h
+                if ist[I_METHOD] == METHOD_NDF:
+                    ist[I_JAGE] = -2            # restart the history, keep the Jacobian
                 continue
-            if outcome == _RESUMED:
-                t = fst[F_T]
+            nh = _events.crossings(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng], hit)
+            if nh:
+                ist[I_ROWS] = row0           # the step's end lies beyond the event
+                t_ev, code = _state_events(fn, t, h, x,
+                                          x1, K, B, xs, G, g_dir, g_block, bmask, chat, hit,
+                                          nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx,
+                                          sig, p, modes)
+                if code:
+                    fst[F_T] = t_ev
+                    return code
+                t = t_ev
+                x[:] = xs
+                if not _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx,
+                                           x_idx, sig, p, modes):
+                    fst[F_T] = t
+                    return FAIL_NONFINITE
+                fst[F_T] = t
                 continue
-            if outcome != _GO_ON:
-                return outcome
-        if not _record_step(fn, t, t_new, h, x, x1, K, B, ok, ng, grid, tbuf, buf, ist, fst,
-                            s_idx, x_idx, sig, p, modes):
+            for i in range(ng):
+                G[G_OLD, i] = G[G_NEW, i]
+                if G[G_NEW, i] != 0.0:
+                    G[G_ARMED, i] = 1.0      # re-armed once it has left zero
+        elif not grid:
+            ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
+        if grid:
+            for i in range(x1.size):
+                if not math.isfinite(x1[i]):
+                    ok = False
+            if ok:
+                _grid_to(fn, t, t_new, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx,
+                         x_idx, sig, p, modes)
+        if not ok:
             fst[F_T] = t_new
             xs[:] = x1
             return FAIL_NONFINITE
@@ -748,3 +711,5 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
         _row(fn, t_end, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
     fst[F_T] = t
     return DONE
+
+
