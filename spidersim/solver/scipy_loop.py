@@ -47,6 +47,7 @@ class _Retry:
     def __init__(self, t, x, h_cap):
         self.t, self.x, self.h_cap = t, x, h_cap
 
+
 class Recorder:
     """Logged rows in a preallocated buffer that doubles when full (sized for the whole
     run when the rows are known: an output grid), handed to the result without a copy when
@@ -380,7 +381,6 @@ class SciPyLoop:
         self.st["rhs_calls"] += 1
         i = left_zero_unseen(g_old, g_new, self.directions, self.armed, g_probe)
         if i < 0:
-            s.guards(solver.t, solver.y)          # the diagram's signals back at the step end
             return None
         if h <= UNSEEN_STEP * max(1.0, abs(solver.t)):
             block, name, _d = s.event_table[i]
