@@ -101,7 +101,7 @@ import os
 
 import numpy as np
 
-from ..multibody.kernels import WS_ACC, WS_ALPHA, WS_O, WS_R, WS_W
+from ..multibody.kernels import WS_ACC, WS_ALPHA, WS_O, WS_R
 from ..multibody.kernels import WS_PER_LINK as _WS
 from ..multibody.kernels import jit_kernel
 from ..text.yamlio import readable, refuse_unreadable
@@ -319,29 +319,37 @@ class Arm(Block):
     @staticmethod
     def output(t, q, qd, x_p, Q_p, v_p, w_b, tau, f_ext, tau_r, gravity, P, payload_mass,
                payload_com, payload_inertia, attached, grasp, ws, Mw, tmp, bw, Jw, key, Pw, pw,
-               qdd, flange_pos, flange_rot, flange_twist, flange_acc, flange_alpha,
-               base_force, base_moment, payload_pos, payload_rot, payload_twist, grapple_pos):
+               inputs_ready, qdd, flange_pos, flange_rot, flange_twist, flange_acc,
+               flange_alpha, base_force, base_moment, payload_pos, payload_rot, payload_twist,
+               grapple_pos):
+        """The outputs; with ``inputs_ready`` False (a call made early for the pose and
+        velocity outputs, before the torques are computed) only those, without the forward
+        dynamics: the flange twist is ``J(q) qd`` in both cases (the angular rows give the
+        same sum, term for term, as the recursive ``w_i = w_(i-1) + qd_i z_(i-1)``)."""
         n = q.size
-        M = Mw.reshape((n, n))
-        PP = Pw.reshape((n, 16))
-        link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
-        # key: the factor of M(q) in Mw is reused while q is unchanged (Newton iterations
-        # of a contact loop change f_ext only)
-        forward_dynamics(q, qd, tau, gravity, f_ext, tau_r, PP, ws, M, tmp, bw, qdd, key)
-        for k in range(3):
-            base_force[k] = -bw[k]
-            base_moment[k] = -bw[3 + k]
+        if inputs_ready:
+            M = Mw.reshape((n, n))
+            PP = Pw.reshape((n, 16))
+            link_table(P, attached, grasp, payload_mass, payload_inertia, PP)
+            # key: the factor of M(q) in Mw is reused while q is unchanged (Newton iterations
+            # of a contact loop change f_ext only)
+            forward_dynamics(q, qd, tau, gravity, f_ext, tau_r, PP, ws, M, tmp, bw, qdd, key)
+            for k in range(3):
+                base_force[k] = -bw[k]
+                base_moment[k] = -bw[3 + k]
+        else:
+            fk(q, P, ws)           # the joint frames only need the kinematic columns of P
         b = n * _WS
         for k in range(9):
             flange_rot[k] = ws[b + WS_R + k]
         for k in range(3):
             flange_pos[k] = ws[b + WS_O + k]
-            flange_twist[3 + k] = ws[b + WS_W + k]
-            # the last RNEA pass ran with the base accelerating at -g
-            flange_acc[k] = ws[b + WS_ACC + k] + gravity[k]
-            flange_alpha[k] = ws[b + WS_ALPHA + k]
+            if inputs_ready:
+                # the last RNEA pass ran with the base accelerating at -g
+                flange_acc[k] = ws[b + WS_ACC + k] + gravity[k]
+                flange_alpha[k] = ws[b + WS_ALPHA + k]
         flange_jacobian(n, ws, Jw)
-        for r in range(3):
+        for r in range(6):
             acc = 0.0
             for i in range(n):
                 acc += Jw[r * n + i] * qd[i]

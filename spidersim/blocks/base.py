@@ -16,7 +16,13 @@ Contract for block implementers
 
    ``output(t, <states>, <inputs>, <params>, <modes>, <outputs>)``
        writes every output port in place. It may be called more than once per evaluation
-       (once per group of outputs that the schedule needs early); it must be pure.
+       (once per group of outputs that the schedule needs early); it must be pure. A kernel
+       that takes the reserved argument ``inputs_ready`` (a compile-time ``bool``) gets
+       ``False`` in a call the schedule makes only for outputs without feedthrough, before
+       the block's inputs are computed, and that is followed by a call with ``True`` in the
+       same evaluation: it must then write every output without feedthrough and may skip the
+       work of the others (the arm skips its forward dynamics). Every other call gets
+       ``True`` and must write every output.
    ``derivative(t, <states>, <inputs>, <params>, <modes>, der_<state>...)``
        writes the time derivative of every state into ``der_<state>``.
    ``next_time(t, <params>, <modes>) -> float``
@@ -33,8 +39,9 @@ Contract for block implementers
    ``initialize(t, <states>, <inputs>, <params>, <modes>)``
        sets the modes consistent with the inputs, at the start and after every event.
 
-   Reserved argument names: ``t``, ``direction``, ``zc``, ``which`` and ``der_<state>``; a
-   declared name equal to one of them cannot be a kernel argument (it would be ambiguous).
+   Reserved argument names: ``t``, ``direction``, ``zc``, ``which``, ``inputs_ready`` and
+   ``der_<state>``; a declared name equal to one of them cannot be a kernel argument (it
+   would be ambiguous).
 
    An output port with the same name and size as a state *is* that state: no kernel writes
    it and it has no feedthrough (``DCMotor.w``). Ports, states and modes arrive as 1-D float arrays of their declared size (a scalar port
@@ -81,7 +88,7 @@ REGISTRY: dict[str, type["Block"]] = {}
 #: the kernels a block may define, and the argument names every kernel may use
 KERNELS = ("output", "derivative", "next_time", "time_event", "guard", "on_event",
            "initialize")
-RESERVED = ("t", "direction", "zc", "which")
+RESERVED = ("t", "direction", "zc", "which", "inputs_ready")
 
 
 class BlockDefinitionError(TypeError):

@@ -30,6 +30,8 @@ import inspect
 import re
 import textwrap
 
+import networkx as nx
+
 from ..solver.newton import MAX_ITERATIONS, Workspace
 from ..solver.sysfn import (APPLY_EVENT, DERIVATIVES, GUARDS, GUARDS_AT_SIG, INITIALIZE,
                             NEXT_TIME, TIME_EVENTS)
@@ -68,12 +70,15 @@ def _arg_expr(bl, kernel, name):
     return _arg(bl, kernel, name)[0]
 
 
-def _arg(bl, kernel, name):
+def _arg(bl, kernel, name, partial=False):
     """``(expression, access)`` of kernel argument ``name``: ``access`` is ``"r"``,
     ``"w"``, ``"rw"`` or ``""`` (what the kernel may do with the array, by the block
-    contract), used to decide which calls may be reordered (:mod:`.grouping`)."""
+    contract), used to decide which calls may be reordered (:mod:`.grouping`).
+    ``partial``: the call is a partial call of the schedule (``inputs_ready`` False)."""
     if name in ("t", "direction"):
         return name, ""
+    if name == "inputs_ready":
+        return repr(not partial), ""
     if name == "zc":
         a, b = bl.guard_slice
         return _slice("g", a, b), "w"
@@ -140,6 +145,43 @@ def _timed_blocks(L):
     return [L.blocks[p_] for p_ in _call_order(L) if L.blocks[p_].cls.has_kernel("next_time")]
 
 
+def timed_influence(L, timed):
+    """For each timed block ``k`` (in firing order), the earlier timed blocks ``j < k``
+    whose outputs reach an input of ``k`` in the port graph (wires and feedthrough): a time
+    event of ``j`` can change what ``k``'s time event reads at the same instant, so the
+    outputs are evaluated again between them. Structural, decided once here."""
+    g = L.graph
+    outs = {}
+    for n in g.nodes:
+        if n.kind == "out":
+            outs.setdefault(n.path, []).append(n)
+    reached = []
+    for bl in timed:
+        paths = set()
+        for n in outs.get(bl.path, ()):
+            paths.update(m.path for m in nx.descendants(g, n) if m.kind == "in")
+        reached.append(paths)
+    return [[j for j in range(k) if bl.path in reached[j]] for k, bl in enumerate(timed)]
+
+
+def _time_event_lines(gen, timed, influence):
+    """The body of ``TIME_EVENTS``: each due block's time event in firing order. The caller
+    leaves the outputs of ``(t, x)`` in ``sig``; they are evaluated again only before a
+    block that an event fired since (its ``d<j>`` flag) can influence."""
+    flags = sorted({j for pre in influence for j in pre})
+    lines = [f"    d{j} = False" for j in flags]
+    for k, bl in enumerate(timed):
+        lines.append(f"    if {gen.call(bl, 'next_time', '')} <= t + tol:")
+        if influence[k]:
+            lines += [f"        if {' or '.join(f'd{j}' for j in influence[k])}:",
+                      "            outputs(t, x, sig, p, modes)"]
+            lines += [f"            d{j} = False" for j in flags]
+        lines += [gen.call(bl, "time_event", "        "), f"        fired[{k}] = 1"]
+        if k in flags:
+            lines.append(f"        d{k} = True")
+    return lines
+
+
 def _event_blocks(L):
     """Blocks with zero-crossing guards, in guard-array order."""
     return [bl for bl in L.blocks.values() if bl.guard_slice[1] > bl.guard_slice[0]]
@@ -189,10 +231,10 @@ class Generator:
         self.kernels[key] = name
         return name
 
-    def call_info(self, bl, kernel):
+    def call_info(self, bl, kernel, partial=False):
         """The call of ``kernel`` of block ``bl`` as a :class:`.grouping.Call`."""
         name = self.kernel_name(bl, kernel)
-        parts = [_arg(bl, kernel, a) for a in bl.cls.kernel_args(kernel, bl.params)]
+        parts = [_arg(bl, kernel, a, partial) for a in bl.cls.kernel_args(kernel, bl.params)]
         reads, writes = _access_sets(parts)
         return Call(name, tuple(e for e, _ in parts), reads, writes)
 
@@ -248,28 +290,24 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
         # calls of identical blocks become loops over offset tables (see .grouping)
         tables = {}
         out_calls = []
-        for kind, what in L.calls:
+        for i, (kind, what) in enumerate(L.calls):
             if kind == "loop":
                 out_calls.append(Call(f"_loop{what}_solve", ("t", "x", "sig", "p", "modes"),
                                       None, None))
             elif blocks[what].cls.has_kernel("output"):
-                out_calls.append(self.call_info(blocks[what], "output"))
+                out_calls.append(self.call_info(blocks[what], "output", i in L.partial))
         out_lines = emit(group(out_calls), tables)
         loop_text = [self.loop_source(lp) for lp in L.loops]
         der_lines = emit(group([self.call_info(bl, "derivative") for bl in blocks.values()
                                 if bl.states and bl.cls.has_kernel("derivative")]), tables)
-        # time events in schedule order, outputs refreshed before each, so that a sampled
-        # block sees what upstream sampled blocks produced at the same instant
+        # time events in schedule order, the outputs evaluated again before a block that
+        # an upstream sampled block fired at the same instant can influence (it sees what
+        # that block produced)
         order = _call_order(L)
         timed = _timed_blocks(L)
         nt_lines = emit(group([self.call_info(bl, "next_time") for bl in timed]), tables,
                         body=lambda c: [f"v = {c}", "if v < tn:", "    tn = v"])
-        te_lines = []
-        for k, bl in enumerate(timed):
-            te_lines += [f"    if {self.call(bl, 'next_time', '')} <= t + tol:",
-                         "        outputs(t, x, sig, p, modes)",
-                         self.call(bl, "time_event", "        "),
-                         f"        fired[{k}] = 1"]
+        te_lines = _time_event_lines(self, timed, timed_influence(L, timed))
         init_lines = []
         for p_ in order:
             if blocks[p_].cls.has_kernel("initialize"):

@@ -104,6 +104,7 @@ class Layout:
     zero_slot: Loc
     p_loop_tol: Span            # p indices of the loop atol and rtol
     n_g: int = 0                # number of zero-crossing guards
+    partial: frozenset = frozenset()   # indices in ``calls`` of partial calls (schedule 5)
 
 
 def build_layout(flat: Flat) -> Layout:
@@ -144,7 +145,7 @@ def build_layout(flat: Flat) -> Layout:
              for lp, ls in zip(sched.loops, slots.loops)]
     return Layout(blocks, slots.n_x, slots.n_sig, slots.n_p, slots.n_modes,
                   list(sched.steps), loops, pg.graph, slots.zero_slot, slots.p_loop_tol,
-                  slots.n_g)
+                  slots.n_g, sched.partial)
 
 
 def jacobian_sparsity(layout: Layout):

@@ -17,6 +17,9 @@ Contract
    makes all its outputs valid. Most blocks are called once; a block whose outputs are
    needed at different depths (a motor whose speed feeds the loop that computes its own
    voltage) is called once per depth.
+5. A call is *partial* (``Schedule.partial``, step indices) when every output it makes valid
+   has no feedthrough and the same block is called again later: the block's kernel may then
+   skip the work of its other outputs (``inputs_ready`` in :mod:`spidersim.blocks.base`).
 """
 from __future__ import annotations
 
@@ -72,10 +75,12 @@ class LoopPlan:
 
 @dataclass(frozen=True)
 class Schedule:
-    """Result of pass 3: ``steps`` (tuple of Step) and ``loops`` (tuple of LoopPlan)."""
+    """Result of pass 3: ``steps`` (tuple of Step), ``loops`` (tuple of LoopPlan) and
+    ``partial`` (frozenset of the indices of partial calls in ``steps``, contract item 5)."""
 
     steps: tuple
     loops: tuple
+    partial: frozenset = frozenset()
 
 
 def schedule(pg: PortGraph, ps: PortSizes) -> Schedule:
@@ -93,7 +98,8 @@ def schedule(pg: PortGraph, ps: PortSizes) -> Schedule:
     Schedule
     """
     loops = find_loops(pg, ps)
-    return Schedule(call_order(pg, ps, loops), loops)
+    steps, partial = call_order(pg, ps, loops)
+    return Schedule(steps, loops, partial)
 
 
 def find_loops(pg: PortGraph, ps: PortSizes):
@@ -111,23 +117,36 @@ def find_loops(pg: PortGraph, ps: PortSizes):
 
 
 def call_order(pg: PortGraph, ps: PortSizes, loops):
-    """The schedule (contract item 4): a tuple of :class:`Step`."""
+    """The schedule (contract item 4): a tuple of :class:`Step`, and the frozenset of the
+    indices of its partial calls (item 5)."""
     g = pg.graph
     node_loop = {n: lp for lp in loops for n in lp.nodes}
     cond = nx.condensation(g, scc=[set(lp.nodes) for lp in loops] + [
         {n} for n in g.nodes if n not in node_loop])
-    valid, steps = set(), []
+    valid, steps, direct = set(), [], []
     for cnode in nx.topological_sort(cond):
         first = Node(*next(iter(cond.nodes[cnode]["members"])))
         if first in node_loop:
             lp = node_loop[first]
             steps.append(Step("loop", lp.index))
+            direct.append(True)
             valid.update(n for n in lp.nodes if n.kind == "out")
         elif _needs_call(first, pg, valid):
             steps.append(Step("call", first.path))
-            valid |= outputs_after_call(first.path, pg, ps, valid)
+            new = outputs_after_call(first.path, pg, ps, valid) - valid
+            feedthrough = pg.flow[first.path].feedthrough
+            direct.append(any(feedthrough[n.port] for n in new))
+            valid |= new
             assert first in valid, first
-    return tuple(steps)
+    later = set()
+    partial = set()
+    for i in range(len(steps) - 1, -1, -1):
+        if steps[i].kind != "call":
+            continue
+        if not direct[i] and steps[i].what in later:
+            partial.add(i)
+        later.add(steps[i].what)
+    return tuple(steps), frozenset(partial)
 
 
 def _needs_call(node, pg: PortGraph, valid):

@@ -186,13 +186,15 @@ def _fire_due(fn, t, x, G,
     """Apply every time event due at ``t`` (then settle); returns 0 or a failure code."""
     ng = ist[I_NG]
     tol = _tol(t)
-    if ng:
+    if ng:      # the guards before the instant; sig: the outputs of (t, x)
         _sf.guards(fn, t, x, sig, p, modes, G[G_BEFORE])
+    else:
+        _sf.outputs(fn, t, x, sig, p, modes)
     bmask[:] = 0
     rounds = 0
     while _sf.next_time(fn, t, p, modes) <= t + tol:
         fired[:] = 0
-        _sf.outputs(fn, t, x, sig, p, modes)
+        # sig holds the outputs of (t, x): from above, then from INITIALIZE
         _sf.time_events(fn, t, x, sig, p, modes, tol, fired)
         n = 0
         for k in range(timed_block.size):

@@ -27,7 +27,10 @@ task                  what the system does                                      
                                                                                    time event
                                                                                    (``inf``)
 ``TIME_EVENTS``       apply the time events due by ``t + f`` (``f``: tolerance);   0
-                      ``out[k] = 1`` for timed block ``k`` that fired
+                      ``out[k] = 1`` for timed block ``k`` that fired. ``sig``
+                      must hold the outputs of ``(t, x)`` (the caller's last
+                      evaluation); they are evaluated again only between events
+                      that can influence each other
 ``INITIALIZE``        blocks make their modes consistent with their inputs, then   0
                       every output into ``sig`` (as ``OUTPUTS``)
 ``APPLY_EVENT``       apply event ``k`` with direction ``f`` on ``x``, ``modes``  0
@@ -151,7 +154,8 @@ def next_time(fn, t, p, modes):
 @njit
 def time_events(fn, t, x, sig, p, modes, tol, fired):
     """Apply the time events due by ``t + tol``; ``fired[k] = 1`` for each timed block ``k``
-    that fired (``fired`` float64, one entry per timed block, at least one)."""
+    that fired (``fired`` float64, one entry per timed block, at least one). ``sig`` must
+    hold the outputs of ``(t, x)``."""
     call(fn, TIME_EVENTS, t, x, sig, p, modes, fired, 0, tol)
 
 

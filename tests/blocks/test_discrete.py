@@ -126,3 +126,35 @@ def test_discrete_blocks_have_no_feedthrough():
                                                  "Ts": 0.1})):
         p = Probe(t, prm)
         assert all(v == () for v in p.layout.feedthrough.values()), t
+
+
+CHAIN = ("blocks:\n  u: {type: Ramp, slope: 1}\n  a: {type: ZeroOrderHold, Ts: 0.1}\n"
+         "  b: {type: ZeroOrderHold, Ts: 0.1}\n  c: {type: ZeroOrderHold, Ts: 0.1}\n"
+         "connections:\n  - u.y -> a.u\n  - a.y -> b.u\n  - u.y -> c.u\n")
+
+
+def test_which_time_events_see_each_other():
+    """Structure, decided at compile time: of three samplers at the same instants, b (fed
+    by a) must see a's event of the same instant and c must not wait for anyone but the
+    ramp (whose start is a time event too), so the outputs are evaluated again only
+    before those (``codegen.timed_influence``)."""
+    from spidersim.diagram.codegen import _timed_blocks, timed_influence
+    d = spidersim.loads(CHAIN)
+    d.compile(jit=False)
+    timed = _timed_blocks(d.layout)
+    names = [bl.path for bl in timed]
+    influence = timed_influence(d.layout, timed)
+    got = {names[k]: sorted(names[j] for j in pre) for k, pre in enumerate(influence)}
+    assert got == {"u": [], "a": ["u"], "b": ["a"], "c": ["u"]}
+
+
+@pytest.mark.parametrize("method", ["DP54", "LSODA"])
+def test_chained_samplers_pass_a_sample_on_at_once(method):
+    """a samples the ramp and b samples a at the same instants: b holds a's new sample
+    (t_k) at once, not the previous one (t_k - Ts), on both loops; c (beside them) holds
+    the ramp. A time event that did not see a's event of the same instant would lag b by
+    one period."""
+    r = spidersim.loads(CHAIN).simulate(t_end=T_END, method=method, rtol=1e-8, atol=1e-10)
+    expected = TS * np.arange(11)
+    for name in ("a", "b", "c"):
+        np.testing.assert_allclose(_held(r, f"{name}.y"), expected, rtol=0, atol=1e-12)

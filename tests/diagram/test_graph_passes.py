@@ -153,7 +153,8 @@ def test_cycle_through_a_state_is_no_loop():
 def test_block_called_at_two_depths():
     """Pass 3: a block whose output feeds back into another of its inputs (through a
     Gain) is called twice: once for the outputs its ready inputs allow, once after the
-    Gain."""
+    Gain. The first call is not partial (contract item 5): the output it makes valid has
+    feedthrough (from the inputs already computed)."""
     f = flat({"c": ("Constant", {"value": 1.0}), "d": ("NRPIDriver", {}),
               "g": ("Gain", {"k": 1.0})},
              ["c.y -> d.i_cmd", "c.y -> d.theta_e", "c.y -> d.i_b", "d.i_a_ref -> g.u",
@@ -165,6 +166,7 @@ def test_block_called_at_two_depths():
     assert calls.count("d") == 2
     assert calls.index("g") > calls.index("d")
     assert calls[-1] == "d"
+    assert sched.partial == frozenset()
 
 
 def test_slots_of_a_chain():
