@@ -23,8 +23,10 @@ Contract for block implementers
        same evaluation: it must then write every output without feedthrough and may skip the
        work of the others (the arm skips its forward dynamics). Every other call gets
        ``True`` and must write every output.
-   ``derivative(t, <states>, <inputs>, <params>, <modes>, der_<state>...)``
-       writes the time derivative of every state into ``der_<state>``.
+   ``derivative(t, <states>, <inputs>, <params>, <modes>, <outputs>, der_<state>...)``
+       writes the time derivative of every state into ``der_<state>``. The block's outputs
+       are those of the same evaluation (the outputs are evaluated first): a derivative may
+       read them instead of computing the same terms again (``BrushlessMotor``'s back EMF).
    ``next_time(t, <params>, <modes>) -> float``
        time of the block's next *time event* (``inf`` for none): the integrator stops there.
    ``time_event(t, <states>, <inputs>, <params>, <modes>)``

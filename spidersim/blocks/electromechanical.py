@@ -128,29 +128,27 @@ class BrushlessMotor(Block):
     @staticmethod
     def output(t, i_a, i_b, w, theta, tau_load, p, K_t, J, b, h3, unbalance, tau_cog,
                theta_e, tau, bemf_a, bemf_b, dw):
+        """The harmonics from one sine and cosine: ``sin 2x = 2 s c``,
+        ``sin 3x = s (3 - 4 s^2)``, ``cos 3x = c (4 c^2 - 3)``."""
         te = p * theta[0]
-        fa = -math.sin(te) - h3 * math.sin(3.0 * te)
-        fb = math.cos(te) - h3 * math.cos(3.0 * te)
+        s1, c1 = math.sin(te), math.cos(te)
+        fa = -s1 - h3 * (s1 * (3.0 - 4.0 * s1 * s1))
+        fb = c1 - h3 * (c1 * (4.0 * c1 * c1 - 3.0))
         ka = K_t * (1.0 + 0.5 * unbalance)
         kb = K_t * (1.0 - 0.5 * unbalance)
         theta_e[0] = te
-        tau[0] = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
+        tau[0] = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * (2.0 * s1 * c1)
         bemf_a[0] = ka * w[0] * fa
         bemf_b[0] = kb * w[0] * fb
         dw[0] = (tau[0] - b * w[0] - tau_load[0]) / J
 
     @staticmethod
-    def derivative(t, i_a, i_b, w, theta, v_a, v_b, tau_load, p, R, L, K_t, J, b, h3,
-                   unbalance, tau_cog, der_i_a, der_i_b, der_w, der_theta):
-        te = p * theta[0]
-        fa = -math.sin(te) - h3 * math.sin(3.0 * te)
-        fb = math.cos(te) - h3 * math.cos(3.0 * te)
-        ka = K_t * (1.0 + 0.5 * unbalance)
-        kb = K_t * (1.0 - 0.5 * unbalance)
-        der_i_a[0] = (v_a[0] - R * i_a[0] - ka * w[0] * fa) / L
-        der_i_b[0] = (v_b[0] - R * i_b[0] - kb * w[0] * fb) / L
-        tau = ka * fa * i_a[0] + kb * fb * i_b[0] + tau_cog * math.sin(2.0 * te)
-        der_w[0] = (tau - b * w[0] - tau_load[0]) / J
+    def derivative(t, i_a, i_b, w, v_a, v_b, R, L, bemf_a, bemf_b, dw, der_i_a, der_i_b,
+                   der_w, der_theta):
+        """From the outputs of the same evaluation: the back EMF and ``dw``."""
+        der_i_a[0] = (v_a[0] - R * i_a[0] - bemf_a[0]) / L
+        der_i_b[0] = (v_b[0] - R * i_b[0] - bemf_b[0]) / L
+        der_w[0] = dw[0]
         der_theta[0] = w[0]
 
 
@@ -207,11 +205,11 @@ class NRPIDriver(Block):
         i_b_ref[0] = rb
 
     @staticmethod
-    def derivative(t, I_a, I_b, i_cmd, theta_e, i_a, i_b, kp, ki, kb, V_supply, I_max, gain_a,
-                   gain_b, offset_a, offset_b, der_I_a, der_I_b):
-        amp = min(max(i_cmd[0], -I_max), I_max)
-        ea = -amp * math.sin(theta_e[0]) - ((1.0 + gain_a) * i_a[0] + offset_a)
-        eb = amp * math.cos(theta_e[0]) - ((1.0 + gain_b) * i_b[0] + offset_b)
+    def derivative(t, I_a, I_b, i_a, i_b, kp, ki, kb, V_supply, gain_a, gain_b, offset_a,
+                   offset_b, i_a_ref, i_b_ref, der_I_a, der_I_b):
+        """The references from the outputs of the same evaluation."""
+        ea = i_a_ref[0] - ((1.0 + gain_a) * i_a[0] + offset_a)
+        eb = i_b_ref[0] - ((1.0 + gain_b) * i_b[0] + offset_b)
         va = kp * ea + I_a[0]
         vb = kp * eb + I_b[0]
         der_I_a[0] = ki * ea + kb * (min(max(va, -V_supply), V_supply) - va)
