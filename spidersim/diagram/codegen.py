@@ -145,40 +145,50 @@ def _timed_blocks(L):
     return [L.blocks[p_] for p_ in _call_order(L) if L.blocks[p_].cls.has_kernel("next_time")]
 
 
-def timed_influence(L, timed):
-    """For each timed block ``k`` (in firing order), the earlier timed blocks ``j < k``
-    whose outputs reach an input of ``k`` in the port graph (wires and feedthrough): a time
-    event of ``j`` can change what ``k``'s time event reads at the same instant, so the
-    outputs are evaluated again between them. Structural, decided once here."""
+def influence(L, seq):
+    """For each block ``k`` of ``seq`` (blocks whose kernels run one after the other, each
+    able to change its own modes or states), the earlier ones ``j < k`` whose outputs reach
+    an input of ``k`` in the port graph (wires and feedthrough): what ``j`` changed can
+    change what ``k`` reads, so the outputs are evaluated again between them. Structural,
+    decided once here."""
     g = L.graph
     outs = {}
     for n in g.nodes:
         if n.kind == "out":
             outs.setdefault(n.path, []).append(n)
     reached = []
-    for bl in timed:
+    for bl in seq:
         paths = set()
         for n in outs.get(bl.path, ()):
             paths.update(m.path for m in nx.descendants(g, n) if m.kind == "in")
         reached.append(paths)
-    return [[j for j in range(k) if bl.path in reached[j]] for k, bl in enumerate(timed)]
+    return [[j for j in range(k) if bl.path in reached[j]] for k, bl in enumerate(seq)]
 
 
-def _time_event_lines(gen, timed, influence):
-    """The body of ``TIME_EVENTS``: each due block's time event in firing order. The caller
-    leaves the outputs of ``(t, x)`` in ``sig``; they are evaluated again only before a
-    block that an event fired since (its ``d<j>`` flag) can influence."""
-    flags = sorted({j for pre in influence for j in pre})
-    lines = [f"    d{j} = False" for j in flags]
-    for k, bl in enumerate(timed):
-        lines.append(f"    if {gen.call(bl, 'next_time', '')} <= t + tol:")
-        if influence[k]:
-            lines += [f"        if {' or '.join(f'd{j}' for j in influence[k])}:",
-                      "            outputs(t, x, sig, p, modes)"]
-            lines += [f"            d{j} = False" for j in flags]
-        lines += [gen.call(bl, "time_event", "        "), f"        fired[{k}] = 1"]
+def sequenced_lines(gen, seq, kernel, fresh, when=None, done=None):
+    """Kernel ``kernel`` of each block of ``seq`` in order, the outputs evaluated before
+    the first (unless ``fresh``: the caller left those of ``(t, x)`` in ``sig``) and again
+    only before a block that one run since can influence (:func:`influence`; flags
+    ``d<j>``). ``when(k, bl)``: the condition of block ``k``'s call (None: always);
+    ``done(k)``: a line after it."""
+    reach = influence(gen.layout, seq)
+    flags = sorted({j for pre in reach for j in pre})
+    lines = [] if fresh else ["    outputs(t, x, sig, p, modes)"]
+    lines += [f"    d{j} = False" for j in flags]
+    for k, bl in enumerate(seq):
+        ind = "    "
+        if when is not None:
+            lines.append(f"    if {when(k, bl)}:")
+            ind = "        "
+        if reach[k]:
+            lines += [f"{ind}if {' or '.join(f'd{j}' for j in reach[k])}:",
+                      f"{ind}    outputs(t, x, sig, p, modes)"]
+            lines += [f"{ind}    d{j} = False" for j in flags]
+        lines.append(gen.call(bl, kernel, ind))
+        if done is not None:
+            lines.append(f"{ind}{done(k)}")
         if k in flags:
-            lines.append(f"        d{k} = True")
+            lines.append(f"{ind}d{k} = True")
     return lines
 
 
@@ -307,12 +317,14 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
         timed = _timed_blocks(L)
         nt_lines = emit(group([self.call_info(bl, "next_time") for bl in timed]), tables,
                         body=lambda c: [f"v = {c}", "if v < tn:", "    tn = v"])
-        te_lines = _time_event_lines(self, timed, timed_influence(L, timed))
-        init_lines = []
-        for p_ in order:
-            if blocks[p_].cls.has_kernel("initialize"):
-                init_lines += ["    outputs(t, x, sig, p, modes)",
-                               self.call(blocks[p_], "initialize")]
+        # the caller of TIME_EVENTS leaves the outputs of (t, x) in sig
+        te_lines = sequenced_lines(
+            self, timed, "time_event", True,
+            when=lambda k, bl: f"{self.call(bl, 'next_time', '')} <= t + tol",
+            done=lambda k: f"fired[{k}] = 1")
+        init_blocks = [blocks[p_] for p_ in order if blocks[p_].cls.has_kernel("initialize")]
+        init_lines = sequenced_lines(self, init_blocks, "initialize", False) \
+            if init_blocks else []
         evb = _event_blocks(L)
         g_lines = emit(group([self.call_info(bl, "guard") for bl in evb]), tables)
         ev_lines = []

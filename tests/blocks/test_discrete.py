@@ -137,14 +137,14 @@ def test_which_time_events_see_each_other():
     """Structure, decided at compile time: of three samplers at the same instants, b (fed
     by a) must see a's event of the same instant and c must not wait for anyone but the
     ramp (whose start is a time event too), so the outputs are evaluated again only
-    before those (``codegen.timed_influence``)."""
-    from spidersim.diagram.codegen import _timed_blocks, timed_influence
+    before those (``codegen.influence``)."""
+    from spidersim.diagram.codegen import _timed_blocks, influence
     d = spidersim.loads(CHAIN)
     d.compile(jit=False)
     timed = _timed_blocks(d.layout)
     names = [bl.path for bl in timed]
-    influence = timed_influence(d.layout, timed)
-    got = {names[k]: sorted(names[j] for j in pre) for k, pre in enumerate(influence)}
+    reach = influence(d.layout, timed)
+    got = {names[k]: sorted(names[j] for j in pre) for k, pre in enumerate(reach)}
     assert got == {"u": [], "a": ["u"], "b": ["a"], "c": ["u"]}
 
 

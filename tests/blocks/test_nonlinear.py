@@ -177,3 +177,25 @@ def test_switch_rejects_different_data_sizes():
         spidersim.loads("blocks:\n  a: {type: Constant, value: [1, 2]}\n"
                         "  b: {type: Constant}\n  sw: {type: Switch}\nconnections:\n"
                         "  - a.y -> sw.u1\n  - b.y -> sw.u2, sw.u3\n")
+
+
+@pytest.mark.parametrize("method", ["DP54", "LSODA"])
+def test_saturations_in_series_initialize_in_order(method):
+    """Two saturations in series start beyond their limits: s1 (+-1) clips 5 to 1, and s2
+    (+-2) must take its mode from s1's clipped output (inside: 1), not from s1's output
+    before s1's own mode was set (5: s2 would start clipping at 2). The outputs are
+    evaluated again between the two ``initialize`` kernels because s1 reaches s2's input
+    (``codegen.influence``); a third saturation fed by the constant directly needs none."""
+    from spidersim.diagram.codegen import influence
+    text = ("blocks:\n  c: {type: Constant, value: 5.0}\n"
+            "  s1: {type: Saturation, lower: -1.0, upper: 1.0}\n"
+            "  s2: {type: Saturation, lower: -2.0, upper: 2.0}\n"
+            "  s3: {type: Saturation, lower: -3.0, upper: 3.0}\n"
+            "connections:\n  - c.y -> s1.u\n  - s1.y -> s2.u\n  - c.y -> s3.u\n")
+    d = spidersim.loads(text)
+    r = d.simulate(t_end=0.1, method=method)
+    np.testing.assert_array_equal(r["s1.y"], 1.0)
+    np.testing.assert_array_equal(r["s2.y"], 1.0)
+    np.testing.assert_array_equal(r["s3.y"], 3.0)
+    init = [d.layout.blocks[p] for p in ("s1", "s2", "s3")]
+    assert influence(d.layout, init) == [[], [0], []]
