@@ -138,15 +138,19 @@ def call_order(pg: PortGraph, ps: PortSizes, loops):
             direct.append(any(feedthrough[n.port] for n in new))
             valid |= new
             assert first in valid, first
-    later = set()
-    partial = set()
+    return tuple(steps), partial_calls(steps, direct)
+
+
+def partial_calls(steps, direct):
+    """Indices of the partial calls (contract item 5): call ``i`` made only outputs
+    without feedthrough valid (``direct[i]`` False) and its block is called again later."""
+    later, partial = set(), set()
     for i in range(len(steps) - 1, -1, -1):
-        if steps[i].kind != "call":
-            continue
-        if not direct[i] and steps[i].what in later:
-            partial.add(i)
-        later.add(steps[i].what)
-    return tuple(steps), frozenset(partial)
+        if steps[i].kind == "call":
+            if not direct[i] and steps[i].what in later:
+                partial.add(i)
+            later.add(steps[i].what)
+    return frozenset(partial)
 
 
 def _needs_call(node, pg: PortGraph, valid):

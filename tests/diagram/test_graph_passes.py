@@ -213,3 +213,15 @@ def test_build_layout_assembles_the_passes():
     assert bl.ports[("out", "y")].size == 1
     assert bl.ports[("out", "y")].loc == tuple(bl.ports[("out", "y")].loc)
     assert bl.input_src["u2"] == L.blocks["f"].ports[("out", "y")].loc
+
+
+def test_partial_calls_are_early_calls_repeated_later():
+    """Contract item 5 alone: a call is partial when it made only outputs without
+    feedthrough valid and its block is called again later; the last call of a block, a
+    call with feedthrough outputs and a loop step never are."""
+    from spidersim.diagram.schedule import partial_calls
+    steps = [Step("call", "arm"), Step("call", "g"), Step("loop", 0), Step("call", "arm"),
+             Step("call", "m"), Step("call", "m")]
+    direct = [False, False, True, True, True, False]
+    assert partial_calls(steps, direct) == frozenset({0})
+    assert partial_calls(steps, [True] * 6) == frozenset()
