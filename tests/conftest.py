@@ -8,11 +8,18 @@ files or folders stay in one process unless ``-n`` is given; ``-n 0`` (or ``-p n
 runs the whole suite in one process, and without pytest-xdist it runs in one process as
 before. ``--dist`` given on the command line is kept.
 
-In parallel runs the modules listed in :data:`HEAVY` are handed out first (longest first),
-so that the few long modules (a study fixture of a minute or two) run side by side at the
-start and the many short ones fill in behind them, instead of one of them starting last
-and leaving the other core idle. The order of the tests inside a module is unchanged, and
-single-process runs keep the file order.
+In parallel runs the modules listed in :data:`HEAVY` are handed out first, in that order,
+and the many short ones fill in behind them (xdist hands the next module to whichever worker
+is about to run out). The order is made for a cold start (empty caches, as in CI), where
+numba compiles spidersim's own kernels (the arm's dynamics, the compiled integration loop)
+before the first arm diagram runs: one worker starts with the fault study, whose fixture
+compiles them (and writes them to the cache), while the other starts with the two long
+modules that need neither (the cache tests' interpreted CLI runs, the service's LSODA
+jobs); by the time that worker reaches an arm diagram it loads those kernels instead of
+compiling them a second time, at the same moment, on the other core. The rest follows by
+measured time, longest first, so that no long module starts last while the other core has
+nothing left. The order of the tests inside a module is unchanged, and single-process runs
+keep the file order.
 """
 from __future__ import annotations
 
@@ -20,19 +27,36 @@ import os
 
 import pytest
 
-#: test modules of a minute or more on one core, longest first (measured with ``--durations``
-#: from cold caches: the studies' fixtures, each compiling an arm diagram; a server under load;
-#: the cache tests' CLI processes; the rotor-reaction diagrams' compiles; the events' many small
-#: diagrams). test_joint.py left the list when its LuGre joint step became compiled.
+#: modules handed out first, in this order (see the module docstring): the fault study (its
+#: fixture compiles the arm's kernels and the compiled loop), then the two long modules that
+#: need neither, then the others of more than 5 s by their time in a cold two-worker run
+#: (``--durations``, issue 17 item 7), longest first
 HEAVY = (
-    "evals/test_drive_train_studies.py",
-    "evals/test_fault_study.py",
-    "service/test_persistence_load.py",
-    "evals/test_contact_studies.py",
-    "solver/test_cache.py",
+    "evals/test_fault_study.py",             # impact_fault.yaml: shared kernels + 2 runs
+    "solver/test_cache.py",                  # CLI processes, interpreted / LSODA only
+    "service/test_persistence_load.py",      # servers, 100 LSODA servo jobs, Dask
+    "evals/test_drive_train_studies.py",     # force_control_rigid, payload_capture
+    "evals/test_contact_studies.py",         # three ideal-torque arm diagrams, a sweep
+    "test_cli.py",
     "evals/test_rotor_reaction.py",
+    "test_sweep.py",
+    "test_readme.py",
+    "service/test_api.py",
     "solver/test_events.py",
+    "hostile/test_corpus.py",
+    "test_interrupt.py",
+    "evals/test_joint.py",
+    "evals/test_contact.py",
+    "test_animation.py",
+    "diagram/test_codegen_safety.py",
+    "service/test_browser.py",
+    "test_cli_linearize.py",
     "solver/test_loop.py",
+    "evals/test_joint_torque.py",
+    "evals/test_arm.py",
+    "blocks/test_continuous.py",
+    "blocks/test_contract.py",
+    "diagram/test_units.py",
 )
 
 
@@ -54,7 +78,7 @@ def pytest_cmdline_main(config):
 
 def pytest_collection_modifyitems(config, items):
     """In an xdist worker (all workers collect the same order): the :data:`HEAVY` modules
-    first, longest first; everything else after them in file order."""
+    first, in that order; everything else after them in file order."""
     if not hasattr(config, "workerinput"):
         return
     here = os.path.dirname(os.path.abspath(__file__))

@@ -66,6 +66,16 @@ def grow_file(tmp_path_factory):
     return str(path)
 
 
+GROW_VARY = [("a", [1.0, 1e3, -1.0])]     # the middle run overflows
+
+
+@pytest.fixture(scope="module")
+def grow_on_dask(grow_file):
+    """The failing grid on a local Dask cluster of 2 workers, run once for the two tests
+    that look at it (a row per failure, the message kept), instead of a cluster each."""
+    return sw.sweep(grow_file, GROW_VARY, workers=2)
+
+
 @pytest.fixture(scope="module")
 def serial(drop_file):
     return sw.sweep(drop_file, VARY, workers=0)
@@ -114,8 +124,8 @@ def test_runs_never_recompile(serial, on_dask):
     assert not any(r["compiled"] for r in serial.rows + on_dask.rows)
 
 
-def test_a_failed_run_is_a_row_with_its_message(grow_file, tmp_path):
-    res = sw.sweep(grow_file, [("a", [1.0, 1e3, -1.0])], workers=2)
+def test_a_failed_run_is_a_row_with_its_message(grow_on_dask, tmp_path):
+    res = grow_on_dask
     status = [r["status"] for r in res.rows]
     assert status == ["ok", "failed", "ok"]
     bad = res.rows[1]
@@ -153,8 +163,10 @@ def test_a_non_positive_run_time_is_refused(drop_file):
 
 
 @pytest.mark.parametrize("workers", [0, 2])
-def test_a_run_that_fails_while_integrating_keeps_its_message(grow_file, workers):
-    res = sw.sweep(grow_file, [("a", [1.0, 1e3, -1.0])], workers=workers)
+def test_a_run_that_fails_while_integrating_keeps_its_message(grow_file, workers, request):
+    res = (request.getfixturevalue("grow_on_dask") if workers
+           else sw.sweep(grow_file, GROW_VARY, workers=0))
+    assert res.workers == workers
     assert [r["status"] for r in res.rows] == ["ok", "failed", "ok"]
     assert res.rows[0]["x_end"] == pytest.approx(math.e, rel=1e-6)
     assert res.rows[2]["x_end"] == pytest.approx(1 / math.e, rel=1e-6)
