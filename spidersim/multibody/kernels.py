@@ -77,10 +77,32 @@ def _cross(ax, ay, az, bx, by, bz):
 def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
     """Inverse dynamics: ``tau`` (n) and the base wrench ``base`` (6) for ``q, qd, qdd``.
 
-    Calls :func:`fk` first. Recursive Newton-Euler in the base frame.
+    Recursive Newton-Euler in the base frame: :func:`fk` of ``q``, then
+    :func:`rnea_on_frames`.
     """
-    n = q.size
     fk(q, P, ws)
+    rnea_on_frames(qd, qdd, g, f_ext, P, ws, tau, base, True)
+
+
+def rnea_on_frames(qd, qdd, g, f_ext, P, ws, tau, base, geometry):
+    """The velocity/acceleration and force passes of :func:`rnea` on the frames of
+    :func:`fk` already in ``ws`` (for the ``q`` wanted): a caller that has them skips fk.
+
+    Forward, link i (0-based, joint i about ``z_{i-1}`` through ``o_{i-1}``)::
+
+        w_i  = w_{i-1} + qd_i z_{i-1}
+        al_i = al_{i-1} + qdd_i z_{i-1} + w_{i-1} x qd_i z_{i-1}
+        a_i  = a_{i-1} + al_i x r + w_i x (w_i x r),   r = o_i - o_{i-1}   (a_0 = -g)
+        F_i  = m_i a_c,i  (a_c,i: the same with r = c_i - o_{i-1}),
+        N_i  = I_i al_i + w_i x I_i w_i    (I_i = R_i I_link R_i^T, about the COM)
+
+    backward: ``f_{i-1} = f_i + F_i``, moments about ``o_{i-1}``, ``tau_i = z_{i-1} . n``.
+    Reads the frames' slots (:data:`WS_R`, :data:`WS_O`) and never writes them; writes
+    slots 12..23 (w, al, a, COM), 24..32 (Iw; with ``geometry``) and 39..44 (F, N) of
+    links 0..n. ``geometry=False`` reads the COMs and ``Iw`` (slots 21..32) as a pass at
+    the same ``q`` left them instead of computing them again (they depend on ``q`` only).
+    """
+    n = qd.size
     # base: w = al = 0, acceleration of the origin -g (gravity as a base acceleration)
     for j in range(12, 21):
         ws[j] = 0.0
@@ -107,11 +129,14 @@ def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
         ws[b + 19] = ws[bp + 19] + t1[1] + t2[1]
         ws[b + 20] = ws[bp + 20] + t1[2] + t2[2]
         # COM in the base frame, relative to o_{i-1}
-        lcx, lcy, lcz = P[i, 4], P[i, 5], P[i, 6]
-        gx = ws[b + 9] + ws[b] * lcx + ws[b + 1] * lcy + ws[b + 2] * lcz
-        gy = ws[b + 10] + ws[b + 3] * lcx + ws[b + 4] * lcy + ws[b + 5] * lcz
-        gz = ws[b + 11] + ws[b + 6] * lcx + ws[b + 7] * lcy + ws[b + 8] * lcz
-        ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        if geometry:
+            lcx, lcy, lcz = P[i, 4], P[i, 5], P[i, 6]
+            gx = ws[b + 9] + ws[b] * lcx + ws[b + 1] * lcy + ws[b + 2] * lcz
+            gy = ws[b + 10] + ws[b + 3] * lcx + ws[b + 4] * lcy + ws[b + 5] * lcz
+            gz = ws[b + 11] + ws[b + 6] * lcx + ws[b + 7] * lcy + ws[b + 8] * lcz
+            ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        else:
+            gx, gy, gz = ws[b + 21], ws[b + 22], ws[b + 23]
         rcx, rcy, rcz = gx - ox, gy - oy, gz - oz
         t1 = _cross(alx, aly, alz, rcx, rcy, rcz)
         w_r = _cross(wx, wy, wz, rcx, rcy, rcz)
@@ -122,14 +147,15 @@ def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
         acz = ws[bp + 20] + t1[2] + t2[2]
         ws[b + 39], ws[b + 40], ws[b + 41] = m * acx, m * acy, m * acz
         # inertia in the base frame: Iw = R I R^T
-        for r in range(3):
-            for c in range(3):
-                acc = 0.0
-                for k in range(3):
-                    rk = ws[b + 3 * r + k]
-                    for l in range(3):
-                        acc += rk * P[i, 7 + 3 * k + l] * ws[b + 3 * c + l]
-                ws[b + 24 + 3 * r + c] = acc
+        if geometry:
+            for r in range(3):
+                for c in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        rk = ws[b + 3 * r + k]
+                        for l in range(3):
+                            acc += rk * P[i, 7 + 3 * k + l] * ws[b + 3 * c + l]
+                    ws[b + 24 + 3 * r + c] = acc
         Iwx = ws[b + 24] * wx + ws[b + 25] * wy + ws[b + 26] * wz
         Iwy = ws[b + 27] * wx + ws[b + 28] * wy + ws[b + 29] * wz
         Iwz = ws[b + 30] * wx + ws[b + 31] * wy + ws[b + 32] * wz
@@ -439,7 +465,11 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
     """``qdd`` from ``M(q) qdd = tau - b(q, qd) + Q_r`` (``b``: RNEA with ``qdd = 0``;
     ``Q_r``: the generalized force of the drives' reaction torques ``tau_r``, see
     :func:`add_reactions`; ``tau_r`` all zero, or empty, skips them), then the base wrench
-    of the resulting motion, reactions included, into ``base``.
+    of the resulting motion, reactions included, into ``base``. Forward kinematics runs
+    once (in ``mass_matrix``, or on its own when the factor is reused), and both RNEA
+    passes (:func:`rnea_on_frames`) use its frames; the second also the first's COMs and
+    link inertias. The frames, motion and forces left in ``ws`` are those :func:`rnea` of
+    ``q, qd, qdd`` leaves.
 
     ``key`` (``n + 2`` floats, or empty: no reuse) lets a caller that evaluates the same
     ``q`` several times (an algebraic loop through ``f_ext``: Newton iterations) reuse the
@@ -471,18 +501,24 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
                 key[k] = q[k]
             key[n] = check
             key[n + 1] = 1.0
+    else:
+        # the factor is q's, but ws may hold the frames of another q (an event, a caller
+        # sharing ws): forward kinematics again; mass_matrix left them in ws otherwise
+        fk(q, P, ws)
     react = False
     if tau_r.size == n:
         for k in range(n):
             if tau_r[k] != 0.0:
                 react = True
-    rnea(q, qd, zero, g, f_ext, P, ws, bias, base)
+    # one fk per call: the passes read the frames and never write them (nor read
+    # mass_matrix's composites, slots 33..42); the second pass reuses the first's COMs, Iw
+    rnea_on_frames(qd, zero, g, f_ext, P, ws, bias, base, True)
     if react:
         add_reactions(n, ws, tau_r, bias, base)
     for k in range(n):
         rhs[k] = tau[k] - bias[k]
     cholesky_subst(M, rhs, qdd)
-    rnea(q, qd, qdd, g, f_ext, P, ws, bias, base)
+    rnea_on_frames(qd, qdd, g, f_ext, P, ws, bias, base, False)
     if react:
         add_reactions(n, ws, tau_r, bias, base)
 
@@ -500,6 +536,7 @@ def jit_kernel(fn):
 _cross = jit_kernel(_cross)
 fk = jit_kernel(fk)
 flange_jacobian = jit_kernel(flange_jacobian)
+rnea_on_frames = jit_kernel(rnea_on_frames)
 rnea = jit_kernel(rnea)
 add_reactions = jit_kernel(add_reactions)
 mass_matrix = jit_kernel(mass_matrix)
