@@ -19,7 +19,8 @@ from numba import carray, cfunc
 ROW = 16
 WS_PER_LINK = 48
 # workspace layout per link k (0 = base): R 0..8, o 9..11, w 12..14, al 15..17, ap 18..20,
-# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44. The offsets by name, for code
+# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44, twist memo 45..47 (fk; the
+# base's slots 45..47 are unused). The offsets by name, for code
 # outside this module (``ws[k * WS_PER_LINK + WS_O + i]`` is o_k[i]):
 WS_R = 0          # rotation matrix of frame k, row-major (9)
 WS_O = 9          # origin o_k [m] (3)
@@ -28,10 +29,21 @@ WS_ALPHA = 15     # angular acceleration [rad/s2] (3)
 WS_ACC = 18       # acceleration of o_k [m/s2], with the base accelerating at -g (3)
 WS_COM = 21       # centre of mass of link k [m] (3)
 WS_IW = 24        # inertia about the COM in the base frame [kg.m2] (9)
+WS_TWIST = 45     # fk's memo of link k-1's twist: alpha [rad], cos alpha, sin alpha (3)
 
 
 def fk(q, P, ws):
-    """Frame rotations and origins of every link into ``ws``; the flange is link n."""
+    """Frame rotations and origins of every link into ``ws``; the flange is link n::
+
+        R_i = R_{i-1} Rot_i,  o_i = o_{i-1} + R_{i-1} p_i     (R_0 = 1, o_0 = 0)
+
+    with ``A_i = [Rot_i, p_i] = Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``.
+
+    The twist ``alpha_i`` is constant: its cosine and sine are kept beside it in ``ws``
+    (slots :data:`WS_TWIST` of link i) and computed again only when ``P`` holds another
+    ``alpha_i`` than the one kept (or the memo is empty: a zeroed ``ws`` holds
+    ``cos^2 + sin^2 = 0``), so a call costs the cosine and sine of the joint angles only.
+    """
     n = q.size
     for j in range(9):
         ws[j] = 0.0
@@ -41,7 +53,12 @@ def fk(q, P, ws):
         b0 = i * WS_PER_LINK
         b1 = (i + 1) * WS_PER_LINK
         th, d, a, al = q[i], P[i, 0], P[i, 1], P[i, 2]
-        ct, st, ca, sa = math.cos(th), math.sin(th), math.cos(al), math.sin(al)
+        ct, st = math.cos(th), math.sin(th)
+        m = b1 + WS_TWIST
+        ca, sa = ws[m + 1], ws[m + 2]
+        if not (ws[m] == al and ca * ca + sa * sa > 0.5):
+            ca, sa = math.cos(al), math.sin(al)
+            ws[m], ws[m + 1], ws[m + 2] = al, ca, sa
         # A = [[ct, -st ca, st sa, a ct], [st, ct ca, -ct sa, a st], [0, sa, ca, d]]
         A00, A01, A02, A03 = ct, -st * ca, st * sa, a * ct
         A10, A11, A12, A13 = st, ct * ca, -ct * sa, a * st

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 
 from spidersim.multibody import Chain
+from spidersim.multibody.chain import dh_transform
 from spidersim.multibody import kernels as K
 
 # ----------------------------------------------------------------------------- PHYSICS.md
@@ -436,3 +437,37 @@ def test_forward_dynamics_reused_factor_recomputes_the_frames():
     np.testing.assert_allclose(qdd, ref_qdd, rtol=1e-13, atol=1e-13 * np.abs(ref_qdd).max())
     np.testing.assert_allclose(base, ref_base, rtol=1e-13, atol=1e-13 * np.abs(ref_base).max())
     np.testing.assert_array_equal(qdd, first)
+
+
+def _fk_flange(P, ws, q):
+    K.fk(q, P, ws)
+    b = N * K.WS_PER_LINK
+    T = np.eye(4)
+    T[:3, :3] = ws[b:b + 9].reshape(3, 3)
+    T[:3, 3] = ws[b + K.WS_O:b + K.WS_O + 3]
+    return T
+
+
+def test_fk_twist_memo_follows_the_table_and_ignores_an_empty_workspace():
+    """fk keeps cos/sin of the constant twists alpha_i in ws (slots WS_TWIST): the flange
+    pose must be the DH product ``prod Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)`` (NumPy, 1e-12)
+    (a) on a zeroed ws, where the empty memo of the last link (alpha = 0) reads ``alpha = 0,
+    cos = sin = 0`` and must not be taken, (b) on a ws the same fk filled for another table
+    whose twists differ (each alpha + 0.3): the memo must follow P, not the first table."""
+    P = Chain.from_yaml().P.copy()
+    q = np.linspace(-1.1, 0.8, N)
+
+    def dh_product(P):
+        T = np.eye(4)
+        for i in range(N):
+            T = T @ dh_transform(q[i], P[i, 0], P[i, 1], P[i, 2])
+        return T
+
+    assert P[N - 1, 2] == 0.0
+    ws = np.zeros(K.WS_PER_LINK * (N + 1))
+    np.testing.assert_allclose(_fk_flange(P, ws, q), dh_product(P), rtol=0, atol=1e-12)
+    P2 = P.copy()
+    P2[:, 2] += 0.3
+    np.testing.assert_allclose(_fk_flange(P2, ws, q), dh_product(P2), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_fk_flange(P, ws, q), dh_product(P), rtol=0, atol=1e-12)
+    assert np.abs(dh_product(P2) - dh_product(P)).max() > 0.1
