@@ -234,8 +234,10 @@ def add_reactions(n, ws, tau_r, tau, base):
 
 def mass_matrix(q, P, ws, M, tmp, base):
     """Joint-space inertia ``M(q)`` by the composite-rigid-body algorithm (Walker & Orin's
-    method 3, in the base frame); also leaves :func:`fk` of ``q`` in ``ws`` and zeroes
-    ``base`` (6). ``tmp`` is not used (kept for the callers' signature).
+    method 3, in the base frame); also leaves :func:`fk` of ``q`` in ``ws``, and the links'
+    COMs and inertias about them in the base frame (``R I R^T``, slots :data:`WS_COM`,
+    :data:`WS_IW`) as :func:`rnea_on_frames` computes them (the inertia exactly symmetric),
+    and zeroes ``base`` (6). ``tmp`` is not used (kept for the callers' signature).
 
     With ``qd = 0`` and no gravity, a unit acceleration of joint ``j`` moves links
     ``j..n-1`` (1-based: the links after joint ``j``) as one rigid body, the *composite*
@@ -307,6 +309,11 @@ def mass_matrix(q, P, ws, M, tmp, base):
         I02 = L02 + I02 - m * dx * dz - mc * ex * ez
         I12 = L12 + I12 - m * dy * dz - mc * ey * ez
         mc, ccx, ccy, ccz = mt, nx, ny, nz
+        # the link's COM and inertia in the base frame, as the RNEA keeps them
+        ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        ws[b + 24], ws[b + 25], ws[b + 26] = L00, L01, L02
+        ws[b + 27], ws[b + 28], ws[b + 29] = L01, L11, L12
+        ws[b + 30], ws[b + 31], ws[b + 32] = L02, L12, L22
         ws[b + 33] = mc
         ws[b + 34], ws[b + 35], ws[b + 36] = ccx, ccy, ccz
         ws[b + 37], ws[b + 38], ws[b + 39] = I00, I01, I02
@@ -484,8 +491,8 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
     :func:`add_reactions`; ``tau_r`` all zero, or empty, skips them), then the base wrench
     of the resulting motion, reactions included, into ``base``. Forward kinematics runs
     once (in ``mass_matrix``, or on its own when the factor is reused), and both RNEA
-    passes (:func:`rnea_on_frames`) use its frames; the second also the first's COMs and
-    link inertias. The frames, motion and forces left in ``ws`` are those :func:`rnea` of
+    passes (:func:`rnea_on_frames`) use its frames and the links' COMs and base-frame
+    inertias ``mass_matrix`` (or, after a reuse, the first pass) left in ``ws``. The frames, motion and forces left in ``ws`` are those :func:`rnea` of
     ``q, qd, qdd`` leaves.
 
     ``key`` (``n + 2`` floats, or empty: no reuse) lets a caller that evaluates the same
@@ -528,8 +535,9 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
             if tau_r[k] != 0.0:
                 react = True
     # one fk per call: the passes read the frames and never write them (nor read
-    # mass_matrix's composites, slots 33..42); the second pass reuses the first's COMs, Iw
-    rnea_on_frames(qd, zero, g, f_ext, P, ws, bias, base, True)
+    # mass_matrix's composites, slots 33..42); COMs and Iw are mass_matrix's, or, when the
+    # factor is reused, the first pass computes them for the second
+    rnea_on_frames(qd, zero, g, f_ext, P, ws, bias, base, reuse)
     if react:
         add_reactions(n, ws, tau_r, bias, base)
     for k in range(n):

@@ -397,11 +397,12 @@ def _fd_draw(seed):
 
 @pytest.mark.parametrize("seed", range(8))
 def test_forward_dynamics_equals_the_kernels_it_fuses(seed):
-    """forward_dynamics runs forward kinematics once and lets the second RNEA pass reuse the
-    first's COMs and inertias; it must give what mass_matrix + rnea + add_reactions give
-    with their own fk each (same operations: equal to 1e-13 relative, bit for bit in
-    practice), whatever ``ws`` held before (here: garbage 7.0) and with reactions on or off.
-    Guards a pass that reads frames, COMs or inertias another pass left for another q."""
+    """forward_dynamics runs forward kinematics once and lets the RNEA passes reuse the
+    COMs and base-frame inertias mass_matrix computed; it must give what mass_matrix + rnea
+    + add_reactions give with their own fk each (same operations but for the order of the
+    products in the lower triangle of R I R^T: equal to 1e-13 relative; 2,000 draws showed
+    at most 2e-15), whatever ``ws`` held before (here: garbage 7.0) and with reactions on or
+    off. Guards a pass that reads frames, COMs or inertias left for another q, or wrong."""
     q, qd, tau, f_ext, tau_r = _fd_draw(seed)
     for tr in (tau_r, np.zeros(N)):
         ref_qdd, ref_base = _fd_composed(q, qd, tau, f_ext, tr)
@@ -419,9 +420,9 @@ def test_forward_dynamics_equals_the_kernels_it_fuses(seed):
 
 def test_forward_dynamics_reused_factor_recomputes_the_frames():
     """With ``key`` the Cholesky factor of M(q) is reused while q is unchanged, so
-    mass_matrix (which leaves fk in ws) does not run; if something wrote the frames of
-    another q into ws in between (an event, another kernel on the same scratch), the RNEA
-    passes must still see q's frames. The second call must reuse the factor (its strict
+    mass_matrix (which leaves fk, the COMs and inertias in ws) does not run; if something
+    wrote those of another q into ws in between (an event, another kernel on the same
+    scratch: here rnea at q + 0.7), the RNEA passes must still see q's. The second call must reuse the factor (its strict
     upper triangle, poisoned with NaN, stays untouched) and equal a fresh evaluation to
     1e-13 relative."""
     q, qd, tau, f_ext, tau_r = _fd_draw(11)
@@ -430,7 +431,8 @@ def test_forward_dynamics_reused_factor_recomputes_the_frames():
     first, _ = _fd_kernel(q, qd, tau, f_ext, tau_r, ws, M, key)
     assert key[N + 1] == 1.0
     M[np.triu_indices(N, 1)] = np.nan
-    K.fk(q + 0.7, Chain.from_yaml().P, ws)                  # another q's frames in ws
+    K.rnea(q + 0.7, qd, tau, G_EARTH, f_ext, Chain.from_yaml().P, ws, np.zeros(N),
+           np.zeros(6))                        # another q's frames, COMs, inertias in ws
     qdd, base = _fd_kernel(q, qd, tau, f_ext, tau_r, ws, M, key)
     assert np.isnan(M[np.triu_indices(N, 1)]).all(), "the factor was not reused"
     ref_qdd, ref_base = _fd_composed(q, qd, tau, f_ext, tau_r)
