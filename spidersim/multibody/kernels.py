@@ -19,7 +19,8 @@ from numba import carray, cfunc
 ROW = 16
 WS_PER_LINK = 48
 # workspace layout per link k (0 = base): R 0..8, o 9..11, w 12..14, al 15..17, ap 18..20,
-# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44. The offsets by name, for code
+# c 21..23, Iw 24..32, f 33..35, n 36..38, F 39..41, N 42..44, twist memo 45..47 (fk; the
+# base's slots 45..47 are unused). The offsets by name, for code
 # outside this module (``ws[k * WS_PER_LINK + WS_O + i]`` is o_k[i]):
 WS_R = 0          # rotation matrix of frame k, row-major (9)
 WS_O = 9          # origin o_k [m] (3)
@@ -28,10 +29,21 @@ WS_ALPHA = 15     # angular acceleration [rad/s2] (3)
 WS_ACC = 18       # acceleration of o_k [m/s2], with the base accelerating at -g (3)
 WS_COM = 21       # centre of mass of link k [m] (3)
 WS_IW = 24        # inertia about the COM in the base frame [kg.m2] (9)
+WS_TWIST = 45     # fk's memo of link k-1's twist: alpha [rad], cos alpha, sin alpha (3)
 
 
 def fk(q, P, ws):
-    """Frame rotations and origins of every link into ``ws``; the flange is link n."""
+    """Frame rotations and origins of every link into ``ws``; the flange is link n::
+
+        R_i = R_{i-1} Rot_i,  o_i = o_{i-1} + R_{i-1} p_i     (R_0 = 1, o_0 = 0)
+
+    with ``A_i = [Rot_i, p_i] = Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``.
+
+    The twist ``alpha_i`` is constant: its cosine and sine are kept beside it in ``ws``
+    (slots :data:`WS_TWIST` of link i) and computed again only when ``P`` holds another
+    ``alpha_i`` than the one kept (or the memo is empty: a zeroed ``ws`` holds
+    ``cos^2 + sin^2 = 0``), so a call costs the cosine and sine of the joint angles only.
+    """
     n = q.size
     for j in range(9):
         ws[j] = 0.0
@@ -41,7 +53,12 @@ def fk(q, P, ws):
         b0 = i * WS_PER_LINK
         b1 = (i + 1) * WS_PER_LINK
         th, d, a, al = q[i], P[i, 0], P[i, 1], P[i, 2]
-        ct, st, ca, sa = math.cos(th), math.sin(th), math.cos(al), math.sin(al)
+        ct, st = math.cos(th), math.sin(th)
+        m = b1 + WS_TWIST
+        ca, sa = ws[m + 1], ws[m + 2]
+        if not (ws[m] == al and ca * ca + sa * sa > 0.5):
+            ca, sa = math.cos(al), math.sin(al)
+            ws[m], ws[m + 1], ws[m + 2] = al, ca, sa
         # A = [[ct, -st ca, st sa, a ct], [st, ct ca, -ct sa, a st], [0, sa, ca, d]]
         A00, A01, A02, A03 = ct, -st * ca, st * sa, a * ct
         A10, A11, A12, A13 = st, ct * ca, -ct * sa, a * st
@@ -77,10 +94,32 @@ def _cross(ax, ay, az, bx, by, bz):
 def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
     """Inverse dynamics: ``tau`` (n) and the base wrench ``base`` (6) for ``q, qd, qdd``.
 
-    Calls :func:`fk` first. Recursive Newton-Euler in the base frame.
+    Recursive Newton-Euler in the base frame: :func:`fk` of ``q``, then
+    :func:`rnea_on_frames`.
     """
-    n = q.size
     fk(q, P, ws)
+    rnea_on_frames(qd, qdd, g, f_ext, P, ws, tau, base, True)
+
+
+def rnea_on_frames(qd, qdd, g, f_ext, P, ws, tau, base, geometry):
+    """The velocity/acceleration and force passes of :func:`rnea` on the frames of
+    :func:`fk` already in ``ws`` (for the ``q`` wanted): a caller that has them skips fk.
+
+    Forward, link i (0-based, joint i about ``z_{i-1}`` through ``o_{i-1}``)::
+
+        w_i  = w_{i-1} + qd_i z_{i-1}
+        al_i = al_{i-1} + qdd_i z_{i-1} + w_{i-1} x qd_i z_{i-1}
+        a_i  = a_{i-1} + al_i x r + w_i x (w_i x r),   r = o_i - o_{i-1}   (a_0 = -g)
+        F_i  = m_i a_c,i  (a_c,i: the same with r = c_i - o_{i-1}),
+        N_i  = I_i al_i + w_i x I_i w_i    (I_i = R_i I_link R_i^T, about the COM)
+
+    backward: ``f_{i-1} = f_i + F_i``, moments about ``o_{i-1}``, ``tau_i = z_{i-1} . n``.
+    Reads the frames' slots (:data:`WS_R`, :data:`WS_O`) and never writes them; writes
+    slots 12..23 (w, al, a, COM), 24..32 (Iw; with ``geometry``) and 39..44 (F, N) of
+    links 0..n. ``geometry=False`` reads the COMs and ``Iw`` (slots 21..32) as a pass at
+    the same ``q`` left them instead of computing them again (they depend on ``q`` only).
+    """
+    n = qd.size
     # base: w = al = 0, acceleration of the origin -g (gravity as a base acceleration)
     for j in range(12, 21):
         ws[j] = 0.0
@@ -107,11 +146,14 @@ def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
         ws[b + 19] = ws[bp + 19] + t1[1] + t2[1]
         ws[b + 20] = ws[bp + 20] + t1[2] + t2[2]
         # COM in the base frame, relative to o_{i-1}
-        lcx, lcy, lcz = P[i, 4], P[i, 5], P[i, 6]
-        gx = ws[b + 9] + ws[b] * lcx + ws[b + 1] * lcy + ws[b + 2] * lcz
-        gy = ws[b + 10] + ws[b + 3] * lcx + ws[b + 4] * lcy + ws[b + 5] * lcz
-        gz = ws[b + 11] + ws[b + 6] * lcx + ws[b + 7] * lcy + ws[b + 8] * lcz
-        ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        if geometry:
+            lcx, lcy, lcz = P[i, 4], P[i, 5], P[i, 6]
+            gx = ws[b + 9] + ws[b] * lcx + ws[b + 1] * lcy + ws[b + 2] * lcz
+            gy = ws[b + 10] + ws[b + 3] * lcx + ws[b + 4] * lcy + ws[b + 5] * lcz
+            gz = ws[b + 11] + ws[b + 6] * lcx + ws[b + 7] * lcy + ws[b + 8] * lcz
+            ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        else:
+            gx, gy, gz = ws[b + 21], ws[b + 22], ws[b + 23]
         rcx, rcy, rcz = gx - ox, gy - oy, gz - oz
         t1 = _cross(alx, aly, alz, rcx, rcy, rcz)
         w_r = _cross(wx, wy, wz, rcx, rcy, rcz)
@@ -122,14 +164,15 @@ def rnea(q, qd, qdd, g, f_ext, P, ws, tau, base):
         acz = ws[bp + 20] + t1[2] + t2[2]
         ws[b + 39], ws[b + 40], ws[b + 41] = m * acx, m * acy, m * acz
         # inertia in the base frame: Iw = R I R^T
-        for r in range(3):
-            for c in range(3):
-                acc = 0.0
-                for k in range(3):
-                    rk = ws[b + 3 * r + k]
-                    for l in range(3):
-                        acc += rk * P[i, 7 + 3 * k + l] * ws[b + 3 * c + l]
-                ws[b + 24 + 3 * r + c] = acc
+        if geometry:
+            for r in range(3):
+                for c in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        rk = ws[b + 3 * r + k]
+                        for l in range(3):
+                            acc += rk * P[i, 7 + 3 * k + l] * ws[b + 3 * c + l]
+                    ws[b + 24 + 3 * r + c] = acc
         Iwx = ws[b + 24] * wx + ws[b + 25] * wy + ws[b + 26] * wz
         Iwy = ws[b + 27] * wx + ws[b + 28] * wy + ws[b + 29] * wz
         Iwz = ws[b + 30] * wx + ws[b + 31] * wy + ws[b + 32] * wz
@@ -191,8 +234,10 @@ def add_reactions(n, ws, tau_r, tau, base):
 
 def mass_matrix(q, P, ws, M, tmp, base):
     """Joint-space inertia ``M(q)`` by the composite-rigid-body algorithm (Walker & Orin's
-    method 3, in the base frame); also leaves :func:`fk` of ``q`` in ``ws`` and zeroes
-    ``base`` (6). ``tmp`` is not used (kept for the callers' signature).
+    method 3, in the base frame); also leaves :func:`fk` of ``q`` in ``ws``, and the links'
+    COMs and inertias about them in the base frame (``R I R^T``, slots :data:`WS_COM`,
+    :data:`WS_IW`) as :func:`rnea_on_frames` computes them (the inertia exactly symmetric),
+    and zeroes ``base`` (6). ``tmp`` is not used (kept for the callers' signature).
 
     With ``qd = 0`` and no gravity, a unit acceleration of joint ``j`` moves links
     ``j..n-1`` (1-based: the links after joint ``j``) as one rigid body, the *composite*
@@ -264,6 +309,11 @@ def mass_matrix(q, P, ws, M, tmp, base):
         I02 = L02 + I02 - m * dx * dz - mc * ex * ez
         I12 = L12 + I12 - m * dy * dz - mc * ey * ez
         mc, ccx, ccy, ccz = mt, nx, ny, nz
+        # the link's COM and inertia in the base frame, as the RNEA keeps them
+        ws[b + 21], ws[b + 22], ws[b + 23] = gx, gy, gz
+        ws[b + 24], ws[b + 25], ws[b + 26] = L00, L01, L02
+        ws[b + 27], ws[b + 28], ws[b + 29] = L01, L11, L12
+        ws[b + 30], ws[b + 31], ws[b + 32] = L02, L12, L22
         ws[b + 33] = mc
         ws[b + 34], ws[b + 35], ws[b + 36] = ccx, ccy, ccz
         ws[b + 37], ws[b + 38], ws[b + 39] = I00, I01, I02
@@ -439,7 +489,11 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
     """``qdd`` from ``M(q) qdd = tau - b(q, qd) + Q_r`` (``b``: RNEA with ``qdd = 0``;
     ``Q_r``: the generalized force of the drives' reaction torques ``tau_r``, see
     :func:`add_reactions`; ``tau_r`` all zero, or empty, skips them), then the base wrench
-    of the resulting motion, reactions included, into ``base``.
+    of the resulting motion, reactions included, into ``base``. Forward kinematics runs
+    once (in ``mass_matrix``, or on its own when the factor is reused), and both RNEA
+    passes (:func:`rnea_on_frames`) use its frames and the links' COMs and base-frame
+    inertias ``mass_matrix`` (or, after a reuse, the first pass) left in ``ws``. The frames, motion and forces left in ``ws`` are those :func:`rnea` of
+    ``q, qd, qdd`` leaves.
 
     ``key`` (``n + 2`` floats, or empty: no reuse) lets a caller that evaluates the same
     ``q`` several times (an algebraic loop through ``f_ext``: Newton iterations) reuse the
@@ -471,18 +525,25 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
                 key[k] = q[k]
             key[n] = check
             key[n + 1] = 1.0
+    else:
+        # the factor is q's, but ws may hold the frames of another q (an event, a caller
+        # sharing ws): forward kinematics again; mass_matrix left them in ws otherwise
+        fk(q, P, ws)
     react = False
     if tau_r.size == n:
         for k in range(n):
             if tau_r[k] != 0.0:
                 react = True
-    rnea(q, qd, zero, g, f_ext, P, ws, bias, base)
+    # one fk per call: the passes read the frames and never write them (nor read
+    # mass_matrix's composites, slots 33..42); COMs and Iw are mass_matrix's, or, when the
+    # factor is reused, the first pass computes them for the second
+    rnea_on_frames(qd, zero, g, f_ext, P, ws, bias, base, reuse)
     if react:
         add_reactions(n, ws, tau_r, bias, base)
     for k in range(n):
         rhs[k] = tau[k] - bias[k]
     cholesky_subst(M, rhs, qdd)
-    rnea(q, qd, qdd, g, f_ext, P, ws, bias, base)
+    rnea_on_frames(qd, qdd, g, f_ext, P, ws, bias, base, False)
     if react:
         add_reactions(n, ws, tau_r, bias, base)
 
@@ -500,6 +561,7 @@ def jit_kernel(fn):
 _cross = jit_kernel(_cross)
 fk = jit_kernel(fk)
 flange_jacobian = jit_kernel(flange_jacobian)
+rnea_on_frames = jit_kernel(rnea_on_frames)
 rnea = jit_kernel(rnea)
 add_reactions = jit_kernel(add_reactions)
 mass_matrix = jit_kernel(mass_matrix)

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 
 from spidersim.multibody import Chain
+from spidersim.multibody.chain import dh_transform
 from spidersim.multibody import kernels as K
 
 # ----------------------------------------------------------------------------- PHYSICS.md
@@ -360,3 +361,115 @@ def test_external_wrench_enters_as_J_transpose(k):
     p = ch.fk(q)[:3, 3]
     np.testing.assert_allclose(f0, -f[:3], rtol=0, atol=1e-12)
     np.testing.assert_allclose(n0, -(f[3:] + np.cross(p, f[:3])), rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------- forward dynamics: one fk per call (issue 14)
+def _fd_kernel(q, qd, tau, f_ext, tau_r, ws, M, key):
+    """``kernels.forward_dynamics`` on the shipped arm under gravity: (qdd, base wrench)."""
+    qdd, base = np.zeros(N), np.zeros(6)
+    K.forward_dynamics(q, qd, tau, G_EARTH, f_ext, tau_r, Chain.from_yaml().P, ws, M,
+                       np.zeros(6 * N), base, qdd, key)
+    return qdd, base
+
+
+def _fd_composed(q, qd, tau, f_ext, tau_r):
+    """The same from the separate kernels, each with its own forward kinematics: ``M`` by
+    mass_matrix, ``b`` by rnea with ``qdd = 0`` (plus the drives' reactions), ``qdd`` from
+    the Cholesky factor of ``M``, the base wrench by rnea of the resulting motion."""
+    P = Chain.from_yaml().P
+    ws = np.zeros(K.WS_PER_LINK * (N + 1))
+    M, bias, base, qdd = np.zeros((N, N)), np.zeros(N), np.zeros(6), np.zeros(N)
+    K.mass_matrix(q, P, ws, M, np.zeros(6 * N), base)
+    K.cholesky_factor(M)
+    K.rnea(q, qd, np.zeros(N), G_EARTH, f_ext, P, ws, bias, base)
+    K.add_reactions(N, ws, tau_r, bias, base)
+    K.cholesky_subst(M, tau - bias, qdd)
+    K.rnea(q, qd, qdd, G_EARTH, f_ext, P, ws, bias, base)
+    K.add_reactions(N, ws, tau_r, bias, base)
+    return qdd, base
+
+
+def _fd_draw(seed):
+    rng = np.random.default_rng(seed)
+    q, qd, tau = rng.uniform(-2.0, 2.0, N), rng.uniform(-1.5, 1.5, N), rng.uniform(-50, 50, N)
+    return q, qd, tau, rng.uniform(-20.0, 20.0, 6), rng.uniform(-0.5, 0.5, N)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_forward_dynamics_equals_the_kernels_it_fuses(seed):
+    """forward_dynamics runs forward kinematics once and lets the RNEA passes reuse the
+    COMs and base-frame inertias mass_matrix computed; it must give what mass_matrix + rnea
+    + add_reactions give with their own fk each (same operations but for the order of the
+    products in the lower triangle of R I R^T: equal to 1e-13 relative; 2,000 draws showed
+    at most 2e-15), whatever ``ws`` held before (here: garbage 7.0) and with reactions on or
+    off. Guards a pass that reads frames, COMs or inertias left for another q, or wrong."""
+    q, qd, tau, f_ext, tau_r = _fd_draw(seed)
+    for tr in (tau_r, np.zeros(N)):
+        ref_qdd, ref_base = _fd_composed(q, qd, tau, f_ext, tr)
+        ws = np.full(K.WS_PER_LINK * (N + 1), 7.0)
+        qdd, base = _fd_kernel(q, qd, tau, f_ext, tr, ws, np.zeros((N, N)), np.zeros(0))
+        np.testing.assert_allclose(qdd, ref_qdd, rtol=1e-13, atol=1e-13 * np.abs(ref_qdd).max())
+        np.testing.assert_allclose(base, ref_base, rtol=1e-13,
+                                   atol=1e-13 * np.abs(ref_base).max())
+        # and the motion it leaves in ws is rnea's: flange frame and acceleration
+        ws_r = np.zeros_like(ws)
+        K.rnea(q, qd, qdd, G_EARTH, f_ext, Chain.from_yaml().P, ws_r, np.zeros(N), np.zeros(6))
+        b = N * K.WS_PER_LINK
+        np.testing.assert_allclose(ws[b:b + 24], ws_r[b:b + 24], rtol=0, atol=1e-12)
+
+
+def test_forward_dynamics_reused_factor_recomputes_the_frames():
+    """With ``key`` the Cholesky factor of M(q) is reused while q is unchanged, so
+    mass_matrix (which leaves fk, the COMs and inertias in ws) does not run; if something
+    wrote those of another q into ws in between (an event, another kernel on the same
+    scratch: here rnea at q + 0.7), the RNEA passes must still see q's. The second call must reuse the factor (its strict
+    upper triangle, poisoned with NaN, stays untouched) and equal a fresh evaluation to
+    1e-13 relative."""
+    q, qd, tau, f_ext, tau_r = _fd_draw(11)
+    ws = np.zeros(K.WS_PER_LINK * (N + 1))
+    M, key = np.zeros((N, N)), np.zeros(N + 2)
+    first, _ = _fd_kernel(q, qd, tau, f_ext, tau_r, ws, M, key)
+    assert key[N + 1] == 1.0
+    M[np.triu_indices(N, 1)] = np.nan
+    K.rnea(q + 0.7, qd, tau, G_EARTH, f_ext, Chain.from_yaml().P, ws, np.zeros(N),
+           np.zeros(6))                        # another q's frames, COMs, inertias in ws
+    qdd, base = _fd_kernel(q, qd, tau, f_ext, tau_r, ws, M, key)
+    assert np.isnan(M[np.triu_indices(N, 1)]).all(), "the factor was not reused"
+    ref_qdd, ref_base = _fd_composed(q, qd, tau, f_ext, tau_r)
+    np.testing.assert_allclose(qdd, ref_qdd, rtol=1e-13, atol=1e-13 * np.abs(ref_qdd).max())
+    np.testing.assert_allclose(base, ref_base, rtol=1e-13, atol=1e-13 * np.abs(ref_base).max())
+    np.testing.assert_array_equal(qdd, first)
+
+
+def _fk_flange(P, ws, q):
+    K.fk(q, P, ws)
+    b = N * K.WS_PER_LINK
+    T = np.eye(4)
+    T[:3, :3] = ws[b:b + 9].reshape(3, 3)
+    T[:3, 3] = ws[b + K.WS_O:b + K.WS_O + 3]
+    return T
+
+
+def test_fk_twist_memo_follows_the_table_and_ignores_an_empty_workspace():
+    """fk keeps cos/sin of the constant twists alpha_i in ws (slots WS_TWIST): the flange
+    pose must be the DH product ``prod Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)`` (NumPy, 1e-12)
+    (a) on a zeroed ws, where the empty memo of the last link (alpha = 0) reads ``alpha = 0,
+    cos = sin = 0`` and must not be taken, (b) on a ws the same fk filled for another table
+    whose twists differ (each alpha + 0.3): the memo must follow P, not the first table."""
+    P = Chain.from_yaml().P.copy()
+    q = np.linspace(-1.1, 0.8, N)
+
+    def dh_product(P):
+        T = np.eye(4)
+        for i in range(N):
+            T = T @ dh_transform(q[i], P[i, 0], P[i, 1], P[i, 2])
+        return T
+
+    assert P[N - 1, 2] == 0.0
+    ws = np.zeros(K.WS_PER_LINK * (N + 1))
+    np.testing.assert_allclose(_fk_flange(P, ws, q), dh_product(P), rtol=0, atol=1e-12)
+    P2 = P.copy()
+    P2[:, 2] += 0.3
+    np.testing.assert_allclose(_fk_flange(P2, ws, q), dh_product(P2), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_fk_flange(P, ws, q), dh_product(P), rtol=0, atol=1e-12)
+    assert np.abs(dh_product(P2) - dh_product(P)).max() > 0.1
