@@ -581,8 +581,8 @@ _mass_matrix_linked = mass_matrix   # the jitted kernel, before _c_kernels rebin
 # and optimised again with, every caller. Each wrapper takes the data pointer and the shape
 # of every array (.native.c_signature). forward_dynamics and flange_jacobian, on the
 # right-hand side's path, stay linked: through a symbol, spider.yaml's right-hand side was
-# 2-4 % slower (measured, tools/bench_codegen.py rhs); forward_dynamics calls mass_matrix
-# through its symbol.
+# 2-4 % slower (measured, tools/bench_codegen.py rhs); forward_dynamics calls the linked
+# mass_matrix (_mass_matrix_linked), not its symbol.
 def _c_kernels():
     from .native import c_signature, exported
 
