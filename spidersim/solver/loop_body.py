@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit_borrowed as njit
 from . import dp54 as _dp54
 from .dense_lu import lu_solve as _lu_solve
 from . import events as _events
@@ -28,6 +28,15 @@ from .loop_state import (  # noqa: F401
     I_TINY, I_METHOD, I_NJAC, I_NLU, I_JAGE, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
     F_HOLD_MAX, F_HCAP, METHOD_ROS34PW2, METHOD_NDF, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE,
     ROW_RESERVE, ROWS_FULL, STALL_COUNT, STALL_STEP)
+
+
+@njit
+def _copy(dst, src):
+    """``dst[:] = src`` element by element (numba's slice assignment checks whether the
+    arrays overlap and would copy through a new buffer if they did: an allocation that
+    needs reference counting, and a test per copy)."""
+    for i in range(dst.size):
+        dst[i] = src[i]
 
 
 @njit
@@ -247,7 +256,7 @@ def _step_ros34pw2(fn, t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
     factors of ``I / (h gamma) - J``; returns the error norm."""
     piv = K[_ros.ROW_PIV]
     y = K[_ros.ROW_TRIAL]
-    K[1, :] = K[0]
+    _copy(K[1], K[0])
     _lu_solve(LU, piv, K[1])
     for s in range(1, 4):
         _ros.stage_state(s, x, K, y)
@@ -396,7 +405,7 @@ def _state_events(fn, t, h, x, x1, K, B, xs, G, g_dir,
     if t_ev < t_end_step:
         _dense(ist[I_METHOD], t, h, x, x1, K, B, t_ev, xs)
     else:
-        xs[:] = x1
+        _copy(xs, x1)
     if fst[F_DT] > 0.0:
         _grid_to(fn, t, t_ev, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig,
                  p, modes)
@@ -457,7 +466,7 @@ def _start(fn, t, x, K, xs, G, g_dir, g_block, timed_block, fired, bmask, hit, t
         if code:
             return code
     if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
-        xs[:] = x
+        _copy(xs, x)
         return FAIL_START
     ist[I_GRID] = 1
     _sf.derivatives(fn, t, x, sig, p, modes, K[0])
@@ -619,7 +628,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                                     s_idx, x_idx, sig, p, modes)
             if code:
                 fst[F_T] = t
-                xs[:] = x
+                _copy(xs, x)
                 return code
             continue
         t_seg = min(t_next, t_end)
@@ -629,14 +638,14 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
         h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)
         if h == 0.0:
             fst[F_T] = t
-            xs[:] = x
+            _copy(xs, x)
             return FAIL_SMALL_STEP
         ist[I_STEPS] += 1
         ist[I_NEW_STEPS] += 1
         t_new = t_seg if t + h >= t_seg else t + h
         if _stalled(h, t_new, ist):
             fst[F_T] = t_new
-            xs[:] = x1
+            _copy(xs, x1)
             return FAIL_STALL
         ok = True
         row0 = ist[I_ROWS]
@@ -658,7 +667,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                 ist[I_ROWS] = row0              # events faster than the time resolution
                 ist[I_BLOCK] = i_unseen
                 fst[F_T] = t
-                xs[:] = x
+                _copy(xs, x)
                 return FAIL_ZENO
             if i_unseen >= 0:
                 ist[I_ROWS] = row0              # retry shorter from (t, x): K[0] is intact
@@ -680,7 +689,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                     fst[F_T] = t_ev
                     return code
                 t = t_ev
-                x[:] = xs
+                _copy(x, xs)
                 if not _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx,
                                            x_idx, sig, p, modes):
                     fst[F_T] = t
@@ -702,12 +711,12 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                          x_idx, sig, p, modes)
         if not ok:
             fst[F_T] = t_new
-            xs[:] = x1
+            _copy(xs, x1)
             return FAIL_NONFINITE
         fst[F_H] = h * fac if t_new < t_seg else max(fst[F_H], h * fac)
         t = t_new
-        x[:] = x1
-        K[0, :] = K[6]
+        _copy(x, x1)
+        _copy(K[0], K[6])
         fst[F_T] = t
     if grid and (ist[I_ROWS] == 0 or tbuf[ist[I_ROWS] - 1] < t_end * (1 - 1e-12)):
         _row(fn, t_end, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
