@@ -1,6 +1,7 @@
 """Where the compiled loop's time per step goes (issue 14): measured, not guessed.
 
     python tools/bench_loop_parts.py [servo|ball|loop ...]
+    python tools/bench_loop_parts.py --ablate [servo|ball ...]
 
 For each problem (the runs of ``tools/bench_loop.py``: DP54, the same tolerances):
 
@@ -18,6 +19,11 @@ For each problem (the runs of ``tools/bench_loop.py``: DP54, the same tolerances
 4. **The split**: calls x cost per task against the ``run_loop`` time: what the system
    function costs per step and what is left for the loop's own work (stages, error norm,
    bookkeeping, events, recording).
+
+``--ablate``: ``run_loop`` again in scratch copies of :mod:`spidersim.solver.loop_body`,
+each with one feature removed (recording, the unseen-return probe, ``next_time`` per step,
+the pause/row-cap/stall bookkeeping; ``ABLATIONS``), timed interleaved with the copy as is.
+Removing a feature can change the steps (printed): the copies are for timing only.
 """
 from __future__ import annotations
 
@@ -161,8 +167,120 @@ def part(name):
 
 
 def main(argv):
+    if argv and argv[0] == "--ablate":
+        ablation(argv[1:] or ["servo", "ball"])
+        return
     for n in argv or ["servo", "ball", "loop"]:
         part(n)
+
+
+
+# --- ablation: run_loop with single features removed, in scratch copies ----------------------
+
+ABLATIONS = {
+    "as is": [],
+    "no recording": [
+        ("ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,\n"
+         "                                   G[G_NEW])",
+         "_sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])"),
+        ("ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)",
+         "_sf.outputs(fn, t_new, x1, sig, p, modes)")],
+    "no unseen probe": [
+        ("    interpolant) into ``G[G_TMP]``; ``sig`` is left at the step end.\"\"\"\n",
+         "    interpolant) into ``G[G_TMP]``; ``sig`` is left at the step end.\"\"\"\n"
+         "    return -1\n")],
+    "no next_time": [("t_next = _sf.next_time(fn, t, p, modes)", "t_next = math.inf")],
+    "no pause/cap/stall": [
+        ("code = _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst)", "code = 0"),
+        ("_cap_for_rows(grid, tbuf, ist, fst)\n", "fst[F_HCAP] = fst[F_MAXSTEP]\n"),
+        ("if _stalled(h, t_new, ist):", "if False:")],
+    "DP54 advance direct": [
+        ("h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)",
+         "h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)")],
+    "DP54 branch": [
+        ("        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)\n",
+         "        if ist[I_METHOD] == 0:\n"
+         "            h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)\n"
+         "        else:\n"
+         "            h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p,\n"
+         "                              modes)\n")],
+}
+
+
+#: rows and events of the ablation runs: never full (without ``_pause_code`` a full buffer
+#: would be written past its end)
+CAPACITY = 1 << 16
+
+
+def _scratch_loops(names):
+    """Scratch copies of :mod:`spidersim.solver.loop_body` with the substitutions of
+    ``ABLATIONS`` (imported from a temporary directory, compiled there)."""
+    import importlib
+    import tempfile
+    src_path = os.path.join(ROOT, "spidersim", "solver", "loop_body.py")
+    src = open(src_path).read().replace("from ._jit", "from spidersim.solver._jit")
+    src = src.replace("from . import", "from spidersim.solver import")
+    src = src.replace("from .", "from spidersim.solver.")
+    tmp = tempfile.mkdtemp(prefix="loop_ablation_")
+    sys.path.insert(0, tmp)
+    loops = {}
+    for k, name in enumerate(names):
+        text = src
+        for old, new in ABLATIONS[name]:
+            if old not in text:
+                raise SystemExit(f"ablation '{name}': text not found: {old[:60]!r}")
+            text = text.replace(old, new)
+        with open(os.path.join(tmp, f"lb_ablation_{k}.py"), "w") as fh:
+            fh.write(text)
+        loops[name] = importlib.import_module(f"lb_ablation_{k}").run_loop
+    return loops
+
+
+def ablation(problems, repeat=31):
+    """run_loop time of each problem with each ablation, interleaved (best of ``repeat``;
+    the environment variable ``ABLATIONS``, comma-separated, picks some)."""
+    import spidersim
+    from spidersim.solver import loop as L
+    from spidersim.solver.sysfn import entry_point
+    pick = os.environ.get("ABLATIONS")
+    loops = _scratch_loops(["as is"] + [a for a in ABLATIONS if a != "as is" and (
+        not pick or a in pick.split(","))])
+    for name in problems:
+        path, sets, kw = CASES[name]
+        d = spidersim.load(os.path.join(ROOT, path), set=sets)
+        d.simulate(**kw)
+
+        def runner(rl):
+            def run():
+                system = d.compile(True, loop=True)
+                r = L.CompiledLoop(system.compiled_entry, system, 0.0, kw["t_end"],
+                                   kw["rtol"], kw["atol"], kw["max_step"], None, None,
+                                   method=kw["method"], capacity=CAPACITY)
+                while True:
+                    args = (r.entry,) + r.arguments()
+                    c = int((entry_point(rl, args) or rl)(*args))
+                    if c == L.ROWS_FULL:
+                        r.grow_rows()
+                    elif c == L.EVENTS_FULL:
+                        r.grow_events()
+                    elif c != L.PAUSE:
+                        return r
+            return run
+        runs = {ab: runner(rl) for ab, rl in loops.items()}
+        steps = {ab: int(fn().ist[L.I_STEPS]) for ab, fn in runs.items()}
+        best = {ab: math.inf for ab in runs}
+        for _ in range(repeat):
+            for ab, fn in runs.items():
+                t0 = time.perf_counter()
+                fn()
+                best[ab] = min(best[ab], time.perf_counter() - t0)
+        print(f"== {name}: run_loop with one feature removed (best of {repeat}, "
+              f"interleaved) ==")
+        base = best["as is"]
+        for ab in runs:
+            print(f"{ab:22s} {1e3 * best[ab]:8.3f} ms  {steps[ab]:6d} steps  "
+                  f"saves {1e6 * (base - best[ab]) / steps['as is']:6.3f} us/step")
+        print()
 
 
 if __name__ == "__main__":

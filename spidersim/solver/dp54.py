@@ -72,7 +72,7 @@ def c_of(stage):
     return 1.0 if stage > 0 else 0.0
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def stage_state(stage, x, K, h, y):
     """``y = x + h sum_j a_(stage, j) K[j]``: the state at which stage ``stage`` (1..5) is
     evaluated; ``stage == 6`` gives the fifth-order solution (the weights ``b``)."""
@@ -100,7 +100,7 @@ def stage_state(stage, x, K, h, y):
                                + B6 * k6[i])
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def error_norm(x, x1, K, h, rtol, atol):
     """Scaled RMS norm of the local error estimate ``h sum_i e_i K[i]`` (accept if <= 1)."""
     n = x.size
