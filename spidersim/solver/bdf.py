@@ -100,7 +100,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 from .dense_lu import lu_factor, lu_solve
 from .dp54 import initial_h0
 from .rosenbrock import n_groups, perturb_group, store_group
@@ -168,13 +168,13 @@ def work(n, max_order=MAX_ORDER):
     return V, JW, iw, fw
 
 
-@njit
+@njit_borrowed
 def invalidate_jacobian(iw):
     """Mark ``J`` stale: the next :func:`advance` computes it before its first Newton."""
     iw[I_JVALID] = 0
 
 
-@njit
+@njit_borrowed
 def rms(v, scale):
     """``sqrt(mean((v / scale)^2))`` (0 for no states)."""
     n = v.size
@@ -186,7 +186,7 @@ def rms(v, scale):
     return math.sqrt(acc / n)
 
 
-@njit
+@njit_borrowed
 def _fill_r(fw, off, order, factor):
     """``R(order, factor)`` into ``fw[off:]`` (row-major, side ``MAX_ORDER + 1``):
     ``R[0, j] = 1``, ``R[i, 0] = 0`` (i >= 1), ``R[i, j] = R[i-1, j] (i - 1 - factor j) / i``."""
@@ -198,7 +198,7 @@ def _fill_r(fw, off, order, factor):
             fw[off + i * _M + j] = fw[off + (i - 1) * _M + j] * (i - 1 - factor * j) / i
 
 
-@njit
+@njit_borrowed
 def rescale(V, order, factor, fw):
     """Change the spacing of the history ``D[:order+1]`` from ``h`` to ``factor h`` (the
     same interpolating polynomial): ``D <- (R U)^T D``."""
@@ -222,7 +222,7 @@ def rescale(V, order, factor, fw):
             V[i, col] = acc
 
 
-@njit
+@njit_borrowed
 def restart(t, x, f0, h, V, JW, iw, fw):
     """Start a segment at ``(t, x)`` with ``f0 = f(t, x)`` and the first step ``h``: order 1,
     history ``D[0] = x``, ``D[1] = h f0`` (``t`` is not stored: the caller passes it to
@@ -242,7 +242,7 @@ def restart(t, x, f0, h, V, JW, iw, fw):
     fw[F_CLU] = 0.0
 
 
-@njit
+@njit_borrowed
 def first_step(fn, t, x, f0, span, rtol, atol, V, sig, p, modes):
     """Initial step size for order 1 (Hairer, Norsett & Wanner I, II.4, as SciPy's BDF):
     ``h0 = 0.01 |x| / |f0|`` (scaled norms), then bounded by the second-derivative estimate
@@ -271,7 +271,7 @@ def first_step(fn, t, x, f0, span, rtol, atol, V, sig, p, modes):
     return h
 
 
-@njit
+@njit_borrowed
 def jacobian(fn, t, V, J, jpat, iw, sig, p, modes):
     """``J`` = finite-difference Jacobian at ``(t, D[0])`` with the base ``f(t, D[0])`` in
     ``V[ROW_FCUR]`` (evaluated first when not valid): one evaluation per column group of
@@ -292,7 +292,7 @@ def jacobian(fn, t, V, J, jpat, iw, sig, p, modes):
     iw[I_JVALID] = 1
 
 
-@njit
+@njit_borrowed
 def _newton(fn, t_new, c, tol, V, LU, iw, sig, p, modes):
     """Simplified Newton for the correction ``d`` (``V[ROW_D]``) from the predictor in
     ``V[ROW_Y]`` (overwritten by ``y0 + d``); returns ``(converged, iterations)``."""
@@ -335,7 +335,7 @@ def _newton(fn, t_new, c, tol, V, LU, iw, sig, p, modes):
     return converged, it
 
 
-@njit
+@njit_borrowed
 def _error_norm(V, order, rtol, atol, q):
     """``rms(C_q v / sc)`` with ``sc = atol + rtol |y|`` of the iterate ``V[ROW_Y]`` already
     in ``V[ROW_SCALE]``, for ``v = d`` (q = order), ``D[order]`` (q = order - 1) or
@@ -349,14 +349,14 @@ def _error_norm(V, order, rtol, atol, q):
     return ERROR_CONST[q] * rms(v, V[ROW_SCALE])
 
 
-@njit
+@njit_borrowed
 def _change_h(V, order, factor, h, iw, fw):
     rescale(V, order, factor, fw)
     iw[I_NEQUAL] = 0
     return h * factor
 
 
-@njit
+@njit_borrowed
 def _predict(V, order, rtol, atol):
     """Predictor ``y0 = sum_(j<=k) D[j]`` into ``V[ROW_Y]``, ``psi = sum_j gamma_j D[j] /
     alpha_k`` into ``V[ROW_PSI]``, the scale of the predictor into ``V[ROW_SCALE]``."""
@@ -374,7 +374,7 @@ def _predict(V, order, rtol, atol):
         sc[i] = atol + rtol * abs(acc)
 
 
-@njit
+@njit_borrowed
 def _factor(c, V, JW, iw, fw):
     """LU factors of ``I - c J`` into ``JW[1]`` unless they are those of this ``c`` already
     (``fw[F_CLU]``); False if singular (then ``fw[F_CLU] = 0``)."""
@@ -392,7 +392,7 @@ def _factor(c, V, JW, iw, fw):
     return ok
 
 
-@njit
+@njit_borrowed
 def _accept(fn, t_new, x1, f1, V, order, iw, sig, p, modes):
     """Move the history to ``t_new`` with the converged correction ``d``:
     ``D[k+2] = d - D[k+1]; D[k+1] = d; D[i] += D[i+1]`` (``i = k..0``); ``x1 = D[0]`` and,
@@ -418,7 +418,7 @@ def _accept(fn, t_new, x1, f1, V, order, iw, sig, p, modes):
     iw[I_NEQUAL] += 1
 
 
-@njit
+@njit_borrowed
 def _next_order_and_h(V, order, err, safety, h, rtol, atol, iw, fw):
     """After ``k + 1`` steps of equal size and order: the order among ``k - 1, k, k + 1``
     whose error estimate allows the largest step, and that step (module docstring);
@@ -448,7 +448,7 @@ def _next_order_and_h(V, order, err, safety, h, rtol, atol, iw, fw):
     return _change_h(V, order, fac, h, iw, fw)
 
 
-@njit
+@njit_borrowed
 def _bounded_h(t, max_step, V, order, iw, fw):
     """The step size to try first: ``fw[F_H]`` within ``max_step`` and at least ten
     spacings of floating-point numbers at ``t`` (the history rescaled if it changed)."""
@@ -461,7 +461,7 @@ def _bounded_h(t, max_step, V, order, iw, fw):
     return h
 
 
-@njit
+@njit_borrowed
 def advance(fn, t, t_seg, x1, f1, rtol, atol, max_step, V, JW, iw, fw, jpat, sig, p, modes):
     """One accepted step from ``(t, D[0])`` (after :func:`restart` or a previous
     ``advance``), never past ``t_seg`` nor longer than ``max_step``.
@@ -530,7 +530,7 @@ def advance(fn, t, t_seg, x1, f1, rtol, atol, max_step, V, JW, iw, fw, jpat, sig
     return h_taken
 
 
-@njit
+@njit_borrowed
 def dense(t, V, iw, fw, s, out):
     """The state at ``s`` in ``[t_old, t]`` of the last accepted step (``t`` its end, the
     time of ``D[0]``): the interpolating polynomial of the history (module docstring)."""

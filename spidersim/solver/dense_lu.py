@@ -26,7 +26,7 @@ import numpy as np
 from numba import types
 from numba.np import linalg as _nplinalg
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 
 #: matrices of this order or larger use LAPACK's blocked ``dgetrf``
 LAPACK_MIN_N = 24
@@ -36,7 +36,7 @@ _getrf = _nplinalg._LAPACK().numba_xxgetrf(types.float64)
 _KIND_D = ord("d")
 
 
-@njit
+@njit_borrowed
 def _factor_small(a, piv):
     n = a.shape[0]
     for k in range(n):
@@ -62,7 +62,7 @@ def _factor_small(a, piv):
     return True
 
 
-@njit
+@njit_borrowed
 def _solve_small(a, piv, b):
     n = a.shape[0]
     for k in range(n):
@@ -83,7 +83,7 @@ def _solve_small(a, piv, b):
         b[i] = acc / a[i, i]
 
 
-@njit
+@njit_borrowed
 def _factor_lapack(a, piv):
     n = a.shape[0]
     for i in range(n):                       # dgetrf does not stop at a NaN: check first
@@ -95,7 +95,7 @@ def _factor_lapack(a, piv):
     return info == 0
 
 
-@njit
+@njit_borrowed
 def _solve_lapack(a, piv, b):
     n = a.shape[0]
     ipiv = piv.view(_F_INT)
@@ -117,7 +117,7 @@ def _solve_lapack(a, piv, b):
             b[m] = tmp
 
 
-@njit
+@njit_borrowed
 def lu_factor(a, piv):
     """In-place LU factorisation with partial pivoting.
 
@@ -138,7 +138,7 @@ def lu_factor(a, piv):
     return _factor_small(a, piv)
 
 
-@njit
+@njit_borrowed
 def lu_solve(a, piv, b):
     """Solve ``a x = b`` in place in ``b`` from the factors of :func:`lu_factor`."""
     if a.shape[0] >= LAPACK_MIN_N:

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 from .stepsize import factor as _factor
 
 C2, C3, C4, C5 = 1 / 5, 3 / 10, 4 / 5, 8 / 9
@@ -58,7 +58,7 @@ K_ROWS = 9
 ROW_TRIAL, ROW_SCRATCH = 7, 8
 
 
-@njit
+@njit_borrowed
 def c_of(stage):
     """Time fraction ``c`` of stage ``stage`` (0-based: 0..6)."""
     if stage == 1:
@@ -72,7 +72,7 @@ def c_of(stage):
     return 1.0 if stage > 0 else 0.0
 
 
-@njit
+@njit_borrowed(inline="always")
 def stage_state(stage, x, K, h, y):
     """``y = x + h sum_j a_(stage, j) K[j]``: the state at which stage ``stage`` (1..5) is
     evaluated; ``stage == 6`` gives the fifth-order solution (the weights ``b``)."""
@@ -100,7 +100,7 @@ def stage_state(stage, x, K, h, y):
                                + B6 * k6[i])
 
 
-@njit
+@njit_borrowed(inline="always")
 def error_norm(x, x1, K, h, rtol, atol):
     """Scaled RMS norm of the local error estimate ``h sum_i e_i K[i]`` (accept if <= 1)."""
     n = x.size
@@ -132,14 +132,14 @@ def step(fun, t, x, h, K, x1, rtol, atol, sig=None, p=None, modes=None):
     return error_norm(x, x1, K, h, rtol, atol)
 
 
-@njit
+@njit_borrowed
 def factor(err, rejected):
     """Step-size factor after a trial step with error norm ``err`` (this method's constants
     in :func:`spidersim.solver.stepsize.factor`)."""
     return _factor(err, rejected, ORDER, SAFETY, MIN_FACTOR, MAX_FACTOR)
 
 
-@njit
+@njit_borrowed
 def dense(t, h, x, x1, K, s, out):
     """State at ``s`` in ``[t, t + h]`` from the accepted step ``(t, x) -> (t + h, x1)``
     whose stages are in ``K`` (the continuous extension of the module docstring)."""
@@ -160,7 +160,7 @@ def dense(t, h, x, x1, K, s, out):
         out[i] = x[i] + th * (r2 + th1 * (r3 + th * (r4 + th1 * r5)))
 
 
-@njit
+@njit_borrowed
 def scaled_rms(v, x, rtol, atol):
     """RMS of ``v`` scaled by ``atol + rtol |x|`` (the sizes of the initial-step rule)."""
     n = x.size
@@ -170,7 +170,7 @@ def scaled_rms(v, x, rtol, atol):
     return math.sqrt(acc / n)
 
 
-@njit
+@njit_borrowed
 def initial_h0(x, f0, rtol, atol, span, y):
     """First guess of the initial step (Hairer, Norsett & Wanner, II.4) from the sizes of
     ``x`` and ``f0``; fills ``y = x + h0 f0`` for the Euler trial."""
@@ -189,7 +189,7 @@ def initial_h0(x, f0, rtol, atol, span, y):
     return h0
 
 
-@njit
+@njit_borrowed
 def initial_step(x, f0, f1, h0, rtol, atol, span):
     """The initial step from the guess ``h0`` and ``f1 = f(t + h0, x + h0 f0)`` (``f1`` is
     overwritten): the second derivative estimate bounds it; never longer than ``span``."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 
 #: iterations of the bracketing root finder: the bracket at least halves every third one
 LOCATE_MAX_ITER = 200
@@ -38,7 +38,7 @@ def zeno_message(block, name, t):
             f"block a rest mode or threshold, or stop the run earlier")
 
 
-@njit
+@njit_borrowed
 def crossings(g_old, g_new, direction, armed, out):
     """Indices of the guards that crossed into ``out`` (ascending); returns how many.
 
@@ -57,7 +57,7 @@ def crossings(g_old, g_new, direction, armed, out):
     return k
 
 
-@njit
+@njit_borrowed
 def left_zero_unseen(g_old, g_new, direction, armed, g_probe):
     """The first guard that returned to its firing side unseen within a step, or -1.
 
@@ -79,7 +79,7 @@ def left_zero_unseen(g_old, g_new, direction, armed, g_probe):
     return -1
 
 
-@njit
+@njit_borrowed
 def zero_start_candidates(g_old, g_new, direction, armed):
     """Whether any guard may have returned unseen (see :func:`left_zero_unseen`): the cheap
     test before the probe is evaluated."""
@@ -127,7 +127,7 @@ def locate(gfun, t_a, t_b, g_a, xtol):
     return t_b
 
 
-@njit
+@njit_borrowed
 def bracket_trial(a, b, fa, fb, it, xtol):
     """Next trial time inside the bracket ``[a, b]`` (``fa``, ``fb`` of opposite signs):
     regula falsi on Illinois-weighted values, a bisection every third iteration (the
@@ -145,7 +145,7 @@ def bracket_trial(a, b, fa, fb, it, xtol):
     return s
 
 
-@njit
+@njit_borrowed
 def bracket_done(a, b, xtol):
     """The bracket is as narrow as asked, or as floating point allows."""
     return b - a <= xtol or b - a <= 4e-16 * max(abs(a), abs(b))

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit_borrowed
 from . import dp54 as _dp54
 from .dense_lu import lu_solve as _lu_solve
 from . import events as _events
@@ -26,11 +26,20 @@ from .loop_state import (  # noqa: F401
     G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
     I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
     I_TINY, I_METHOD, I_NJAC, I_NLU, I_JAGE, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
-    F_HOLD_MAX, F_HCAP, METHOD_ROS34PW2, METHOD_NDF, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE,
+    F_HOLD_MAX, F_HCAP, METHOD_DP54, METHOD_ROS34PW2, METHOD_NDF, KIND_STATE, KIND_TIME, MAX_EVENTS_AT_ONE_TIME, PAUSE,
     ROW_RESERVE, ROWS_FULL, STALL_COUNT, STALL_STEP)
 
 
-@njit
+@njit_borrowed(inline="always")
+def _copy(dst, src):
+    """``dst[:] = src`` element by element (numba's slice assignment checks whether the
+    arrays overlap and would copy through a new buffer if they did: an allocation that
+    needs reference counting, and a test per copy)."""
+    for i in range(dst.size):
+        dst[i] = src[i]
+
+
+@njit_borrowed(inline="always")
 def _step(fn, t, x, h, K, x1, rtol, atol, sig, p, modes):
     """One Dormand-Prince trial step (see :mod:`spidersim.solver.dp54`); returns the error
     norm."""
@@ -43,7 +52,7 @@ def _step(fn, t, x, h, K, x1, rtol, atol, sig, p, modes):
     return _dp54.error_norm(x, x1, K, h, rtol, atol)
 
 
-@njit
+@njit_borrowed
 def _first_step(fn, t, x, f0, span, rtol, atol, K, sig, p, modes):
     """Initial step size at a segment start (see :func:`spidersim.solver.dp54.initial_h0`)."""
     y = K[_dp54.ROW_TRIAL]
@@ -55,7 +64,7 @@ def _first_step(fn, t, x, f0, span, rtol, atol, K, sig, p, modes):
     return _dp54.initial_step(x, f0, f1, h0, rtol, atol, span)
 
 
-@njit
+@njit_borrowed
 def _dense(meth, t, h, x, x1, K, B, s, out):
     """The dense output of the step ``(t, x) -> (t + h, x1)`` of method ``meth`` at ``s``
     (``B``: the NDF method's arrays ``(V, iw, fw)``)."""
@@ -67,7 +76,7 @@ def _dense(meth, t, h, x, x1, K, B, s, out):
         _dp54.dense(t, h, x, x1, K, s, out)
 
 
-@njit
+@njit_borrowed
 def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, B, xs, g, xtol, sig, p, modes):
     """Crossing time of guard ``i`` in ``(t, t + h]`` on the step's dense output, on the far
     side (see :func:`spidersim.solver.events.bracket_trial`)."""
@@ -98,12 +107,12 @@ def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, B, xs, g, xtol, sig, p, modes
     return b
 
 
-@njit
+@njit_borrowed
 def _tol(t):
     return 1e-12 * max(1.0, abs(t))
 
 
-@njit
+@njit_borrowed
 def _log(ev_t, ev_i, ist, t, index, kind, direction):
     n = ist[I_EVENTS]
     if n < ev_t.size:
@@ -116,7 +125,7 @@ def _log(ev_t, ev_i, ist, t, index, kind, direction):
         ist[I_OVERFLOW] += 1
 
 
-@njit
+@njit_borrowed
 def _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
     """Record the outputs at (t, x) as the next row; False if something is not finite."""
     r = ist[I_ROWS]
@@ -126,7 +135,7 @@ def _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
     return ok
 
 
-@njit
+@njit_borrowed
 def _record_grid(fn, t_a, t_b, t, h, x, x1, K, B, xs, tbuf, buf, ist, fst, s_idx, x_idx,
                 sig, p, modes):
     """Rows at the grid times in ``[t_a, t_b)`` of the step ``(t, x) -> (t + h, x1)``; a
@@ -143,7 +152,7 @@ def _record_grid(fn, t_a, t_b, t, h, x, x1, K, B, xs, tbuf, buf, ist, fst, s_idx
     ist[I_GRID] = k
 
 
-@njit
+@njit_borrowed
 def _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
            hit, sig, p, modes):
     """Fire the crossings caused by a jump at an event instant.
@@ -180,7 +189,7 @@ def _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
     return FAIL_SETTLE
 
 
-@njit
+@njit_borrowed
 def _fire_due(fn, t, x, G,
              g_dir, g_block, timed_block, fired, bmask, ev_t, ev_i, ist, hit, sig, p, modes):
     """Apply every time event due at ``t`` (then settle); returns 0 or a failure code."""
@@ -213,7 +222,7 @@ def _fire_due(fn, t, x, G,
     return 0
 
 
-@njit
+@njit_borrowed
 def _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     """One accepted step of the run's method (``ist[I_METHOD]``) from ``(t, x)``; see
     :func:`_advance_dp54`, :func:`_advance_ros34pw2` and :func:`_advance_ndf`."""
@@ -224,7 +233,7 @@ def _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     return _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)
 
 
-@njit
+@njit_borrowed
 def _jacobian(fn, t, x, K, J, jpat, ist, sig, p, modes):
     """``J`` = the finite-difference Jacobian at ``(t, x)`` (``K[0] = f(t, x)``), one
     evaluation per column group (see :mod:`spidersim.solver.rosenbrock`)."""
@@ -241,13 +250,13 @@ def _jacobian(fn, t, x, K, J, jpat, ist, sig, p, modes):
     ist[I_JAGE] = 0
 
 
-@njit
+@njit_borrowed
 def _step_ros34pw2(fn, t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
     """One ROS34PW2 trial step (see :mod:`spidersim.solver.rosenbrock`) with ``LU`` the
     factors of ``I / (h gamma) - J``; returns the error norm."""
     piv = K[_ros.ROW_PIV]
     y = K[_ros.ROW_TRIAL]
-    K[1, :] = K[0]
+    _copy(K[1], K[0])
     _lu_solve(LU, piv, K[1])
     for s in range(1, 4):
         _ros.stage_state(s, x, K, y)
@@ -258,7 +267,7 @@ def _step_ros34pw2(fn, t, x, h, K, x1, LU, rtol, atol, sig, p, modes):
     return _ros.error_norm(x, x1, K, rtol, atol)
 
 
-@njit
+@njit_borrowed
 def _advance_ros34pw2(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes):
     """One accepted ROS34PW2 step from ``(t, x)`` (``K[0] = f(t, x)``), never past
     ``t_seg``; returns ``(h, factor)`` as :func:`_advance_dp54` and leaves
@@ -315,7 +324,7 @@ def _advance_ros34pw2(fn, t, t_seg, x, K, x1, JW, jpat, ist, fst, sig, p, modes)
         ist[I_REJECTED] += 1
 
 
-@njit
+@njit_borrowed
 def _advance_ndf(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     """One accepted step of the variable-order NDF method (:mod:`spidersim.solver.bdf`)
     from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg`` nor ``fst[F_HCAP]``; returns
@@ -345,7 +354,7 @@ def _advance_ndf(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     return h, 1.0
 
 
-@njit
+@njit_borrowed
 def _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes):
     """One accepted step from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg``.
 
@@ -374,7 +383,7 @@ def _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes):
         ist[I_REJECTED] += 1
 
 
-@njit
+@njit_borrowed
 def _state_events(fn, t, h, x, x1, K, B, xs, G, g_dir,
                  g_block, bmask, chat, hit, nh, tbuf, buf, ev_t, ev_i, ist, fst, s_idx,
                  x_idx, sig, p, modes):
@@ -396,7 +405,7 @@ def _state_events(fn, t, h, x, x1, K, B, xs, G, g_dir,
     if t_ev < t_end_step:
         _dense(ist[I_METHOD], t, h, x, x1, K, B, t_ev, xs)
     else:
-        xs[:] = x1
+        _copy(xs, x1)
     if fst[F_DT] > 0.0:
         _grid_to(fn, t, t_ev, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig,
                  p, modes)
@@ -436,7 +445,7 @@ def _state_events(fn, t, h, x, x1, K, B, xs, G, g_dir,
     return t_ev, code
 
 
-@njit
+@njit_borrowed
 def _grid_to(fn, t_a, t_b, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
              modes):
     xs = K[_dp54.ROW_SCRATCH]
@@ -444,7 +453,7 @@ def _grid_to(fn, t_a, t_b, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx,
                 sig, p, modes)
 
 
-@njit
+@njit_borrowed
 def _start(fn, t, x, K, xs, G, g_dir, g_block, timed_block, fired, bmask, hit, tbuf, buf,
            ev_t, ev_i, ist, s_idx, x_idx, sig, p, modes):
     """The start of a run: modes made consistent, time events due at ``t`` fired, the first
@@ -457,7 +466,7 @@ def _start(fn, t, x, K, xs, G, g_dir, g_block, timed_block, fired, bmask, hit, t
         if code:
             return code
     if not _row(fn, t, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
-        xs[:] = x
+        _copy(xs, x)
         return FAIL_START
     ist[I_GRID] = 1
     _sf.derivatives(fn, t, x, sig, p, modes, K[0])
@@ -469,7 +478,7 @@ def _start(fn, t, x, K, xs, G, g_dir, g_block, timed_block, fired, bmask, hit, t
     return 0
 
 
-@njit
+@njit_borrowed
 def _segment_start(fn, t, t_seg, x, K, B, ist, fst, sig, p, modes):
     """A new segment (the start, after an event or time event): the first step size
     (``fst[F_FIRST]``, or the method's rule from ``K[0] = f(t, x)``) and a stale Jacobian
@@ -489,7 +498,7 @@ def _segment_start(fn, t, t_seg, x, K, B, ist, fst, sig, p, modes):
     ist[I_JAGE] = -1
 
 
-@njit
+@njit_borrowed
 def _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p, modes):
     """The guard that left zero and returned unseen in the step ``(t, x) -> (t_new, x1)``,
     or -1 (:func:`spidersim.solver.events.left_zero_unseen`). The probe is a short Euler
@@ -507,7 +516,7 @@ def _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p, modes):
                                     G[G_TMP, :ng])
 
 
-@njit
+@njit_borrowed
 def _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx, x_idx, sig, p, modes):
     """Go on from the state ``x`` after the events at ``t``: its row (without a grid),
     ``K[0] = f(t, x)``, the guards, a new segment; False when the row is not finite."""
@@ -521,7 +530,7 @@ def _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx, x_idx, sig,
     return True
 
 
-@njit
+@njit_borrowed
 def _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired, bmask, hit, grid,
                      tbuf, buf, ev_t, ev_i, ist, fst, s_idx, x_idx, sig, p, modes):
     """Fire the time events due at ``t`` (:func:`_fire_due`), record the row after them
@@ -545,7 +554,7 @@ def _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired, bmask, 
     return 0
 
 
-@njit
+@njit_borrowed
 def _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst):
     """``ROWS_FULL``, ``EVENTS_FULL`` or ``PAUSE`` when the loop must hand back to the
     caller before the next step (``fst[F_T] = t``), else ``DONE`` (0: go on)."""
@@ -561,7 +570,7 @@ def _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst):
     return code
 
 
-@njit
+@njit_borrowed
 def _cap_for_rows(grid, tbuf, ist, fst):
     """Step cap of this step: ``max_step``, and on an output grid the rows one step may
     write must fit in the buffer."""
@@ -572,7 +581,7 @@ def _cap_for_rows(grid, tbuf, ist, fst):
         fst[F_HCAP] = min(fst[F_HCAP], max(room, 1) * fst[F_DT])
 
 
-@njit
+@njit_borrowed
 def _stalled(h, t_new, ist):
     """True after ``STALL_COUNT`` steps in a row shorter than ``STALL_STEP`` (relative)."""
     if h < STALL_STEP * max(1.0, abs(t_new)):
@@ -582,7 +591,7 @@ def _stalled(h, t_new, ist):
     return False
 
 
-@njit
+@njit_borrowed
 def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
              pause_steps):
@@ -619,24 +628,27 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                                     s_idx, x_idx, sig, p, modes)
             if code:
                 fst[F_T] = t
-                xs[:] = x
+                _copy(xs, x)
                 return code
             continue
         t_seg = min(t_next, t_end)
         if ist[I_FRESH]:
             _segment_start(fn, t, t_seg, x, K, B, ist, fst, sig, p, modes)
         _cap_for_rows(grid, tbuf, ist, fst)
-        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)
+        if ist[I_METHOD] == METHOD_DP54:    # directly: one call fewer per step
+            h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)
+        else:
+            h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)
         if h == 0.0:
             fst[F_T] = t
-            xs[:] = x
+            _copy(xs, x)
             return FAIL_SMALL_STEP
         ist[I_STEPS] += 1
         ist[I_NEW_STEPS] += 1
         t_new = t_seg if t + h >= t_seg else t + h
         if _stalled(h, t_new, ist):
             fst[F_T] = t_new
-            xs[:] = x1
+            _copy(xs, x1)
             return FAIL_STALL
         ok = True
         row0 = ist[I_ROWS]
@@ -658,7 +670,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                 ist[I_ROWS] = row0              # events faster than the time resolution
                 ist[I_BLOCK] = i_unseen
                 fst[F_T] = t
-                xs[:] = x
+                _copy(xs, x)
                 return FAIL_ZENO
             if i_unseen >= 0:
                 ist[I_ROWS] = row0              # retry shorter from (t, x): K[0] is intact
@@ -680,7 +692,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                     fst[F_T] = t_ev
                     return code
                 t = t_ev
-                x[:] = xs
+                _copy(x, xs)
                 if not _resume_after_event(fn, t, x, K, G, grid, tbuf, buf, ist, s_idx,
                                            x_idx, sig, p, modes):
                     fst[F_T] = t
@@ -702,12 +714,12 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                          x_idx, sig, p, modes)
         if not ok:
             fst[F_T] = t_new
-            xs[:] = x1
+            _copy(xs, x1)
             return FAIL_NONFINITE
         fst[F_H] = h * fac if t_new < t_seg else max(fst[F_H], h * fac)
         t = t_new
-        x[:] = x1
-        K[0, :] = K[6]
+        _copy(x, x1)
+        _copy(K[0], K[6])
         fst[F_T] = t
     if grid and (ist[I_ROWS] == 0 or tbuf[ist[I_ROWS] - 1] < t_end * (1 - 1e-12)):
         _row(fn, t_end, x, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)

@@ -47,7 +47,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 from .stepsize import factor as _factor
 from .dense_lu import lu_factor, lu_solve
 
@@ -147,13 +147,13 @@ def pattern_array(pattern, n):
                            order)).astype(np.int64)
 
 
-@njit
+@njit_borrowed
 def n_groups(jpat):
     """Number of column groups (finite-difference evaluations per Jacobian)."""
     return jpat[0] if jpat.size else 0
 
 
-@njit
+@njit_borrowed
 def perturb_group(g, x, jpat, y, d):
     """``y = x`` with the columns of group ``g`` moved by their increments, kept in ``d``
     (``d[j]`` for the group's columns)."""
@@ -170,7 +170,7 @@ def perturb_group(g, x, jpat, y, d):
         d[j] = y[j] - x[j]            # exactly representable
 
 
-@njit
+@njit_borrowed
 def store_group(g, f0, fp, d, jpat, J):
     """Columns of group ``g`` of ``J`` from ``f0 = f(x)`` and ``fp`` = f at the perturbed
     state of :func:`perturb_group` (only the structural nonzeros are written)."""
@@ -202,7 +202,7 @@ def jacobian(fun, t, x, f0, jpat, J, K, sig=None, p=None, modes=None):
 
 # --- the step --------------------------------------------------------------------------------
 
-@njit
+@njit_borrowed
 def factor_matrix(J, LU, piv, h):
     """``LU`` = the LU factors of ``I / (h gamma) - J`` (pivots into ``piv``); False if it is
     singular or not finite."""
@@ -215,7 +215,7 @@ def factor_matrix(J, LU, piv, h):
     return lu_factor(LU, piv)
 
 
-@njit
+@njit_borrowed
 def alpha_of(stage):
     """Time fraction of stage ``stage`` (0-based: 0..3)."""
     if stage == 1:
@@ -227,7 +227,7 @@ def alpha_of(stage):
     return 0.0
 
 
-@njit
+@njit_borrowed
 def stage_state(stage, x, K, y):
     """``y = x + sum_(j<stage) a_(stage, j) u_j`` (stage 1..3; the u_j in ``K[1..]``)."""
     n = x.size
@@ -243,7 +243,7 @@ def stage_state(stage, x, K, y):
             y[i] = x[i] + A41 * u1[i] + A42 * u2[i] + A43 * u3[i]
 
 
-@njit
+@njit_borrowed
 def stage_rhs(stage, K, h, r):
     """Add ``sum_(j<stage) (c_(stage, j) / h) u_j`` to ``r = f(stage state)`` (stage 1..3)."""
     n = r.size
@@ -259,14 +259,14 @@ def stage_rhs(stage, K, h, r):
             r[i] += (C41 * u1[i] + C42 * u2[i] + C43 * u3[i]) / h
 
 
-@njit
+@njit_borrowed
 def solution(x, K, x1):
     """``x1 = x + sum_i m_i u_i``."""
     for i in range(x.size):
         x1[i] = x[i] + M1 * K[1, i] + M2 * K[2, i] + M3 * K[3, i] + M4 * K[4, i]
 
 
-@njit
+@njit_borrowed
 def error_norm(x, x1, K, rtol, atol):
     """Scaled RMS norm of the local error estimate ``sum_i (m_i - m_hat_i) u_i``."""
     n = x.size
@@ -301,14 +301,14 @@ def step(fun, t, x, h, K, x1, LU, rtol, atol, sig=None, p=None, modes=None):
     return error_norm(x, x1, K, rtol, atol)
 
 
-@njit
+@njit_borrowed
 def factor(err, rejected):
     """Step-size factor after a trial step with error norm ``err`` (this method's constants
     in :func:`spidersim.solver.stepsize.factor`)."""
     return _factor(err, rejected, ORDER, SAFETY, MIN_FACTOR, MAX_FACTOR)
 
 
-@njit
+@njit_borrowed
 def dense(t, h, x, x1, K, s, out):
     """State at ``s`` in ``[t, t + h]``: the cubic Hermite interpolant through ``x``,
     ``x1`` with slopes ``K[0] = f(t, x)`` and ``K[ROW_END] = f(t + h, x1)``."""

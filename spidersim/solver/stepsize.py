@@ -9,10 +9,10 @@ method's error estimator. ``err == 0`` gives ``max_factor``.
 """
 from __future__ import annotations
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 
 
-@njit
+@njit_borrowed
 def factor(err, rejected, order, safety, min_factor, max_factor):
     """Step-size factor after a trial step with error norm ``err``."""
     if err == 0.0:

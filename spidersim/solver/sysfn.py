@@ -49,7 +49,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 
 OUTPUTS, DERIVATIVES, GUARDS, NEXT_TIME, TIME_EVENTS, INITIALIZE, APPLY_EVENT = range(7)
 GUARDS_AT_SIG = 7
@@ -111,13 +111,13 @@ if intrinsic is not None:
         return impl
 
 
-@njit
+@njit_borrowed
 def outputs(fn, t, x, sig, p, modes):
     """Every output into ``sig``."""
     call(fn, OUTPUTS, t, x, sig, p, modes, sig, 0, 0.0)
 
 
-@njit
+@njit_borrowed
 def derivatives(fn, t, x, sig, p, modes, xdot):
     """Outputs, then ``xdot = f(t, x)``."""
     call(fn, DERIVATIVES, t, x, sig, p, modes, xdot, 0, 0.0)
@@ -131,13 +131,13 @@ def rhs(fn, t, x, sig, p, modes):
     return xdot
 
 
-@njit
+@njit_borrowed
 def guards(fn, t, x, sig, p, modes, g):
     """Outputs, then the zero-crossing functions into ``g``."""
     call(fn, GUARDS, t, x, sig, p, modes, g, 0, 0.0)
 
 
-@njit
+@njit_borrowed
 def guards_at_sig(fn, t, x, sig, p, modes, g):
     """The zero-crossing functions into ``g`` from the outputs in ``sig``, which must be
     those of ``(t, x)`` (the last ``derivatives`` call was there): one evaluation saved
@@ -145,13 +145,13 @@ def guards_at_sig(fn, t, x, sig, p, modes, g):
     call(fn, GUARDS_AT_SIG, t, x, sig, p, modes, g, 0, 0.0)
 
 
-@njit
+@njit_borrowed
 def next_time(fn, t, p, modes):
     """The earliest pending time event (``inf``: none)."""
     return call(fn, NEXT_TIME, t, modes, modes, p, modes, modes, 0, 0.0)
 
 
-@njit
+@njit_borrowed
 def time_events(fn, t, x, sig, p, modes, tol, fired):
     """Apply the time events due by ``t + tol``; ``fired[k] = 1`` for each timed block ``k``
     that fired (``fired`` float64, one entry per timed block, at least one). ``sig`` must
@@ -159,19 +159,19 @@ def time_events(fn, t, x, sig, p, modes, tol, fired):
     call(fn, TIME_EVENTS, t, x, sig, p, modes, fired, 0, tol)
 
 
-@njit
+@njit_borrowed
 def initialize(fn, t, x, sig, p, modes):
     """Blocks make their modes consistent with their inputs (start, after events)."""
     call(fn, INITIALIZE, t, x, sig, p, modes, sig, 0, 0.0)
 
 
-@njit
+@njit_borrowed
 def apply_event(fn, t, x, sig, p, modes, k, direction):
     """Apply event ``k`` (a guard index; ``-1``: none, for a warm-up) with ``direction``."""
     call(fn, APPLY_EVENT, t, x, sig, p, modes, sig, k, direction)
 
 
-@njit
+@njit_borrowed
 def record(fn, t, x, sig, p, modes, s_idx, x_idx, buf, row):
     """Outputs at ``(t, x)``, then the logged signals ``sig[s_idx]`` and states
     ``x[x_idx]`` into ``buf[row]``; False when ``x`` or a logged value is not finite."""
@@ -179,14 +179,14 @@ def record(fn, t, x, sig, p, modes, s_idx, x_idx, buf, row):
     return _copy_row(x, sig, s_idx, x_idx, buf, row)
 
 
-@njit
+@njit_borrowed
 def record_guards(fn, t, x, sig, p, modes, s_idx, x_idx, buf, row, g):
     """:func:`record` and the guards into ``g`` from one evaluation of the outputs."""
     call(fn, GUARDS, t, x, sig, p, modes, g, 0, 0.0)
     return _copy_row(x, sig, s_idx, x_idx, buf, row)
 
 
-@njit
+@njit_borrowed
 def _copy_row(x, sig, s_idx, x_idx, buf, row):
     ok = True
     for i in range(x.size):

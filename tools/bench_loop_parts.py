@@ -1,0 +1,287 @@
+"""Where the compiled loop's time per step goes (issue 14): measured, not guessed.
+
+    python tools/bench_loop_parts.py [servo|ball|loop ...]
+    python tools/bench_loop_parts.py --ablate [servo|ball ...]
+
+For each problem (the runs of ``tools/bench_loop.py``: DP54, the same tolerances):
+
+1. **Python around the loop**: ``Diagram.simulate`` against the compiled ``run_loop`` calls
+   alone (best of 30): what ``simulate`` spends outside machine code (compile-cache look-up,
+   arrays, the Result).
+2. **System-function calls per step, by task**: the run again with a counting system
+   function (a C function of the same signature that counts its task and calls the diagram's
+   own through its address; the loop is not changed, so the counts are those of the real
+   run; the counting costs time, so this run is not timed).
+3. **Cost of one call, by task**: each task called 20,000 times in a compiled loop through
+   the pointer, as ``run_loop`` calls it (ns per call, best of 7); ``DERIVATIVES`` also
+   with a loop that alternates two states, so the branch predictor and caches see what the
+   DP54 stages give them.
+4. **The split**: calls x cost per task against the ``run_loop`` time: what the system
+   function costs per step and what is left for the loop's own work (stages, error norm,
+   bookkeeping, events, recording).
+
+``--ablate``: ``run_loop`` again in scratch copies of :mod:`spidersim.solver.loop_body`,
+each with one feature removed (recording, the unseen-return probe, ``next_time`` per step,
+the pause/row-cap/stall bookkeeping; ``ABLATIONS``), timed interleaved with the copy as is.
+Removing a feature can change the steps (printed): the copies are for timing only.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from check_loop_identical import CASES  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _counting_system(address, counts):
+    """A system function that adds 1 to ``counts[task]`` and calls the one at ``address``."""
+    from llvmlite import ir
+    from numba import cfunc, types
+    from numba.extending import intrinsic
+    from spidersim.solver.sysfn import SYSTEM_SIG
+
+    @intrinsic
+    def _forward(typingctx, task, t, x, sig, p, modes, out, k, f):
+        def codegen(context, builder, signature, args):
+            dbl, i64 = ir.DoubleType(), ir.IntType(64)
+            ptr = ir.PointerType(dbl)
+            fnty = ir.FunctionType(dbl, [i64, dbl, ptr, ptr, ptr, ptr, ptr, i64, dbl])
+            target = builder.inttoptr(ir.Constant(i64, address), fnty.as_pointer())
+            cnt = builder.inttoptr(ir.Constant(i64, counts.ctypes.data),
+                                   ir.PointerType(i64))
+            slot = builder.gep(cnt, [args[0]])
+            builder.store(builder.add(builder.load(slot), ir.Constant(i64, 1)), slot)
+            return builder.call(target, list(args))
+        return signature_of(task, t, x, sig, p, modes, out, k, f), codegen
+
+    def signature_of(*a):
+        return types.float64(*a)
+
+    @cfunc(SYSTEM_SIG, nogil=True)
+    def counting(task, t, x, sig, p, modes, out, k, f):
+        return _forward(task, t, x, sig, p, modes, out, k, f)
+
+    return counting
+
+
+def _run_loop_only(d, kw, entry=None):
+    """The compiled loop's calls alone (no ``simulate`` around them); returns the run."""
+    from spidersim.solver import loop as L
+    system = d.compile(True, loop=True)
+    run = L.CompiledLoop(entry or system.compiled_entry, system, 0.0, kw["t_end"], kw["rtol"],
+                         kw["atol"], kw["max_step"], None, None, method=kw["method"])
+    while True:
+        c = run.call()
+        if c == L.ROWS_FULL:
+            run.grow_rows()
+        elif c == L.EVENTS_FULL:
+            run.grow_events()
+        elif c != L.PAUSE:
+            return run
+
+
+def _best(fn, repeat):
+    best = math.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _task_costs(system, n=20000, repeat=7):
+    """ns per call of each task through the pointer (in a compiled loop)."""
+    from spidersim.solver import sysfn
+    from spidersim.solver._jit import njit
+
+    @njit
+    def many(fn, task, n, t, x, sig, p, modes, out, x2):
+        acc = 0.0
+        for i in range(n):
+            xx = x if (i & 1) == 0 else x2
+            acc += sysfn.call(fn, task, t + 1e-9 * i, xx, sig, p, modes, out, 0, 0.0)
+        return acc
+
+    fn = system.compiled_entry
+    x = system.x0.copy() + 0.1
+    x2 = x * 1.0001
+    sig, p = system.sig, system.p
+    modes = system.modes.copy()
+    saved = system.modes.copy()
+    out = np.zeros(max(system.n_x, system.n_g, len(system.timed), 1))
+    costs = {}
+    for task in (sysfn.OUTPUTS, sysfn.DERIVATIVES, sysfn.GUARDS, sysfn.GUARDS_AT_SIG,
+                 sysfn.NEXT_TIME):
+        many(fn, task, 10, 0.5, x, sig, p, modes, out, x2)
+        base = _best(lambda: many(fn, task, 1, 0.5, x, sig, p, modes, out, x2), repeat)
+        tt = _best(lambda: many(fn, task, n, 0.5, x, sig, p, modes, out, x2), repeat)
+        costs[sysfn.TASKS[task]] = 1e9 * (tt - base) / n
+    system.modes[:] = saved
+    return costs
+
+
+def part(name):
+    import spidersim
+    from spidersim.solver import sysfn
+    from spidersim.solver.loop import I_STEPS, I_REJECTED
+    path, sets, kw = CASES[name]
+    d = spidersim.load(os.path.join(ROOT, path), set=sets)
+    r = d.simulate(**kw)
+    steps = r.stats["steps"]
+    t_sim = _best(lambda: d.simulate(**kw), 30)
+    t_loop = _best(lambda: _run_loop_only(d, kw), 30)
+    print(f"== {name}: {steps} steps, {r.stats['rejected_steps']} rejected, "
+          f"{len(r.events)} events, {len(r.t)} rows ==")
+    print(f"simulate {1e3 * t_sim:.3f} ms = run_loop {1e3 * t_loop:.3f} ms "
+          f"({1e6 * t_loop / steps:.3f} us/step) + Python around it "
+          f"{1e3 * (t_sim - t_loop):.3f} ms")
+    system = d.compile(True, loop=True)
+    counts = np.zeros(16, dtype=np.int64)
+    counting = _counting_system(system.compiled_entry, counts)
+    run = _run_loop_only(d, kw, entry=counting.address)
+    assert run.ist[I_STEPS] == steps, "the counting run took other steps"
+    costs = _task_costs(d.compile(True, loop=True))
+    total = 0.0
+    print(f"{'task':14s} {'calls':>7s} {'per step':>9s} {'ns/call':>8s} {'us/step':>8s}")
+    for task, nm in enumerate(sysfn.TASKS):
+        c = int(counts[task])
+        if not c:
+            continue
+        ns = costs.get(nm, math.nan)
+        share = c * ns / steps / 1e3
+        if not math.isnan(share):
+            total += share
+        print(f"{nm:14s} {c:7d} {c / steps:9.2f} {ns:8.1f} {share:8.3f}")
+    per = 1e6 * t_loop / steps
+    print(f"system function {total:.3f} us/step of {per:.3f}: the loop's own work "
+          f"{per - total:.3f} us/step ({100 * (per - total) / per:.0f} %)")
+    print(f"(rejected trial steps: {run.ist[I_REJECTED]})")
+    print()
+
+
+def main(argv):
+    if argv and argv[0] == "--ablate":
+        ablation(argv[1:] or ["servo", "ball"])
+        return
+    for n in argv or ["servo", "ball", "loop"]:
+        part(n)
+
+
+
+# --- ablation: run_loop with single features removed, in scratch copies ----------------------
+
+ABLATIONS = {
+    "as is": [],
+    "no recording": [
+        ("ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,\n"
+         "                                   G[G_NEW])",
+         "_sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])"),
+        ("ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)",
+         "_sf.outputs(fn, t_new, x1, sig, p, modes)")],
+    "no unseen probe": [
+        ("    interpolant) into ``G[G_TMP]``; ``sig`` is left at the step end.\"\"\"\n",
+         "    interpolant) into ``G[G_TMP]``; ``sig`` is left at the step end.\"\"\"\n"
+         "    return -1\n")],
+    "no next_time": [("t_next = _sf.next_time(fn, t, p, modes)", "t_next = math.inf")],
+    "no pause/cap/stall": [
+        ("code = _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst)", "code = 0"),
+        ("_cap_for_rows(grid, tbuf, ist, fst)\n", "fst[F_HCAP] = fst[F_MAXSTEP]\n"),
+        ("if _stalled(h, t_new, ist):", "if False:")],
+    "DP54 advance direct": [
+        ("h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)",
+         "h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)")],
+    "DP54 branch": [
+        ("        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)\n",
+         "        if ist[I_METHOD] == 0:\n"
+         "            h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)\n"
+         "        else:\n"
+         "            h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p,\n"
+         "                              modes)\n")],
+}
+
+
+#: rows and events of the ablation runs: never full (without ``_pause_code`` a full buffer
+#: would be written past its end)
+CAPACITY = 1 << 16
+
+
+def _scratch_loops(names):
+    """Scratch copies of :mod:`spidersim.solver.loop_body` with the substitutions of
+    ``ABLATIONS`` (imported from a temporary directory, compiled there)."""
+    import importlib
+    import tempfile
+    src_path = os.path.join(ROOT, "spidersim", "solver", "loop_body.py")
+    src = open(src_path).read().replace("from ._jit", "from spidersim.solver._jit")
+    src = src.replace("from . import", "from spidersim.solver import")
+    src = src.replace("from .", "from spidersim.solver.")
+    tmp = tempfile.mkdtemp(prefix="loop_ablation_")
+    sys.path.insert(0, tmp)
+    loops = {}
+    for k, name in enumerate(names):
+        text = src
+        for old, new in ABLATIONS[name]:
+            if old not in text:
+                raise SystemExit(f"ablation '{name}': text not found: {old[:60]!r}")
+            text = text.replace(old, new)
+        with open(os.path.join(tmp, f"lb_ablation_{k}.py"), "w") as fh:
+            fh.write(text)
+        loops[name] = importlib.import_module(f"lb_ablation_{k}").run_loop
+    return loops
+
+
+def ablation(problems, repeat=31):
+    """run_loop time of each problem with each ablation, interleaved (best of ``repeat``;
+    the environment variable ``ABLATIONS``, comma-separated, picks some)."""
+    import spidersim
+    from spidersim.solver import loop as L
+    from spidersim.solver.sysfn import entry_point
+    pick = os.environ.get("ABLATIONS")
+    loops = _scratch_loops(["as is"] + [a for a in ABLATIONS if a != "as is" and (
+        not pick or a in pick.split(","))])
+    for name in problems:
+        path, sets, kw = CASES[name]
+        d = spidersim.load(os.path.join(ROOT, path), set=sets)
+        d.simulate(**kw)
+
+        def runner(rl):
+            def run():
+                system = d.compile(True, loop=True)
+                r = L.CompiledLoop(system.compiled_entry, system, 0.0, kw["t_end"],
+                                   kw["rtol"], kw["atol"], kw["max_step"], None, None,
+                                   method=kw["method"], capacity=CAPACITY)
+                while True:
+                    args = (r.entry,) + r.arguments()
+                    c = int((entry_point(rl, args) or rl)(*args))
+                    if c == L.ROWS_FULL:
+                        r.grow_rows()
+                    elif c == L.EVENTS_FULL:
+                        r.grow_events()
+                    elif c != L.PAUSE:
+                        return r
+            return run
+        runs = {ab: runner(rl) for ab, rl in loops.items()}
+        steps = {ab: int(fn().ist[L.I_STEPS]) for ab, fn in runs.items()}
+        best = {ab: math.inf for ab in runs}
+        for _ in range(repeat):
+            for ab, fn in runs.items():
+                t0 = time.perf_counter()
+                fn()
+                best[ab] = min(best[ab], time.perf_counter() - t0)
+        print(f"== {name}: run_loop with one feature removed (best of {repeat}, "
+              f"interleaved) ==")
+        base = best["as is"]
+        for ab in runs:
+            print(f"{ab:22s} {1e3 * best[ab]:8.3f} ms  {steps[ab]:6d} steps  "
+                  f"saves {1e6 * (base - best[ab]) / steps['as is']:6.3f} us/step")
+        print()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
