@@ -579,10 +579,9 @@ _mass_matrix_linked = mass_matrix   # the jitted kernel, before _c_kernels rebin
 # The arm's event kernels (and what they share with the Chain and the force control) are
 # called through C symbols (see .native): compiled once here, they are no longer linked into,
 # and optimised again with, every caller. Each wrapper takes the data pointer and the shape
-# of every array (.native.c_signature). forward_dynamics and flange_jacobian, on the
-# right-hand side's path, stay linked: through a symbol, spider.yaml's right-hand side was
-# 2-4 % slower (measured, tools/bench_codegen.py rhs); forward_dynamics calls the linked
-# mass_matrix (_mass_matrix_linked), not its symbol.
+# of every array (.native.c_signature). forward_dynamics is exported too (a new diagram's
+# compile 1 s shorter, the right-hand side within noise: see .native); flange_jacobian, small,
+# stays linked; forward_dynamics calls the linked mass_matrix (_mass_matrix_linked).
 def _c_kernels():
     from .native import c_signature, exported
 
@@ -605,9 +604,19 @@ def _c_kernels():
                           carray(J, n_J), carray(Jc, n_Jc), carray(Y, n_Y), carray(A, n_A),
                           carray(r, n_r), carray(x, n_x))
 
+    @c_kernel("1111112121111")
+    def forward_dynamics_c(q, n_q, qd, n_qd, tau, n_tau, g, n_g, f_ext, n_f, tau_r, n_r, P,
+                           r_P, c_P, ws, n_ws, M, r_M, c_M, tmp, n_tmp, base, n_base, qdd,
+                           n_qdd, key, n_key):
+        forward_dynamics(carray(q, n_q), carray(qd, n_qd), carray(tau, n_tau), carray(g, n_g),
+                         carray(f_ext, n_f), carray(tau_r, n_r), carray(P, (r_P, c_P)),
+                         carray(ws, n_ws), carray(M, (r_M, c_M)), carray(tmp, n_tmp),
+                         carray(base, n_base), carray(qdd, n_qdd), carray(key, n_key))
+
     return (exported(cholesky_solve, cholesky_solve_c, "211"),
             exported(mass_matrix, mass_matrix_c, "121211"),
-            exported(impact_projection, impact_projection_c, "i112111111"))
+            exported(impact_projection, impact_projection_c, "i112111111"),
+            exported(forward_dynamics, forward_dynamics_c, "1111112121111"))
 
 
-cholesky_solve, mass_matrix, impact_projection = _c_kernels()
+cholesky_solve, mass_matrix, impact_projection, forward_dynamics = _c_kernels()

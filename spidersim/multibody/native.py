@@ -17,10 +17,13 @@ IR lines of ``spider.yaml``'s ``outputs`` and 3,300 more in its event kernel.
 * a compiled caller contains one ``call`` of the external symbol (resolved when its machine
   code is loaded, from numba's cache too), so its module no longer grows with the kernel;
 * the call is one direct call, but the caller can no longer be optimised together with the
-  kernel: through a symbol, ``forward_dynamics`` made spider.yaml's right-hand side 2-4 %
-  slower, so the kernels on the right-hand side's path stay linked and only
-  ``mass_matrix``, ``cholesky_solve`` and ``impact_projection`` (events, the Chain, the force
-  control's task-space inertia) are exported (:mod:`.kernels`).
+  kernel. ``mass_matrix``, ``cholesky_solve``, ``impact_projection`` (events, the Chain, the
+  force control's task-space inertia) and ``forward_dynamics`` are exported
+  (:mod:`.kernels`). ``forward_dynamics`` through its symbol made spider.yaml's right-hand
+  side 2-4 % slower in session 6 and was kept linked; in session 7, with one forward
+  kinematics per call, the 2 s run measured 0.470-0.473 s through the symbol against
+  0.457-0.472 s linked (bit for bit the same results) while a new diagram's compile fell
+  from 10.3-10.6 s to 9.3-9.5 s CPU, so it is exported.
 
 Caveat: numba's disk cache of a caller does not follow the kernel's module; a caller cached
 while a kernel was exported keeps calling its symbol, so a kernel that stops being exported
