@@ -580,7 +580,7 @@ _mass_matrix_linked = mass_matrix   # the jitted kernel, before _c_kernels rebin
 # called through C symbols (see .native): compiled once here, they are no longer linked into,
 # and optimised again with, every caller. Each wrapper takes the data pointer and the shape
 # of every array (.native.c_signature). forward_dynamics is exported too (a new diagram's
-# compile 1 s shorter, the right-hand side within noise: see .native); flange_jacobian, small,
+# compile 1 s shorter, spider.yaml 2-4 % slower: see .native); flange_jacobian, small,
 # stays linked; forward_dynamics calls the linked mass_matrix (_mass_matrix_linked).
 def _c_kernels():
     from .native import c_signature, exported
