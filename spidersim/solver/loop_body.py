@@ -591,6 +591,68 @@ def _stalled(h, t_new, ist):
     return False
 
 
+@njit_borrowed(inline="always")
+def _guards_at_step_end(fn, t_new, x1, grid, tbuf, buf, ist, G, s_idx, x_idx, sig, p,
+                        modes):
+    """``G[G_NEW]`` = the guards at the step's end ``(t_new, x1)``; without an output grid
+    the step's row is recorded from the same evaluation. Returns False when the row is not
+    finite."""
+    if grid and ist[I_METHOD] != METHOD_ROS34PW2:
+        # DP54's last stage and NDF's f1 were evaluated at (t_new, x1): sig holds its outputs
+        _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
+        return True
+    if grid:
+        _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
+        return True
+    row0 = ist[I_ROWS]
+    ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0, G[G_NEW])
+    tbuf[row0] = t_new
+    ist[I_ROWS] = row0 + 1
+    return ok
+
+
+@njit_borrowed(inline="always")
+def _retry_unseen(i_unseen, h, t_new, row0, ist, fst):
+    """After a step in which guard ``i_unseen`` left zero and returned unseen: ``FAIL_ZENO``
+    when the step is already at the time resolution, else the step is undone (its row
+    dropped, counted as rejected) to be retried eight times shorter from ``(t, x)``
+    (``K[0]`` is intact; NDF restarts its history and keeps its Jacobian); returns 0."""
+    ist[I_ROWS] = row0
+    if h <= _events.UNSEEN_STEP * max(1.0, abs(t_new)):
+        ist[I_BLOCK] = i_unseen             # events faster than the time resolution
+        return FAIL_ZENO
+    ist[I_STEPS] -= 1
+    ist[I_NEW_STEPS] -= 1
+    ist[I_REJECTED] += 1
+    fst[F_H] = 0.125 * h
+    if ist[I_METHOD] == METHOD_NDF:
+        ist[I_JAGE] = -2
+    return 0
+
+
+@njit_borrowed(inline="always")
+def _accept_guards(G, ng):
+    """The step is accepted: its end's guards become the old ones; a guard is re-armed once
+    it has left zero."""
+    for i in range(ng):
+        G[G_OLD, i] = G[G_NEW, i]
+        if G[G_NEW, i] != 0.0:
+            G[G_ARMED, i] = 1.0
+
+
+@njit_borrowed(inline="always")
+def _record_step(fn, t, t_new, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
+                 modes):
+    """On an output grid, the rows at the grid times the step passed (from its dense
+    output); False when the step's end is not finite."""
+    for i in range(x1.size):
+        if not math.isfinite(x1[i]):
+            return False
+    _grid_to(fn, t, t_new, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx, x_idx, sig, p,
+             modes)
+    return True
+
+
 @njit_borrowed
 def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
              fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
@@ -653,33 +715,15 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
         ok = True
         row0 = ist[I_ROWS]
         if ng:
-            if grid and ist[I_METHOD] != METHOD_ROS34PW2:
-                # DP54's last stage and NDF's f1 were evaluated at (t_new, x1): sig holds
-                # its outputs
-                _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
-            elif grid:
-                _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
-            else:
-                ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
-                                   G[G_NEW])
-                tbuf[row0] = t_new
-                ist[I_ROWS] = row0 + 1
+            ok = _guards_at_step_end(fn, t_new, x1, grid, tbuf, buf, ist, G, s_idx, x_idx,
+                                     sig, p, modes)
             i_unseen = _unseen_return(fn, t, h, t_new, x, x1, K, xs, G, g_dir, ng, sig, p,
                                       modes)
-            if i_unseen >= 0 and h <= _events.UNSEEN_STEP * max(1.0, abs(t_new)):
-                ist[I_ROWS] = row0              # events faster than the time resolution
-                ist[I_BLOCK] = i_unseen
-                fst[F_T] = t
-                _copy(xs, x)
-                return FAIL_ZENO
             if i_unseen >= 0:
-                ist[I_ROWS] = row0              # retry shorter from (t, x): K[0] is intact
-                ist[I_STEPS] -= 1
-                ist[I_NEW_STEPS] -= 1
-                ist[I_REJECTED] += 1
-                fst[F_H] = 0.125 * h
-                if ist[I_METHOD] == METHOD_NDF:
-                    ist[I_JAGE] = -2            # restart the history, keep the Jacobian
+                if _retry_unseen(i_unseen, h, t_new, row0, ist, fst):
+                    fst[F_T] = t
+                    _copy(xs, x)
+                    return FAIL_ZENO
                 continue
             nh = _events.crossings(G[G_OLD, :ng], G[G_NEW, :ng], g_dir, G[G_ARMED, :ng], hit)
             if nh:
@@ -699,19 +743,12 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                     return FAIL_NONFINITE
                 fst[F_T] = t
                 continue
-            for i in range(ng):
-                G[G_OLD, i] = G[G_NEW, i]
-                if G[G_NEW, i] != 0.0:
-                    G[G_ARMED, i] = 1.0      # re-armed once it has left zero
+            _accept_guards(G, ng)
         elif not grid:
             ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
-        if grid:
-            for i in range(x1.size):
-                if not math.isfinite(x1[i]):
-                    ok = False
-            if ok:
-                _grid_to(fn, t, t_new, t, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx,
-                         x_idx, sig, p, modes)
+        if grid and ok:
+            ok = _record_step(fn, t, t_new, h, x, x1, K, B, tbuf, buf, ist, fst, s_idx,
+                              x_idx, sig, p, modes)
         if not ok:
             fst[F_T] = t_new
             _copy(xs, x1)
