@@ -492,8 +492,8 @@ def forward_dynamics(q, qd, tau, g, f_ext, tau_r, P, ws, M, tmp, base, qdd, key)
     of the resulting motion, reactions included, into ``base``. Forward kinematics runs
     once (in ``mass_matrix``, or on its own when the factor is reused), and both RNEA
     passes (:func:`rnea_on_frames`) use its frames and the links' COMs and base-frame
-    inertias ``mass_matrix`` (or, after a reuse, the first pass) left in ``ws``. The frames, motion and forces left in ``ws`` are those :func:`rnea` of
-    ``q, qd, qdd`` leaves.
+    inertias ``mass_matrix`` (or, after a reuse, the first pass) left in ``ws``. The frames,
+    motion and forces left in ``ws`` are those :func:`rnea` of ``q, qd, qdd`` leaves.
 
     ``key`` (``n + 2`` floats, or empty: no reuse) lets a caller that evaluates the same
     ``q`` several times (an algebraic loop through ``f_ext``: Newton iterations) reuse the

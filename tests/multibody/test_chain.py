@@ -422,9 +422,9 @@ def test_forward_dynamics_reused_factor_recomputes_the_frames():
     """With ``key`` the Cholesky factor of M(q) is reused while q is unchanged, so
     mass_matrix (which leaves fk, the COMs and inertias in ws) does not run; if something
     wrote those of another q into ws in between (an event, another kernel on the same
-    scratch: here rnea at q + 0.7), the RNEA passes must still see q's. The second call must reuse the factor (its strict
-    upper triangle, poisoned with NaN, stays untouched) and equal a fresh evaluation to
-    1e-13 relative."""
+    scratch: here rnea at q + 0.7), the RNEA passes must still see q's. The second call must
+    reuse the factor (its strict upper triangle, poisoned with NaN, stays untouched) and
+    equal a fresh evaluation to 1e-13 relative."""
     q, qd, tau, f_ext, tau_r = _fd_draw(11)
     ws = np.zeros(K.WS_PER_LINK * (N + 1))
     M, key = np.zeros((N, N)), np.zeros(N + 2)
