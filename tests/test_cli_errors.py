@@ -333,3 +333,40 @@ def test_numeric_options_refuse_nan_inf_and_out_of_range(argv, words, capsys):
         main(argv)
     err = capsys.readouterr().err
     assert ei.value.code == 2 and words in err and "Traceback" not in err
+
+
+OSCILLATOR = """\
+    blocks:
+      x: {type: Integrator, x0: 1}
+      v: {type: Integrator, x0: 0}
+      k: {type: Gain, k: -1}
+    connections: [x.y -> k.u, k.y -> v.u, v.y -> x.u]
+    simulation: {t_end: 1000, max_step: 1e-9}
+    """
+
+
+def test_run_whose_rows_cannot_fit_in_memory_is_refused(tmp_path, capsys, monkeypatch):
+    """``max_step: 1e-9`` over 1000 s records at least 1e12 rows: refused before the run
+    with what to change (this file once grew to 23 GB until the kernel killed it)."""
+    p = write(tmp_path, OSCILLATOR)
+    rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--out",
+                                 tmp_path / "out"], capsys, monkeypatch)
+    assert_clean_error(rc, out, err, f"{p}: ", "would not fit in memory",
+                       "max_step = 1e-09 s over 1000 s", "output_interval")
+
+
+def test_run_at_the_recording_budget_stops_and_keeps_data(tmp_path, capsys, monkeypatch):
+    """A budget of 0.1 MB (SPIDERSIM_RECORD_LIMIT_MB) reached part-way: exit 2, the rows
+    so far in result.npz, status failed."""
+    monkeypatch.setenv("SPIDERSIM_RECORD_LIMIT_MB", "0.1")
+    p = write(tmp_path, OSCILLATOR.replace("max_step: 1e-9", "rtol: 1e-9"))
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--out", out_dir],
+                                capsys, monkeypatch)
+    assert_clean_error(rc, out, err, f"{p}: ", "reached the memory budget",
+                       "SPIDERSIM_RECORD_LIMIT_MB")
+    with np.load(out_dir / "result.npz") as z:
+        t = z["t"]
+        assert 1000 < len(t) <= 0.1e6 // 32 and t[-1] < 1000
+        assert np.max(np.abs(z["x.y"] - np.cos(t))) < 1e-4       # 470 s of LSODA at 1e-9
+    assert "status: failed" in (out_dir / "report.txt").read_text()

@@ -19,6 +19,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 from scipy.sparse import csr_matrix
 
 from ..errors import SpidersimError
+from . import record_budget
 from .scipy_loop import SciPyLoop
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
@@ -124,6 +125,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if output_interval is not None and not (0 < output_interval <= t_end - t0):
         raise SpidersimError(f"output_interval must be in (0, {t_end - t0}], "
                              f"got {output_interval}")
+    record_budget.check_planned(system.record_size, t0, t_end, max_step, output_interval)
     entry = getattr(system, "compiled_entry", None)
     if method in COMPILED and entry is not None:
         from .loop import integrate_dp54

@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from . import bdf, rosenbrock
+from . import bdf, record_budget, rosenbrock
 from .sysfn import entry_point
 from .events import zeno_message
 from .loop_body import run_loop
@@ -161,8 +161,15 @@ class CompiledLoop:
         return int((e or run_loop)(*args))
 
     def grow_rows(self):
-        self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
-        self.buf = np.concatenate((self.buf, np.zeros_like(self.buf)))
+        """Enlarge the row buffers (doubling, within :mod:`.record_budget`); False when
+        they are already at the budget."""
+        rows = record_budget.grown_rows(len(self.tbuf), self.buf.shape[1])
+        if rows is None:
+            return False
+        extra = rows - len(self.tbuf)
+        self.tbuf = np.concatenate((self.tbuf, np.zeros(extra)))
+        self.buf = np.concatenate((self.buf, np.zeros((extra, self.buf.shape[1]))))
+        return True
 
     def grow_events(self):
         self.ev_t = np.concatenate((self.ev_t, np.zeros_like(self.ev_t)))
@@ -187,8 +194,8 @@ class CompiledLoop:
     def add_row(self, t, x):
         """One more row at ``(t, x)`` from Python (the end of an interrupted grid run)."""
         n = int(self.ist[I_ROWS])
-        if n == len(self.tbuf):
-            self.grow_rows()
+        if n == len(self.tbuf) and not self.grow_rows():
+            return
         self.system.record_row(t, x, self.buf, n)
         self.tbuf[n] = t
         self.ist[I_ROWS] = n + 1
@@ -234,7 +241,10 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
     while True:
         code = run.call()
         if code == ROWS_FULL:
-            run.grow_rows()
+            if not run.grow_rows():
+                st.update(run.stats())
+                msg = record_budget.budget_message(int(run.ist[I_ROWS]), run.buf.shape[1], run.t)
+                raise IntegrationError(msg, partial=run.result(st, "failed", msg))
         elif code == EVENTS_FULL:
             run.grow_events()
         elif code == PAUSE or code == DONE:

@@ -31,6 +31,7 @@ from ..errors import AlgebraicLoopError, IntegrationError
 from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT, STALL_STEP,
                      UNSEEN_PROBE, UNSEEN_STEP, crossed, crossings, left_zero_unseen, locate,
                      zeno_message, zero_start_candidates)
+from . import record_budget
 from .result import Result
 
 
@@ -48,6 +49,11 @@ class _Retry:
         self.t, self.x, self.h_cap = t, x, h_cap
 
 
+class RecordBudgetFull(Exception):
+    """The row buffer is at the recording budget (:mod:`.record_budget`); the run turns it
+    into an :class:`IntegrationError` carrying the rows so far."""
+
+
 class Recorder:
     """Logged rows in a preallocated buffer that doubles when full (sized for the whole
     run when the rows are known: an output grid), handed to the result without a copy when
@@ -63,8 +69,12 @@ class Recorder:
         """Record outputs at (t, x); with ``g``, also the guards into it (one evaluation).
         Return False if something is not finite."""
         if self.n == len(self.tbuf):
-            self.buf = np.concatenate((self.buf, np.zeros_like(self.buf)))
-            self.tbuf = np.concatenate((self.tbuf, np.zeros_like(self.tbuf)))
+            rows = record_budget.grown_rows(self.n, self.buf.shape[1])
+            if rows is None:
+                raise RecordBudgetFull(record_budget.budget_message(
+                    self.n, self.buf.shape[1], float(self.tbuf[self.n - 1])))
+            self.buf = np.concatenate((self.buf, np.zeros((rows - self.n, self.buf.shape[1]))))
+            self.tbuf = np.concatenate((self.tbuf, np.zeros(rows - self.n)))
         if g is None:
             ok = self.system.record_row(t, x, self.buf, self.n)
         else:
@@ -433,7 +443,17 @@ class SciPyLoop:
 
     def run(self):
         """Integrate from ``t0`` to ``t_end``; return the :class:`Result` (its ``final``
-        holds the end time, state and modes)."""
+        holds the end time, state and modes). A run whose rows reach the recording budget
+        (:mod:`.record_budget`) fails with the rows recorded so far."""
+        try:
+            return self._run()
+        except RecordBudgetFull as exc:
+            msg = str(exc)
+            self.st["t_reached"] = float(self.rec.tbuf[self.rec.n - 1])
+            self.st["wall_time"] = time.perf_counter() - self.wall0
+            raise IntegrationError(msg, partial=self._partial(msg)) from None
+
+    def _run(self):
         s, st = self.system, self.st
         t = self.t0
         x = s.x0.copy()

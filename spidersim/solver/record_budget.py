@@ -1,0 +1,107 @@
+"""The memory budget of a run's recorded rows.
+
+A run records one row per accepted step (or per point of the ``output_interval`` grid), each
+row ``record_size`` float64 values plus its time. The buffers double when full; without a
+bound, a run with a tiny ``max_step`` or ``output_interval`` grows them until the operating
+system kills the process and every computed row is lost. Both integration loops ask this
+module instead:
+
+- :func:`check_planned` before the run: rows that are certain to be needed (the grid, or at
+  least ``(t_end - t0) / max_step`` steps when every step is recorded) must fit the budget,
+  else a :class:`~spidersim.errors.SpidersimError` says what to change;
+- :func:`grown_rows` when a buffer is full: the next capacity, never above the budget, or
+  ``None`` at the budget, where the loop stops the run with an error that keeps the rows
+  already recorded (``IntegrationError.partial``).
+
+The budget is 40 % of the machine's physical memory, or ``SPIDERSIM_RECORD_LIMIT_MB``
+megabytes (10^6 bytes) if that environment variable is set to a positive number.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+from ..errors import SpidersimError
+
+#: share of the physical memory the recorded rows may take by default
+DEFAULT_FRACTION = 0.4
+#: environment variable overriding the budget, in megabytes (10^6 bytes)
+ENV = "SPIDERSIM_RECORD_LIMIT_MB"
+_FALLBACK = 4e9              # bytes, when the physical memory cannot be read
+
+
+def budget_bytes() -> float:
+    """The recording budget [bytes] (see the module docstring)."""
+    text = os.environ.get(ENV, "").strip()
+    if text:
+        try:
+            mb = float(text)
+        except ValueError:
+            mb = math.nan
+        if not (math.isfinite(mb) and mb > 0):
+            raise SpidersimError(f"{ENV} must be a positive number of megabytes, "
+                                 f"got {text[:40]!r}")
+        return mb * 1e6
+    try:
+        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return _FALLBACK
+    return DEFAULT_FRACTION * phys
+
+
+def row_bytes(record_size: int) -> int:
+    """Bytes of one recorded row: its values and its time, float64."""
+    return 8 * (int(record_size) + 1)
+
+
+def max_rows(record_size: int) -> int:
+    """The most rows of ``record_size`` values the budget holds (at least 1024)."""
+    return max(1024, int(budget_bytes() // row_bytes(record_size)))
+
+
+def _gb(nbytes: float) -> str:
+    return f"{nbytes / 1e9:.3g} GB"
+
+
+def check_planned(record_size, t0, t_end, max_step, output_interval):
+    """Raise :class:`SpidersimError` if the rows the run is certain to record exceed the
+    budget: the ``output_interval`` grid, or, when every step is recorded, at least
+    ``(t_end - t0) / max_step`` steps."""
+    span = t_end - t0
+    if output_interval:
+        rows, why = span / output_interval, (f"output_interval = {output_interval:g} s over "
+                                             f"{span:g} s")
+        advice = "raise simulation.output_interval or shorten t_end"
+    elif math.isfinite(max_step):
+        rows, why = span / max_step, (f"max_step = {max_step:g} s over {span:g} s, every "
+                                      f"step recorded")
+        advice = ("set simulation.output_interval (rows on a grid instead of every step), "
+                  "raise max_step or shorten t_end")
+    else:
+        return
+    limit = max_rows(record_size)
+    if rows > limit:
+        need = rows * row_bytes(record_size)
+        raise SpidersimError(
+            f"the recorded data would not fit in memory: {why} means at least {rows:.3g} "
+            f"rows of {record_size + 1} values ({_gb(need)}), more than the recording "
+            f"budget of {_gb(budget_bytes())} ({limit} rows); {advice} "
+            f"(or set {ENV})")
+
+
+def grown_rows(current: int, record_size: int):
+    """The capacity after a full buffer of ``current`` rows: twice as many, at most the
+    budget's rows; ``None`` when ``current`` is already at the budget."""
+    limit = max_rows(record_size)
+    if current >= limit:
+        return None
+    return min(2 * current, limit)
+
+
+def budget_message(rows: int, record_size: int, t: float) -> str:
+    """The error of a run stopped at the budget, at time ``t`` with ``rows`` rows."""
+    return (f"the recorded data reached the memory budget at t = {t:.9g} s: {rows} rows of "
+            f"{record_size + 1} values ({_gb(rows * row_bytes(record_size))}, budget "
+            f"{_gb(budget_bytes())}); the rows so far are kept. Set "
+            f"simulation.output_interval to record on a grid instead of every step, shorten "
+            f"t_end, or set {ENV}")
