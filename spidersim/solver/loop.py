@@ -172,8 +172,15 @@ class CompiledLoop:
         return True
 
     def grow_events(self):
-        self.ev_t = np.concatenate((self.ev_t, np.zeros_like(self.ev_t)))
-        self.ev_i = np.concatenate((self.ev_i, np.zeros_like(self.ev_i)))
+        """Enlarge the event log (doubling, within :mod:`.record_budget`: an entry is
+        four 8-byte numbers); False when it is already at the budget."""
+        n = record_budget.grown_rows(len(self.ev_t), EVENT_VALUES)
+        if n is None:
+            return False
+        extra = n - len(self.ev_t)
+        self.ev_t = np.concatenate((self.ev_t, np.zeros(extra)))
+        self.ev_i = np.concatenate((self.ev_i, np.zeros((extra, 3), dtype=np.int64)))
+        return True
 
     @property
     def t(self):
@@ -217,6 +224,10 @@ class CompiledLoop:
                     time_events=int(i[I_TIMED]), rejected_steps=int(i[I_REJECTED]))
 
 
+#: values of one event-log entry after its time (``ev_i``: index, kind, direction)
+EVENT_VALUES = 3
+
+
 def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=math.inf,
                    first_step=None, output_interval=None, progress=None, stats=None,
                    should_stop=None, method="DP54"):
@@ -246,7 +257,11 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
                 msg = record_budget.budget_message(int(run.ist[I_ROWS]), run.buf.shape[1], run.t)
                 raise IntegrationError(msg, partial=run.result(st, "failed", msg))
         elif code == EVENTS_FULL:
-            run.grow_events()
+            if not run.grow_events():
+                st.update(run.stats())
+                msg = record_budget.budget_message(int(run.ist[I_EVENTS]), EVENT_VALUES,
+                                                   run.t, what="event log")
+                raise IntegrationError(msg, partial=run.result(st, "failed", msg))
         elif code == PAUSE or code == DONE:
             if progress is not None:
                 progress(run.t)

@@ -98,9 +98,10 @@ def grown_rows(current: int, record_size: int):
     return min(2 * current, limit)
 
 
-def budget_message(rows: int, record_size: int, t: float) -> str:
-    """The error of a run stopped at the budget, at time ``t`` with ``rows`` rows."""
-    return (f"the recorded data reached the memory budget at t = {t:.9g} s: {rows} rows of "
+def budget_message(rows: int, record_size: int, t: float, what="recorded data") -> str:
+    """The error of a run stopped at the budget, at time ``t`` with ``rows`` rows (of the
+    recorded data, or of the event log)."""
+    return (f"the {what} reached the memory budget at t = {t:.9g} s: {rows} rows of "
             f"{record_size + 1} values ({_gb(rows * row_bytes(record_size))}, budget "
             f"{_gb(budget_bytes())}); the rows so far are kept. Set "
             f"simulation.output_interval to record on a grid instead of every step, shorten "

@@ -107,3 +107,25 @@ def test_compiled_loop_stops_at_the_budget_and_keeps_its_rows(budget_mb):
     rows = rb.max_rows(d.compile(True, loop=True).record_size)
     assert rows - ROW_RESERVE <= len(r.t) <= rows and r.status == "failed" and np.all(np.diff(r.t) >= 0)
     assert np.max(np.abs(r["x.y"] - np.cos(r.t))) < 1e-4
+
+
+def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
+    """A sampled block every 0.1 ms for 1000 s logs 10^7 time events: on a grid of 1 s the
+    rows fit, the event log does not; the run stops at the budget (0.1 MB: 3125 entries of
+    32 bytes) with its grid rows and events so far, each sample at k * 0.1 ms. The loop
+    hands back while it still has room for one step's events (``4 (guards + sampled
+    blocks) + 64`` = 68 here)."""
+    import spidersim
+    d = spidersim.loads(
+        "name: sampled\n"
+        "blocks:\n"
+        "  u: {type: Sine, amplitude: 1, f: 1}\n"
+        "  z: {type: ZeroOrderHold, Ts: 1e-4}\n"
+        "connections: [u.y -> z.u]\n")
+    with pytest.raises(IntegrationError) as ei:
+        d.simulate(t_end=1e3, method="DP54", output_interval=1.0)
+    r = ei.value.partial
+    assert "event log reached the memory budget" in str(ei.value)
+    times = np.array([t for t, blk, kind in r.events])
+    assert rb.max_rows(3) - 68 <= len(times) <= rb.max_rows(3)
+    assert np.allclose(times, 1e-4 * np.arange(len(times)), rtol=0, atol=1e-12)
