@@ -18,6 +18,7 @@ import numpy as np
 
 from ..blocks.base import REGISTRY, Block, lookup
 from ..errors import DiagramError, ParameterError, SpidersimError, WiringError
+from ..text import limits
 from ..text import units as U
 from ..text.expr import ExprError, evaluate
 from .spec import Address, DiagramSpec, parse_file
@@ -464,6 +465,11 @@ def _instantiate_block(level, bname, b, ov: BlockOverrides):
         raise
     if path in flat.blocks:
         raise DiagramError(f"duplicate block path '{path}'", file=spec.file, line=b.line)
+    if len(flat.blocks) >= limits.MAX_BLOCKS:
+        raise DiagramError(f"more than {limits.MAX_BLOCKS} blocks once the subsystems are "
+                           f"expanded (limit MAX_BLOCKS; the compile time and memory grow "
+                           f"with the blocks): split the study into smaller diagrams",
+                           file=spec.file, line=b.line, block=path)
     flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines),
                                  {k: v for k, v in punits.items() if k in params})
 

@@ -76,3 +76,29 @@ def test_running_a_subsystem_file_says_what_it_is(tmp_path):
                        capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "subsystem" in r.stderr and "sub.yaml:6" in r.stderr
+
+
+def test_subsystem_fan_out_bomb_stops_at_the_block_limit(tmp_path, monkeypatch):
+    """Ten instances of ten instances of ten subsystems of ten blocks (10^4 blocks; one more
+    level would be 10^5, and the compile time and memory grow with the blocks) stop at
+    ``MAX_BLOCKS`` with the block reached and the instance chain, before anything is
+    compiled. Lowered to 500 here to keep the test fast; the count is exact."""
+    from spidersim.text import limits
+    monkeypatch.setattr(limits, "MAX_BLOCKS", 500)
+    (tmp_path / "l1.yaml").write_text(
+        "blocks:\n" + "".join(f"  c{i}: {{type: Constant, value: 1}}\n" for i in range(10)))
+    for k in (2, 3):
+        (tmp_path / f"l{k}.yaml").write_text(
+            f"subsystems:\n  L: l{k - 1}.yaml\nblocks:\n"
+            + "".join(f"  s{i}: {{type: L}}\n" for i in range(10)))
+    (tmp_path / "top.yaml").write_text(
+        "subsystems:\n  L: l3.yaml\nblocks:\n"
+        + "".join(f"  s{i}: {{type: L}}\n" for i in range(10)))
+    with pytest.raises(SpidersimError) as e:
+        spidersim.load(str(tmp_path / "top.yaml"))
+    msg = str(e.value)
+    # blocks 0..499 fit: the 501st, s0.s5.s0.c0, is refused
+    assert e.value.block == "s0.s5.s0.c0" and "more than 500 blocks" in msg
+    assert "MAX_BLOCKS" in msg and msg.startswith(f"{tmp_path / 'l1.yaml'}:2: ")
+    monkeypatch.setattr(limits, "MAX_BLOCKS", 1000)       # exactly at the limit: loads
+    assert len(spidersim.load(str(tmp_path / "l3.yaml")).flat.blocks) == 1000
