@@ -52,6 +52,9 @@ class LimitedIntegrator(Block):
 
     @classmethod
     def check(cls, params):
+        if not params["lower"] < params["upper"]:
+            raise ValueError(f"lower ({params['lower']}) must be below upper "
+                             f"({params['upper']})")
         if not params["lower"] <= params["x0"] <= params["upper"]:
             raise ValueError(f"x0 ({params['x0']}) must lie within [lower, upper] = "
                              f"[{params['lower']}, {params['upper']}]")

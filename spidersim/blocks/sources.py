@@ -145,8 +145,11 @@ class TimeTable(Block):
     def check(cls, params):
         import numpy as np
         if np.any(np.diff(params["time"]) <= 0):
-            raise ValueError("parameter 'time' must be strictly increasing, got "
-                             f"{list(params['time'])}")
+            v = np.ravel(params["time"])
+            k = int(np.flatnonzero(np.diff(v) <= 0)[0])
+            raise ValueError(f"parameter 'time' must be strictly increasing: "
+                             f"time[{k + 1}] = {v[k + 1]:g} s is not after "
+                             f"time[{k}] = {v[k]:g} s")
 
     @staticmethod
     def output(t, time, value, k, y):

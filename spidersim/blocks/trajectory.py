@@ -191,8 +191,11 @@ class ViaPointProfile(Block):
             raise ValueError(f"parameter 'points' needs at least 2 via points, got "
                              f"{np.size(params['points'])}")
         if np.any(np.diff(params["times"]) <= 0):
-            raise ValueError("parameter 'times' must be strictly increasing, got "
-                             f"{list(params['times'])}")
+            v = np.ravel(params["times"])
+            k = int(np.flatnonzero(np.diff(v) <= 0)[0])
+            raise ValueError(f"parameter 'times' must be strictly increasing: "
+                             f"times[{k + 1}] = {v[k + 1]:g} s is not after "
+                             f"times[{k}] = {v[k]:g} s")
 
     @classmethod
     def derive(cls, params):

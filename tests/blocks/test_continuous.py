@@ -187,6 +187,15 @@ def test_state_space_rejects_inconsistent_shapes(field, value, match):
                         f"  c: {{type: Constant}}\nconnections:\n  - c.y -> ss.u\n")
 
 
+@pytest.mark.parametrize("lower, upper", [(1.0, -1.0), (0.5, 0.5)])
+def test_limited_integrator_refuses_limits_out_of_order(lower, upper):
+    """``lower`` must be below ``upper``; said so, not as an ``x0`` outside [1, -1]."""
+    with pytest.raises(ParameterError, match=rf"lower \({lower}\) must be below upper"):
+        spidersim.loads(f"blocks:\n  li: {{type: LimitedIntegrator, x0: 0.5, lower: {lower}, "
+                        f"upper: {upper}}}\n  c: {{type: Constant}}\n"
+                        f"connections:\n  - c.y -> li.u\n")
+
+
 def _limited(src, t_end=4.0, max_step=None, **prm):
     body = ", ".join(f"{k}: {v}" for k, v in dict(dict(x0=0.0, lower=-1.0, upper=0.5),
                                                    **prm).items())
