@@ -31,8 +31,13 @@ from .execute import run_job
 POLL = 0.2           # s between checks of cancel flags and process health
 
 
-def _worker_main(conn, parent_pid):
-    """Entry point of a local worker process."""
+def _worker_main(conn, parent_pid, record_mb=None):
+    """Entry point of a local worker process; ``record_mb``: its share of the recording
+    budget (:mod:`spidersim.solver.record_budget`), so that the slots' runs together stay
+    within it."""
+    if record_mb is not None:
+        from spidersim.solver import record_budget
+        os.environ[record_budget.ENV] = f"{record_mb:.6g}"
     import spidersim  # noqa: F401  (import once, before the first job)
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # the server handles Ctrl-C
     while True:
@@ -143,12 +148,17 @@ class LocalRunner(Runner):
         super().__init__(store, library, workers, **kw)
         self._ctx = mp.get_context("spawn")
         self._procs = [None] * self.n_slots
+        from spidersim.solver import record_budget
+        #: each worker's share of the recording budget [MB]: the budget (the machine's, or
+        #: the server's SPIDERSIM_RECORD_LIMIT_MB) divided among the slots
+        self.record_mb = record_budget.budget_bytes() / 1e6 / self.n_slots
 
     def _process(self, k):
         p = self._procs[k]
         if p is None or not p[0].is_alive():
             parent, child = self._ctx.Pipe()
-            proc = self._ctx.Process(target=_worker_main, args=(child, os.getpid()),
+            proc = self._ctx.Process(target=_worker_main,
+                                     args=(child, os.getpid(), self.record_mb),
                                      daemon=True, name=f"spidersim-worker-{k}")
             proc.start()
             child.close()
