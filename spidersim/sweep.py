@@ -168,11 +168,29 @@ def parse_vary(items) -> list[tuple[str, list]]:
         out.append((path, values))
     if not out:
         raise SpidersimError("nothing to sweep: give at least one --vary path=v1,v2,...")
+    check_grid_size(out)
     return out
 
 
+#: runs in one sweep (the grid is built, run and tabulated in memory)
+MAX_RUNS = 100_000
+
+
+def check_grid_size(vary):
+    """Raise :class:`SpidersimError` if the grid of ``vary`` has more than
+    :data:`MAX_RUNS` runs (before any of it is built)."""
+    sizes = [len(v) for _, v in vary]
+    if math.prod(sizes) > MAX_RUNS:
+        raise SpidersimError(
+            f"the sweep grid has {' x '.join(map(str, sizes))} = {math.prod(sizes):,} runs, "
+            f"more than {MAX_RUNS:,} (limit MAX_RUNS): vary fewer values, or split the "
+            f"sweep")
+
+
 def grid(vary) -> list[dict]:
-    """Cartesian product of the varied values, first parameter slowest."""
+    """Cartesian product of the varied values, first parameter slowest; at most
+    :data:`MAX_RUNS` runs."""
+    check_grid_size(vary)
     paths = [p for p, _ in vary]
     return [dict(zip(paths, combo)) for combo in itertools.product(*[v for _, v in vary])]
 

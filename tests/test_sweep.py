@@ -204,10 +204,20 @@ def test_unreachable_scheduler_is_a_clear_error(drop_file, address):
     (["K=1", "K=2"], "given twice"),
     (["K=inf"], "not a finite number"),
     (["1K=2"], "not a parameter path"),
+    (["a=" + ",".join(["1"] * 1000), "b=" + ",".join(["2"] * 101)],
+     "the sweep grid has 1000 x 101 = 101,000 runs, more than 100,000"),
 ])
 def test_vary_errors(items, message):
     with pytest.raises(SpidersimError, match=message):
         sw.parse_vary(items)
+
+
+def test_grid_at_the_run_limit_is_accepted():
+    """1000 x 100 = 100,000 runs: exactly the limit, built in full."""
+    vary = sw.parse_vary(["a=" + ",".join(map(str, range(1000))),
+                          "b=" + ",".join(map(str, range(100)))])
+    g = sw.grid(vary)
+    assert len(g) == 100_000 and g[-1] == {"a": 999.0, "b": 99.0}
 
 
 def test_vary_values():
