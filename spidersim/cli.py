@@ -185,8 +185,8 @@ def cmd_run(args):
 
     sets = _parse_sets(args.set)
     d = load(args.file, set=sets)
+    validate_run(d, args.t_end, args.method)    # None: the file's, located at its line
     t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
-    validate_run(d, t_end, args.method)
     out = args.out or default_out(d)
     prepare_out(out)
     stop = StopRequest()
@@ -415,6 +415,11 @@ def _check_t_end(d, t_end):
     if not (isinstance(t_end, (int, float)) and not isinstance(t_end, bool)
             and math.isfinite(t_end) and t_end > 0):
         raise DiagramError(f"{where}: t_end must be a finite time > 0 s, got {t_end!r}",
+                           file=d.file, line=line)
+    from .solver.events import MIN_SPAN
+    if t_end < MIN_SPAN:
+        raise DiagramError(f"{where}: t_end must be at least {MIN_SPAN:g} s (the solvers "
+                           f"take steps shorter than 1e-10 s as a stall), got {t_end!r}",
                            file=d.file, line=line)
     return t_end
 

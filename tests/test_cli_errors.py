@@ -370,3 +370,25 @@ def test_run_at_the_recording_budget_stops_and_keeps_data(tmp_path, capsys, monk
         assert 1000 < len(t) <= 0.1e6 // 32 and t[-1] < 1000
         assert np.max(np.abs(z["x.y"] - np.cos(t))) < 1e-4       # 470 s of LSODA at 1e-9
     assert "status: failed" in (out_dir / "report.txt").read_text()
+
+
+@pytest.mark.parametrize("where, argv", [("--t-end", ["--t-end", "5e-324"]),
+                                         ("simulation.t_end", [])])
+def test_run_shorter_than_the_stall_step_is_refused(tmp_path, capsys, monkeypatch, where,
+                                                    argv):
+    """A run of 5e-324 s made the default max_step (t_end / 50) zero and was refused as
+    'max_step must be > 0' (never set by the user); one of 1e-300 s was reported as a
+    stall. Both are refused as too short, naming the setting; 1e-7 s runs."""
+    p = write(tmp_path, """\
+        blocks:
+          u: {type: Step, t_step: 0.5}
+          x: {type: Integrator}
+        connections: [u.y -> x.u]
+        simulation: {t_end: 1e-9}
+        """)
+    rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--out",
+                                 tmp_path / "out"] + argv, capsys, monkeypatch)
+    assert_clean_error(rc, out, err, f"{p}", f"{where}: t_end must be at least 1e-07 s")
+    rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--out",
+                                 tmp_path / "out", "--t-end", "1e-7"], capsys, monkeypatch)
+    assert rc == 0, err

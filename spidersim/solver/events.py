@@ -21,6 +21,9 @@ MAX_EVENTS_AT_ONE_TIME = 1000
 #: STALL_STEP * max(1, |t|): the solution is running into a singularity
 STALL_COUNT = 500
 STALL_STEP = 1e-10
+#: the shortest run [s]: a thousand stall steps (a run shorter than STALL_STEP would be
+#: reported as a stall)
+MIN_SPAN = 1e-7
 #: a step shorter than this times max(1, |t|) is not retried for a guard that left zero and
 #: returned unseen (:func:`left_zero_unseen`): chattering; the probe of that test is taken at
 #: this fraction of the step

@@ -20,6 +20,7 @@ from scipy.sparse import csr_matrix
 
 from ..errors import SpidersimError
 from . import record_budget
+from .events import MIN_SPAN, STALL_STEP
 from .scipy_loop import SciPyLoop
 
 METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
@@ -119,6 +120,10 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
                              + f"; methods: {', '.join(METHODS)}")
     if not (t_end > t0):
         raise SpidersimError(f"t_end must be > {t0}, got {t_end}")
+    if t_end - t0 < MIN_SPAN:
+        raise SpidersimError(f"the run is {t_end - t0:g} s long, shorter than the shortest "
+                             f"run of {MIN_SPAN:g} s (steps below {STALL_STEP:g} s are "
+                             f"taken as a stall)")
     for name, v in (("rtol", rtol), ("atol", atol), ("max_step", max_step)):
         if not (v > 0):
             raise SpidersimError(f"{name} must be > 0, got {v}")

@@ -218,3 +218,11 @@ def test_a_system_without_rhs_is_a_clear_error():
     missing instead of failing somewhere inside SciPy."""
     with pytest.raises(TypeError, match="Empty does not define rhs"):
         integrate(type("Empty", (PlainSystem,), {})([0.0]), 1.0, method="RK45")
+
+
+def test_a_run_shorter_than_the_shortest_run_is_refused():
+    """The API refuses a span below ``MIN_SPAN`` (1e-7 s) before stepping."""
+    from spidersim.errors import SpidersimError
+    with pytest.raises(SpidersimError, match="shorter than the shortest run of 1e-07 s"):
+        integrate(Ball(1.0, 0.8), 1e-300, method="RK45")
+    assert integrate(Ball(1.0, 0.8), 1e-7, method="RK45").t[-1] == 1e-7
