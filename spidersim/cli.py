@@ -582,6 +582,10 @@ def cmd_linearize(args):
             at, loop = None, args.loop
         if args.at is not None:
             at = parse_at(args.at)
+            if not _valid_analysis_time(at, d.simulation["t_end"]):
+                raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
+                                   f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
+                                   f"got {args.at}", file=d.file)
         _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, outs[name])
     return 0
 

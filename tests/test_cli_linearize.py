@@ -4,6 +4,7 @@ import os
 import re
 
 import numpy as np
+import pytest
 
 from spidersim.cli import main
 
@@ -72,3 +73,13 @@ def test_errors(tmp_path, capsys):
     assert rc == 2 and "unknown signal 'sat.yy'" in err and "Traceback" not in err
     rc, out, err = _run(capsys, "linearize", SERVO, "--at", "soon", "--loop", "pos_ctrl.y")
     assert rc == 2 and "--at expects" in err
+
+
+@pytest.mark.parametrize("at", ["nan", "inf", "-0.1", "1.5", "1e300"])
+def test_at_outside_the_run_is_refused(capsys, at):
+    """``--at nan`` was reported as 't_end must be > 0.0, got nan'; ``1e300`` simulated to
+    1e300 s. A time must lie in [0, t_end] (servo.yaml: 1 s), as in an analysis entry."""
+    rc, out, err = _run(capsys, "linearize", SERVO, "--at", at, "--loop", "pos_ctrl.y",
+                        "--no-jit")
+    assert rc == 2 and "--at: the operating point's time must be in [0, t_end] = [0, 1] s" \
+        in err and "Traceback" not in err
