@@ -35,12 +35,30 @@ def _quantize(theta, bits):
     return q * math.floor(theta / q + 0.5)
 
 
+def _quantize_speed(w, bits, w_max):
+    """The converter's velocity word: a ``bits``-bit two's-complement count of
+    ``lsb = w_max / 2^(bits - 1)`` (full scale ``+-w_max``), rounded to the nearest count
+    and saturated at ``-2^(bits-1)`` and ``2^(bits-1) - 1`` counts; ``w`` itself for
+    ``bits = 0``."""
+    if bits <= 0:
+        return w
+    half = 2.0 ** (bits - 1)
+    lsb = w_max / half
+    n = math.floor(w / lsb + 0.5)
+    if n > half - 1.0:
+        n = half - 1.0
+    elif n < -half:
+        n = -half
+    return lsb * n
+
+
 def _jit(fn):
     import numba
     return numba.njit(cache=True, error_model="numpy")(fn)
 
 
 quantize_jit = _jit(_quantize)
+quantize_speed_jit = _jit(_quantize_speed)
 
 
 class Resolver(Block):
@@ -140,6 +158,8 @@ class RDC(Block):
         dw_r/dt     = w_n^2 e,                      w_n = 2 pi f_n
         theta_d     = q round(theta_r / q),         q = 2 pi / 2^bits   (theta_d = theta_r
                                                                           for bits = 0)
+        w_d         = lsb sat(round(w_r / lsb)),    lsb = w_max / 2^(w_bits - 1)
+                                                    (w_d = w_r for w_bits = 0)
 
     For small errors the tracked angle follows the true one through
     ``(2 zeta w_n s + w_n^2) / (s^2 + 2 zeta w_n s + w_n^2)``: zero steady error at constant
@@ -158,6 +178,15 @@ class RDC(Block):
     ``theta_d`` is a staircase: read it from sampled blocks (a sampled controller), whose
     samples are time events, not from continuous dynamics. Outputs ``theta_r`` and ``w_r``
     are states and ``theta_d`` depends on a state only: no direct feedthrough.
+
+    The velocity output as built is a digital word too: ``w_bits`` bits, two's complement,
+    full scale ``+-w_max`` (the converter's maximum tracking rate), so one count is
+    ``lsb = w_max / 2^(w_bits - 1)`` and the word saturates at ``-2^(w_bits-1)`` and
+    ``2^(w_bits-1) - 1`` counts. ``w_d`` is that word times ``lsb`` (rad/s), a staircase of
+    ``w_r`` to be read by sampled blocks like ``theta_d``. The default ``w_bits = 0`` gives
+    ``w_d = w_r``; with 16 bits, the default ``w_max = 2 pi 125`` rad/s (0.024 rad/s a
+    count) is the 16-bit maximum tracking rate of a converter of the AD2S1210 kind at an
+    8.192 MHz clock (125 rev/s), an assumption for SPIDER's converters.
     """
 
     category = "sensors"
@@ -166,20 +195,27 @@ class RDC(Block):
         "zeta": Param(0.7, "1", "damping ratio of the tracking loop", gt=0.0),
         "bits": Param(0, "1", "resolution of the digital angle output theta_d in bits per "
                       "revolution (0: theta_d = theta_r)", kind="int", ge=0, le=40),
+        "w_bits": Param(0, "1", "bits of the digital velocity word w_d, two's complement "
+                        "(0: w_d = w_r)", kind="int", ge=0, le=32),
+        "w_max": Param(2.0 * math.pi * 125.0, "rad/s", "full scale of the velocity word "
+                       "(the converter's maximum tracking rate)", gt=0.0),
         "theta0": Param(0.0, "rad", "initial tracked angle"),
         "w0": Param(0.0, "rad/s", "initial tracked speed"),
     }
     inputs = {"theta": Port("rad", doc="resolver angle (analog, continuous)")}
     outputs = {"theta_r": Port("rad", doc="tracked angle (continuous)"),
-               "w_r": Port("rad/s", doc="tracked speed (velocity output)"),
+               "w_r": Port("rad/s", doc="tracked speed (the loop integrator, continuous)"),
                "theta_d": Port("rad", feedthrough=(),
-                               doc="digital angle: theta_r on the 2 pi / 2^bits grid")}
+                               doc="digital angle: theta_r on the 2 pi / 2^bits grid"),
+               "w_d": Port("rad/s", feedthrough=(),
+                           doc="digital velocity: w_r as a w_bits word of full scale w_max")}
     states = {"theta_r": State("rad", initial="theta0", doc="tracked angle"),
               "w_r": State("rad/s", initial="w0", doc="loop integrator: the speed")}
 
     @staticmethod
-    def output(t, theta_r, bits, theta_d):
+    def output(t, theta_r, w_r, bits, w_bits, w_max, theta_d, w_d):
         theta_d[0] = quantize_jit(theta_r[0], bits)
+        w_d[0] = quantize_speed_jit(w_r[0], w_bits, w_max)
 
     @staticmethod
     def derivative(t, theta, theta_r, w_r, f_n, zeta, der_theta_r, der_w_r):

@@ -41,6 +41,45 @@ def test_rdc_digital_output_on_grid_and_loop_unquantized():
     np.testing.assert_array_equal(r0["rdc.theta_d"], r0["rdc.theta_r"])  # bits 0: exact
 
 
+RDC_SPEED = """\
+blocks:
+  src:  {{type: Ramp, slope: {w0}, t_start: 0}}
+  rdc:  {{type: RDC, f_n: 500, zeta: 0.7, w_bits: {w_bits}, w_max: {w_max}, w0: {w0}}}
+connections:
+  - src.y -> rdc.theta
+simulation: {{t_end: 0.02, rtol: 1e-10, atol: 1e-13, output_interval: 1.0e-4}}
+"""
+
+
+@pytest.mark.parametrize("w0, w_bits, w_max, counts", [
+    (10.0, 16, 2 * math.pi * 125, round(10.0 / (2 * math.pi * 125 / 2 ** 15))),
+    (10.0, 8, 20.0, round(10.0 / (20.0 / 128))),          # 64 counts of 0.15625 rad/s
+    (30.0, 8, 20.0, 127),                                   # beyond full scale: saturated
+    (-30.0, 8, 20.0, -128),
+])
+def test_rdc_velocity_word(w0, w_bits, w_max, counts):
+    """Tracking a constant speed w0 from w_r(0) = w0 (no transient: theta_r = theta), the
+    velocity word is the hand count ``round(w0 / lsb)``, ``lsb = w_max / 2^(w_bits-1)``,
+    saturated at -2^(w_bits-1) and 2^(w_bits-1) - 1 counts; ``w_d`` is the count times
+    ``lsb``, always on the grid and within lsb/2 of ``w_r`` when not saturated; the loop
+    itself is not quantized (w_r = w0 to round-off)."""
+    lsb = w_max / 2 ** (w_bits - 1)
+    r = spidersim.loads(RDC_SPEED.format(w0=w0, w_bits=w_bits, w_max=w_max)).simulate(
+        jit=False)
+    np.testing.assert_allclose(r["rdc.w_r"], w0, rtol=1e-9)
+    np.testing.assert_allclose(r["rdc.w_d"], counts * lsb, rtol=1e-12)
+    if abs(counts) < 2 ** (w_bits - 1) - 1:
+        assert np.max(np.abs(r["rdc.w_d"] - r["rdc.w_r"])) <= lsb / 2
+
+
+def test_rdc_velocity_word_off_is_the_tracked_speed():
+    """``w_bits = 0`` (the default): ``w_d`` is ``w_r`` exactly, during a transient too."""
+    r = spidersim.loads(RDC_SPEED.format(w0=10.0, w_bits=0, w_max=1.0).replace(
+        "w0: 10.0}", "w0: 0}")).simulate(jit=False)
+    assert np.ptp(r["rdc.w_r"]) > 5.0
+    np.testing.assert_array_equal(r["rdc.w_d"], r["rdc.w_r"])
+
+
 CASCADE = """\
 blocks:
   qref: {{type: Ramp, slope: {s}, t_start: 0}}
