@@ -202,6 +202,12 @@ ABLATIONS = {
         ("code = _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst)", "code = 0"),
         ("_cap_for_rows(grid, tbuf, ist, fst)\n", "fst[F_HCAP] = fst[F_MAXSTEP]\n"),
         ("if _stalled(h, t_new, ist):", "if False:")],
+    "_dense inlined": [
+        ("@njit_borrowed\ndef _dense(", "@njit_borrowed(inline=\"always\")\ndef _dense(")],
+    "_dense + dp54.dense inlined": [
+        ("@njit_borrowed\ndef _dense(", "_dp54_dense = njit_borrowed(inline=\"always\")("
+         "_dp54.dense.py_func)\n\n\n@njit_borrowed(inline=\"always\")\ndef _dense("),
+        ("        _dp54.dense(t, h, x, x1, K, s, out)", "        _dp54_dense(t, h, x, x1, K, s, out)")],
     "DP54 advance direct": [
         ("h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)",
          "h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)")],
