@@ -141,6 +141,7 @@ def _hand_servo():
 
 
 def _many():
+    import numba
     from spidersim.solver import sysfn
     from spidersim.solver._jit import njit
 
@@ -152,7 +153,9 @@ def _many():
             acc += sysfn.call(fn, task, t + 1e-9 * i, xx, sig, p, modes, out, 0, 0.0)
         return acc
 
-    @njit
+    # not cached: its type names the variant module's dispatcher, which a later process
+    # cannot import
+    @numba.njit(error_model="numpy")
     def many_direct(ev, task, n, t, x, sig, p, modes, out, x2):
         acc = 0.0
         for i in range(n):
