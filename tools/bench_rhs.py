@@ -32,8 +32,10 @@ and hand-written references for the servo (the equations of ``tools/bench_loop.p
 * ``hand, pointer, sig``: the same, also storing the ten signals into ``sig`` as the
   generated function must (the loop records them and ``GUARDS_AT_SIG`` reads them).
 
-``--perf``: instead of the table, run the ``as is`` DERIVATIVES loop for a few seconds (for
-``perf record -p``) and print the system function's address range.
+``--perf PROBLEM``: instead of the table, write a perf symbol map of the compiled loop's and
+the diagram's functions and run ``run_loop`` for 8 s, for
+``perf record -F 10000 python tools/bench_rhs.py --perf ball`` then ``perf report --sort sym``
+(numba's code then shows by function name, not as hex addresses).
 """
 from __future__ import annotations
 
@@ -250,22 +252,61 @@ def measure(problem, rounds):
     print()
 
 
+def write_perf_map(libraries, path=None):
+    """``/tmp/perf-PID.map`` naming the machine code of every function defined in numba's
+    ``libraries`` (perf then shows numba's functions by name instead of hex addresses; a
+    function's extent is taken up to the next one's start). Returns the path."""
+    import re
+    addrs = {}
+    for lib in libraries:
+        for m in (getattr(lib, "_final_module", None), getattr(lib, "_shared_module", None)):
+            for f in (m.functions if m is not None else ()):
+                if f.is_declaration or f.name in addrs.values():
+                    continue
+                try:
+                    a = lib._codegen._engine.get_function_address(f.name)
+                except Exception:        # noqa: BLE001 - not in this engine: skip
+                    a = 0
+                if a:
+                    addrs[a] = f.name
+    items = sorted(addrs.items())
+    path = path or f"/tmp/perf-{os.getpid()}.map"
+    with open(path, "w") as fh:
+        for (a, name), (nxt, _) in zip(items, items[1:] + [(items[-1][0] + 4096, "")]):
+            parts = re.findall(r"\d+([A-Za-z_][A-Za-z0-9_]*)", name[:200])
+            label = ".".join(parts[-3:]) if name.startswith("_ZN") and parts else name
+            fh.write(f"{a:x} {min(nxt - a, 1 << 20):x} {label}\n")
+    return path
+
+
 def perf_loop(problem, seconds=8.0):
-    """The DERIVATIVES task in a loop for ``seconds`` (attach ``perf record -p PID``)."""
+    """``run_loop`` of ``problem`` again and again for ``seconds`` (run this under
+    ``perf record``), after writing a perf symbol map of the loop's and the diagram's
+    compiled functions (:func:`write_perf_map`)."""
     import spidersim
-    from spidersim.solver import sysfn
+    from spidersim.solver import loop as L
+    from spidersim.solver.loop_body import run_loop
+    from spidersim.solver.sysfn import entry_point
     path, sets, kw = CASES[problem]
     d = spidersim.load(os.path.join(ROOT, path), set=sets)
-    system = d.compile(True)
-    many, _ = _many()
-    x = system.x0.copy() + 0.1
-    x2 = x * 1.0001
-    out = np.zeros(max(system.n_x, 1))
-    print(f"pid {os.getpid()}: system function at {hex(system.compiled_entry)}", flush=True)
-    t0 = time.perf_counter()
+    d.simulate(**kw)
+    system = d.compile(True, loop=True)
+    mod = d._modules[True][0]
+    libs = [c.library for c in run_loop.overloads.values()] + [mod._system._library]
+    print(f"perf map: {write_perf_map(libs)}", flush=True)
+
+    def args():
+        r = L.CompiledLoop(system.compiled_entry, system, 0.0, kw["t_end"], kw["rtol"],
+                           kw["atol"], kw["max_step"], None, None, method=kw["method"],
+                           capacity=1 << 12)
+        return (r.entry,) + r.arguments()
+    entry = entry_point(run_loop, args())
+    t0, n = time.perf_counter(), 0
     while time.perf_counter() - t0 < seconds:
-        many(system.compiled_entry, sysfn.DERIVATIVES, 200000, 0.5, x, system.sig,
-             system.p, system.modes, out, x2)
+        entry(*args())
+        n += 1
+    print(f"{n} runs, {1e3 * (time.perf_counter() - t0) / n:.3f} ms each (with the Python "
+          f"that sets each run up)")
 
 
 def main(argv):
