@@ -2,6 +2,7 @@
 
     python tools/bench_loop_parts.py [servo|ball|loop ...]
     python tools/bench_loop_parts.py --ablate [servo|ball ...]
+    python tools/bench_loop_parts.py --impacts
 
 For each problem (the runs of ``tools/bench_loop.py``: DP54, the same tolerances):
 
@@ -24,6 +25,10 @@ For each problem (the runs of ``tools/bench_loop.py``: DP54, the same tolerances
 each with one feature removed (recording, the unseen-return probe, ``next_time`` per step,
 the pause/row-cap/stall bookkeeping; ``ABLATIONS``), timed interleaved with the copy as is.
 Removing a feature can change the steps (printed): the copies are for timing only.
+
+``--impacts``: the ball at 25, 50, 100 impacts and three tolerances, ``run_loop`` and the
+hand-written DP54 of ``tools/bench_loop.py`` interleaved; a least-squares fit of time
+against steps and impacts gives each one's cost per step and per impact (:func:`impacts`).
 """
 from __future__ import annotations
 
@@ -170,6 +175,9 @@ def main(argv):
     if argv and argv[0] == "--ablate":
         ablation(argv[1:] or ["servo", "ball"])
         return
+    if argv and argv[0] == "--impacts":
+        impacts()
+        return
     for n in argv or ["servo", "ball", "loop"]:
         part(n)
 
@@ -194,6 +202,12 @@ ABLATIONS = {
         ("code = _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst)", "code = 0"),
         ("_cap_for_rows(grid, tbuf, ist, fst)\n", "fst[F_HCAP] = fst[F_MAXSTEP]\n"),
         ("if _stalled(h, t_new, ist):", "if False:")],
+    "_dense inlined": [
+        ("@njit_borrowed\ndef _dense(", "@njit_borrowed(inline=\"always\")\ndef _dense(")],
+    "_dense + dp54.dense inlined": [
+        ("@njit_borrowed\ndef _dense(", "_dp54_dense = njit_borrowed(inline=\"always\")("
+         "_dp54.dense.py_func)\n\n\n@njit_borrowed(inline=\"always\")\ndef _dense("),
+        ("        _dp54.dense(t, h, x, x1, K, s, out)", "        _dp54_dense(t, h, x, x1, K, s, out)")],
     "DP54 advance direct": [
         ("h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)",
          "h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)")],
@@ -226,9 +240,12 @@ def _scratch_loops(names):
     loops = {}
     for k, name in enumerate(names):
         text = src
+        missing = [old for old, _new in ABLATIONS[name] if old not in text]
+        if missing:     # e.g. a change measured here and since made in loop_body
+            print(f"(ablation '{name}' does not apply to loop_body as it is: text not found: "
+                  f"{missing[0][:60]!r}; skipped)")
+            continue
         for old, new in ABLATIONS[name]:
-            if old not in text:
-                raise SystemExit(f"ablation '{name}': text not found: {old[:60]!r}")
             text = text.replace(old, new)
         with open(os.path.join(tmp, f"lb_ablation_{k}.py"), "w") as fh:
             fh.write(text)
@@ -281,6 +298,63 @@ def ablation(problems, repeat=31):
             print(f"{ab:22s} {1e3 * best[ab]:8.3f} ms  {steps[ab]:6d} steps  "
                   f"saves {1e6 * (base - best[ab]) / steps['as is']:6.3f} us/step")
         print()
+
+
+
+# --- the ball: cost per step and per impact, by regression ------------------------------------
+
+def _ball_t_end_n(n, e_=0.95, g=9.81, h0=10.0):
+    """The time half-way between impacts ``n`` and ``n + 1`` of the ball of
+    ``tools/check_loop_identical.py``."""
+    t1 = math.sqrt(2 * h0 / g)
+    tn = t1 + sum(2 * e_ ** k * g * t1 / g for k in range(1, n))
+    return tn + 0.5 * 2 * e_ ** n * t1
+
+
+def impacts(repeat=15, rounds=3):
+    """The ball (DP54) with 25, 50 and 100 impacts at rtol 1e-8, 1e-10 and 1e-12 (atol
+    1e-2 rtol), spidersim's ``run_loop`` (no Python around it) and the hand-written DP54 of
+    ``tools/bench_loop.py``, interleaved; least squares ``time = a steps + b impacts + c``
+    for each: what one step and one impact (location, event, restart) cost."""
+    import spidersim
+    from bench_loop import ball_f, ball_guard, ball_jump, make_dp54
+    from spidersim.solver import loop as L
+    d = spidersim.load(os.path.join(ROOT, "diagrams", "bouncing_ball.yaml"),
+                       set={"ball.e": 0.95, "ball.v_rest": 0})
+    solve = make_dp54(ball_f, ball_guard, ball_jump)
+    tout, yout = np.empty(200000), np.empty((200000, 2))
+    y0, tev = np.array([10.0, 0.0]), np.zeros(0)
+    cases = [(n, rt) for n in (25, 50, 100) for rt in (1e-8, 1e-10, 1e-12)]
+    runs = {}
+    for n, rt in cases:
+        kw = dict(t_end=_ball_t_end_n(n), rtol=rt, atol=1e-2 * rt, max_step=math.inf,
+                  method="DP54")
+        d.simulate(**kw)
+        run = _run_loop_only(d, kw)
+        h = solve(y0, tev, kw["t_end"], rt, kw["atol"], tout, yout)
+        runs[(n, rt)] = (kw, run.ist[L.I_STEPS], h[1], h[3])
+    best = {k: [math.inf, math.inf] for k in runs}
+    for _ in range(rounds):
+        for k, (kw, _s, _hs, _he) in runs.items():
+            best[k][0] = min(best[k][0], _best(lambda: _run_loop_only(d, kw), repeat))
+            best[k][1] = min(best[k][1], _best(
+                lambda: solve(y0, tev, kw["t_end"], kw["rtol"], kw["atol"], tout, yout),
+                repeat))
+    print("== ball: run_loop and hand DP54 by impacts and tolerance (best of "
+          f"{rounds} x {repeat}) ==")
+    print(f"{'impacts':>7s} {'rtol':>7s} {'steps':>6s} {'run_loop [ms]':>14s} "
+          f"{'hand steps':>10s} {'hand [ms]':>10s}")
+    for k, (kw, s, hs, he) in runs.items():
+        print(f"{k[0]:7d} {k[1]:7.0e} {s:6d} {1e3 * best[k][0]:14.3f} {hs:10d} "
+              f"{1e3 * best[k][1]:10.3f}")
+    for col, label, si in ((0, "spidersim run_loop", 1), (1, "hand DP54", 2)):
+        A = np.array([[runs[k][si], k[0], 1.0] for k in runs], dtype=float)
+        y = np.array([best[k][col] for k in runs])
+        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+        resid = y - A @ coef
+        print(f"{label:20s} {1e6 * coef[0]:6.3f} us/step, {1e6 * coef[1]:6.3f} us/impact, "
+              f"{1e6 * coef[2]:7.2f} us fixed (residual rms {1e6 * resid.std():.2f} us)")
+    print()
 
 
 if __name__ == "__main__":

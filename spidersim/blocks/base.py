@@ -893,6 +893,8 @@ def load_kernel(module: str, cls_name: str, kernel: str, jit: bool):
     """The kernel ``kernel`` of block class ``module:cls_name``, numba-compiled if ``jit``.
 
     Used by generated diagram modules; one dispatcher per kernel per process, cached on disk.
+    Compiled kernels are inlined by LLVM into the generated system function when small
+    (:mod:`spidersim.blocks.inlining`).
     """
     key = (module, cls_name, kernel, jit)
     fn = _JIT_CACHE.get(key)
@@ -900,7 +902,7 @@ def load_kernel(module: str, cls_name: str, kernel: str, jit: bool):
         cls = getattr(importlib.import_module(module), cls_name)
         fn = getattr(cls, kernel)
         if jit:
-            import numba
-            fn = numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+            from .inlining import njit_inlinable
+            fn = njit_inlinable(fn)
         _JIT_CACHE[key] = fn
     return fn

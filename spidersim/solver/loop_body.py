@@ -65,10 +65,12 @@ def _first_step(fn, t, x, f0, span, rtol, atol, K, sig, p, modes):
     return _dp54.initial_step(x, f0, f1, h0, rtol, atol, span)
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def _dense(meth, t, h, x, x1, K, B, s, out):
     """The dense output of the step ``(t, x) -> (t + h, x1)`` of method ``meth`` at ``s``
-    (``B``: the NDF method's arrays ``(V, iw, fw)``)."""
+    (``B``: the NDF method's arrays ``(V, iw, fw)``). Inlined (numba): as a call it passed
+    its five arrays and the tuple ``B`` field by field at every iteration of the event
+    location (the ball's 100-impact run 0.27-0.29 -> 0.24-0.25 ms)."""
     if meth == METHOD_NDF:
         _bdf.dense(t + h, B[0], B[1], B[2], s, out)
     elif meth == METHOD_ROS34PW2:
