@@ -63,6 +63,36 @@ class DCMotor(Block):
         der_w[0] = (K_t * i[0] - b * w[0] - tau_load[0]) / J
         der_phi[0] = w[0]
 
+    @staticmethod
+    def partials(t, R, L, K_t, J, b, dfdx, dfdu, dydx, dydu):
+        """States ``(i, w, phi)`` (``(w, phi)`` when ``L = 0``), inputs ``(v, tau_load)``,
+        outputs that are not states ``tau`` (``(i, tau)`` when ``L = 0``)::
+
+            L > 0:  d(di/dt)/d(i, w) = (-R/L, -K_t/L),  d(di/dt)/dv = 1/L
+                    d(dw/dt)/d(i, w) = (K_t/J, -b/J),   d(dw/dt)/dtau_load = -1/J
+                    d(dphi/dt)/dw = 1,                   dtau/di = K_t
+            L = 0:  i = (v - K_t w)/R:  di/dw = -K_t/R, di/dv = 1/R (tau = K_t i alike)
+                    d(dw/dt)/dw = -(K_t^2/R + b)/J, d(dw/dt)/dv = K_t/(R J)
+        """
+        if L > 0.0:
+            dfdx[0, 0] = -R / L
+            dfdx[0, 1] = -K_t / L
+            dfdu[0, 0] = 1.0 / L
+            dfdx[1, 0] = K_t / J
+            dfdx[1, 1] = -b / J
+            dfdu[1, 1] = -1.0 / J
+            dfdx[2, 1] = 1.0
+            dydx[0, 0] = K_t
+        else:
+            dfdx[0, 0] = -(K_t * K_t / R + b) / J
+            dfdu[0, 0] = K_t / (R * J)
+            dfdu[0, 1] = -1.0 / J
+            dfdx[1, 0] = 1.0
+            dydx[0, 0] = -K_t / R
+            dydu[0, 0] = 1.0 / R
+            dydx[1, 0] = -K_t * K_t / R
+            dydu[1, 0] = K_t / R
+
 
 class BrushlessMotor(Block):
     """Two-phase permanent-magnet brushless motor (SPIDER's actuator)::

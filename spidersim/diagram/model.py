@@ -19,6 +19,7 @@ from ..solver.integrate import COMPILED
 from .codegen import event_tables, generate
 from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
+from .jacobian import plan as jacobian_plan
 from .units import UNKNOWN, infer_units
 from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
 from ..text.yamlio import found
@@ -368,6 +369,7 @@ class Diagram:
                                 L.n_sig, self._log, sig_names, x_names, sparsity,
                                 sig0=self.initial_signals(), loops=self.loop_info(),
                                 tables=tables)
+        system.jacobian_reason = self._jacobian_reason()
         a, r = L.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
         system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]
@@ -376,6 +378,14 @@ class Diagram:
         # (no-op before the first warm-up compiled the functions)
         system._bind_entry_points()
         return system
+
+    def _jacobian_reason(self):
+        """Why the diagram has no analytic Jacobian ('' when it has one; see
+        :func:`spidersim.diagram.jacobian.plan`), computed once per layout."""
+        cached = getattr(self, "_jac_reason_cache", None)
+        if cached is None or cached[0] is not self.layout:
+            cached = self._jac_reason_cache = (self.layout, jacobian_plan(self.layout).reason)
+        return cached[1]
 
     def _system_tables(self):
         """The structural tables of a system (signal and state names, Jacobian sparsity,
