@@ -411,8 +411,15 @@ class Diagram:
         return tables
 
     def simulate(self, t_end=None, method=None, rtol=None, atol=None, max_step=None,
-                 output_interval=None, jit=True, progress=None, should_stop=None):
+                 output_interval=None, jit=True, progress=None, should_stop=None,
+                 jacobian="auto"):
         """Run the diagram; arguments left ``None`` come from the file's ``simulation``.
+
+        ``jacobian`` (the compiled ``ROS34PW2`` and ``NDF``): ``"auto"`` the analytic
+        Jacobian when the diagram has one (its blocks declare their partials, see
+        :mod:`spidersim.diagram.jacobian`), else finite differences; ``"fd"`` always finite
+        differences; ``"analytic"`` the analytic one or a :class:`SpidersimError` saying
+        why there is none.
 
         Returns a :class:`~spidersim.solver.result.Result`; raises
         :class:`~spidersim.errors.IntegrationError` (with ``partial``) on failure.
@@ -436,7 +443,7 @@ class Diagram:
                              first_step=cfg["first_step"],
                              output_interval=cfg["output_interval"], progress=progress,
                              should_stop=should_stop,
-                             stats=stats)
+                             stats=stats, jacobian=jacobian)
         except SpidersimError as exc:
             if exc.file is None:
                 exc.file = self.file

@@ -13,6 +13,7 @@ import yaml
 
 import spidersim
 from spidersim.diagram.jacobian import plan
+from spidersim.errors import SpidersimError
 
 
 def _yaml(name, type_name, params):
@@ -159,13 +160,18 @@ def test_chain_through_sum_and_gain_by_hand(jit):
 
 def test_fallback_when_a_block_on_a_path_has_no_partials():
     """A Saturation (no partials) between a state and a derivative: no analytic Jacobian,
-    the reason names the block."""
+    the reason names the block, ``jacobian='analytic'`` is refused with it, and the run
+    uses finite differences (stats) and still works."""
     text = LOOP.replace("  k: {type: Gain, k: 4.0}",
                         "  k: {type: Saturation, lower: -9.0, upper: 9.0}")
     d = spidersim.loads(text)
     assert "block 'k' (Saturation)" in plan(d.layout).reason
     s = d.compile(jit=False)
     assert not s.analytic_jacobian and s.jacobian(0.0, s.x0) is None
+    r = d.simulate(t_end=0.5, method="ROS34PW2", jit=True)
+    assert r.stats["jacobian"] == "finite differences"
+    with pytest.raises(SpidersimError, match=r"no analytic Jacobian .*block 'k'"):
+        d.simulate(t_end=0.5, method="ROS34PW2", jacobian="analytic")
 
 
 def test_blocks_off_the_state_paths_need_no_partials():
@@ -200,3 +206,41 @@ connections:
     d = spidersim.loads(text)
     assert "algebraic loop" in plan(d.layout).reason
     assert not d.compile(jit=False).analytic_jacobian
+
+
+@pytest.mark.parametrize("method", ["ROS34PW2", "NDF"])
+def test_stiff_runs_same_with_fewer_evaluations(method):
+    """A stiff linear StateSpace (eigenvalues about -1000, -20 and -0.5) from a given
+    state, unforced: with the analytic Jacobian the run takes the same steps and reaches
+    the same state as with finite differences (1e-6 relative: the Jacobians differ by the
+    differences' error only), both match the closed form ``expm(2 A) x0`` (1e-4), and the
+    analytic run makes exactly ``groups - 1`` fewer right-hand-side evaluations per
+    Jacobian (one evaluation instead of one per column group)."""
+    d = spidersim.loads(STATE_SPACE.replace("u: {type: Sine, f: 1.0}",
+                                            "u: {type: Constant, value: 0.0}"))
+    ra = d.simulate(method=method, jacobian="analytic")
+    rf = d.simulate(method=method, jacobian="fd")
+    assert ra.stats["jacobian"] == "analytic"
+    assert rf.stats["jacobian"] == "finite differences"
+    xa, xf = ra.final[1], rf.final[1]
+    np.testing.assert_allclose(xa, xf, rtol=1e-6, atol=1e-9)
+    from scipy.linalg import expm
+    A = np.array([[-1000.0, 1.0, 0.0], [0.0, -20.0, 5.0], [2.0, 0.0, -0.5]])
+    exact = expm(A * 2.0) @ np.array([1.0, -1.0, 2.0])
+    np.testing.assert_allclose(xa, exact, rtol=1e-4, atol=1e-6)
+    ng = rf.stats["jacobian_groups"]
+    assert ng >= 2
+    assert ra.stats["steps"] == rf.stats["steps"]
+    assert ra.stats["jacobian_calls"] == rf.stats["jacobian_calls"] >= 1
+    assert rf.stats["rhs_calls"] - ra.stats["rhs_calls"] == \
+        (ng - 1) * ra.stats["jacobian_calls"]
+
+
+def test_jacobian_option_is_checked():
+    """``jacobian`` other than auto, fd or analytic is refused by name; DP54 ignores it
+    (no Jacobian)."""
+    d = spidersim.loads(LOOP)
+    with pytest.raises(SpidersimError, match="jacobian must be 'auto', 'fd' or 'analytic'"):
+        d.simulate(t_end=0.1, method="ROS34PW2", jacobian="exact")
+    r = d.simulate(t_end=0.1, method="DP54", jacobian="analytic")
+    assert r.stats["jacobian"] == "none"
