@@ -23,7 +23,12 @@ def chain(T, D, d0, S, tab, dst0, ndst, src0, nsrc, col0, ncol, acc):
     """``T[dst_i, c] (+)= sum_j D[d0 + i, j] S[src_j, c]`` for the target rows ``dst_i =
     tab[dst0 + i]`` (``i < ndst``), source rows ``src_j = tab[src0 + j]`` (``j < nsrc``) and
     columns ``c = tab[col0 + q]`` (``q < ncol``); ``acc``: add to ``T`` instead of
-    overwriting it. Zero entries of ``D`` are skipped."""
+    overwriting it. Zero entries of ``D`` are skipped, and a source row that is a state's
+    (``src_j < n_x``, ``S[src_j] = e_(src_j)``, always among the target's columns) adds
+    ``D[d0 + i, j]`` to the one entry ``T[dst_i, src_j]`` instead of a pass over the
+    columns (a block's own states: ``dfdx`` costs its entries, not entries times
+    columns)."""
+    n_x = S.shape[1]
     for i in range(ndst):
         r = tab[dst0 + i]
         if not acc:
@@ -33,9 +38,12 @@ def chain(T, D, d0, S, tab, dst0, ndst, src0, nsrc, col0, ncol, acc):
             d = D[d0 + i, j]
             if d != 0.0:
                 s = tab[src0 + j]
-                for q in range(ncol):
-                    c = tab[col0 + q]
-                    T[r, c] += d * S[s, c]
+                if s < n_x:
+                    T[r, s] += d
+                else:
+                    for q in range(ncol):
+                        c = tab[col0 + q]
+                        T[r, c] += d * S[s, c]
 
 
 @njit_borrowed
