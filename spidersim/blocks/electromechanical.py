@@ -181,6 +181,56 @@ class BrushlessMotor(Block):
         der_w[0] = dw[0]
         der_theta[0] = w[0]
 
+    @staticmethod
+    def partials(t, i_a, i_b, w, theta, p, R, L, K_t, J, b, h3, unbalance, tau_cog,
+                 dfdx, dfdu, dydx, dydu):
+        """States ``(i_a, i_b, w, theta)``, inputs ``(v_a, v_b, tau_load)``, outputs that
+        are not states ``(theta_e, tau, bemf_a, bemf_b, dw)``. With ``f_a' = df_a/dtheta =
+        p (-cos theta_e - 3 h3 cos 3 theta_e)``, ``f_b' = p (-sin theta_e + 3 h3 sin 3
+        theta_e)``::
+
+            dtau/d(i_a, i_b) = (K_a f_a, K_b f_b)
+            dtau/dtheta = K_a i_a f_a' + K_b i_b f_b' + 2 p tau_cog cos 2 theta_e
+            dbemf_a/d(w, theta) = (K_a f_a, K_a w f_a')      (b alike)
+            d(dw)/dx = (dtau/dx - b e_w) / J,  d(dw)/dtau_load = -1/J
+            L di_a/dt = v_a - R i_a - bemf_a                  (b alike)
+        """
+        te = p * theta[0]
+        s1, c1 = math.sin(te), math.cos(te)
+        fa = -s1 - h3 * (s1 * (3.0 - 4.0 * s1 * s1))
+        fb = c1 - h3 * (c1 * (4.0 * c1 * c1 - 3.0))
+        dfa = p * (-c1 - 3.0 * h3 * (c1 * (4.0 * c1 * c1 - 3.0)))
+        dfb = p * (-s1 + 3.0 * h3 * (s1 * (3.0 - 4.0 * s1 * s1)))
+        ka = K_t * (1.0 + 0.5 * unbalance)
+        kb = K_t * (1.0 - 0.5 * unbalance)
+        # outputs: theta_e, tau, bemf_a, bemf_b, dw
+        dydx[0, 3] = p
+        dydx[1, 0] = ka * fa
+        dydx[1, 1] = kb * fb
+        dydx[1, 3] = ka * i_a[0] * dfa + kb * i_b[0] * dfb \
+            + tau_cog * 2.0 * p * (c1 * c1 - s1 * s1)
+        dydx[2, 2] = ka * fa
+        dydx[2, 3] = ka * w[0] * dfa
+        dydx[3, 2] = kb * fb
+        dydx[3, 3] = kb * w[0] * dfb
+        for j in range(4):
+            dydx[4, j] = dydx[1, j] / J
+        dydx[4, 2] -= b / J
+        dydu[4, 2] = -1.0 / J
+        # derivatives: i_a, i_b, w, theta
+        dfdx[0, 0] = -R / L
+        dfdx[0, 2] = -dydx[2, 2] / L
+        dfdx[0, 3] = -dydx[2, 3] / L
+        dfdu[0, 0] = 1.0 / L
+        dfdx[1, 1] = -R / L
+        dfdx[1, 2] = -dydx[3, 2] / L
+        dfdx[1, 3] = -dydx[3, 3] / L
+        dfdu[1, 1] = 1.0 / L
+        for j in range(4):
+            dfdx[2, j] = dydx[4, j]
+        dfdu[2, 2] = -1.0 / J
+        dfdx[3, 2] = 1.0
+
 
 class NRPIDriver(Block):
     """Analog current driver of SPIDER ("NRPI"): sinusoidal current references commutated

@@ -84,7 +84,19 @@ BLOCK_CASES = [
      {"v": 1, "tau_load": 1}),
     ("DCMotor", {"R": 1.3, "L": 0.0, "K_t": 0.07, "J": 2e-4, "b": 3e-4},
      {"v": 1, "tau_load": 1}),
+    ("BrushlessMotor", {"p": 3, "R": 1.5, "L": 0.05, "K_t": 0.15, "J": 0.02, "b": 0.01,
+                        "h3": 0.05, "unbalance": 0.1, "tau_cog": 0.02},
+     {"v_a": 1, "v_b": 1, "tau_load": 1}),
 ]
+
+
+def test_every_block_with_partials_has_a_case():
+    """A block type that declares ``partials`` is checked above: a new one without a case
+    fails here."""
+    from spidersim.blocks import REGISTRY
+    declared = {n for n, c in REGISTRY.items() if c.has_kernel("partials")
+                and not n.startswith("_")}
+    assert declared == {c[0] for c in BLOCK_CASES}
 
 
 @pytest.mark.parametrize("type_name,params,sizes", BLOCK_CASES,
