@@ -87,6 +87,15 @@ BLOCK_CASES = [
     ("BrushlessMotor", {"p": 3, "R": 1.5, "L": 0.05, "K_t": 0.15, "J": 0.02, "b": 0.01,
                         "h3": 0.05, "unbalance": 0.1, "tau_cog": 0.02},
      {"v_a": 1, "v_b": 1, "tau_load": 1}),
+    ("Inertia", {"J": 0.3}, {"tau": 1}),
+    ("LuGre", {}, {"v": 1}),
+    ("LuGre", {"delta": 1.5, "T_c": 0.02, "T_s": 0.09, "v_s": 0.4}, {"v": 1}),
+    ("Saturation", {"lower": -0.4, "upper": 0.9}, {"u": 3}),
+    ("Saturation", {"lower": -0.4, "upper": 0.9, "zero_crossing": False}, {"u": 3}),
+    ("PI", {"kp": 2.0, "ki": 5.0, "y_min": -50.0, "y_max": 50.0}, {"e": 1}),
+    ("PI", {"kp": 2.0, "ki": 5.0, "y_min": -0.5, "y_max": 0.5, "antiwindup": "backcalc",
+            "kb": 3.0}, {"e": 1}),
+    ("PI", {"kp": 2.0, "ki": 5.0, "antiwindup": "none"}, {"e": 1}),
 ]
 
 
@@ -171,13 +180,13 @@ def test_chain_through_sum_and_gain_by_hand(jit):
 
 
 def test_fallback_when_a_block_on_a_path_has_no_partials():
-    """A Saturation (no partials) between a state and a derivative: no analytic Jacobian,
+    """A Function (no partials) between a state and a derivative: no analytic Jacobian,
     the reason names the block, ``jacobian='analytic'`` is refused with it, and the run
     uses finite differences (stats) and still works."""
     text = LOOP.replace("  k: {type: Gain, k: 4.0}",
-                        "  k: {type: Saturation, lower: -9.0, upper: 9.0}")
+                        "  k: {type: Function, fn: tanh}")
     d = spidersim.loads(text)
-    assert "block 'k' (Saturation)" in plan(d.layout).reason
+    assert "block 'k' (Function)" in plan(d.layout).reason
     s = d.compile(jit=False)
     assert not s.analytic_jacobian and s.jacobian(0.0, s.x0) is None
     r = d.simulate(t_end=0.5, method="ROS34PW2", jit=True)
