@@ -1,17 +1,21 @@
 """Analytic Jacobian (blocks' declared partials) against coloured finite differences.
 
-    python tools/bench_partials.py            # n = 8, 24 and 48 lags
+    python tools/bench_partials.py            # lugre, servo, then n = 8, 24, 48
     python tools/bench_partials.py 24         # one size
+    python tools/bench_partials.py lugre      # one shipped diagram
 
-Two diagrams: ``lags``, a stiff chain of ``n`` first-order lags (StateSpace blocks ``x' =
+Diagrams: ``lags``, a stiff chain of ``n`` first-order lags (StateSpace blocks ``x' =
 -a_k x + a_k u``, ``a_k`` from 1 to 1e4 geometrically), each fed by a Sum of the previous lag
-and a feedback Gain from the last one (a sparse Jacobian: 3 column groups), and ``dense``,
-one StateSpace of ``n`` states with a dense stiff ``A`` (``n`` groups); each integrated for 2 s with ROS34PW2 and NDF, each with
-``jacobian="analytic"`` and ``"fd"``. Printed per case: the cost of one Jacobian in the
-compiled loop's own ``_jacobian`` (timed in a compiled loop of calls: the analytic one is one
-system call, the differences one evaluation per column group), the run's wall time (best of
-5), its RHS evaluations and Jacobians, and the largest difference of the final states.
-Compare ratios within one run (the machines are shared and noisy).
+and a feedback Gain from the last one (a sparse Jacobian: 3 column groups); ``dense``, one
+StateSpace of ``n`` states with a dense stiff ``A`` (``n`` groups), both for 2 s; and two
+shipped diagrams whose blocks all declare partials, ``lugre_stick_slip.yaml`` (20 s,
+1e-7/1e-10) and ``servo.yaml`` (1 s, 1e-6/1e-8). Each is integrated with ROS34PW2 and NDF,
+with ``jacobian="analytic"`` and ``"fd"``. Printed per case: the cost of one Jacobian in the
+compiled loop's own ``_jacobian`` (timed in a compiled loop of calls, best of 7: the
+analytic one is one system call, the differences one evaluation per column group), then per
+run the wall time (runs interleaved, best of 9), steps, RHS evaluations, Jacobians and the
+largest difference of the final state from the analytic run's. Compare ratios within one
+run (the machines are shared and noisy).
 """
 from __future__ import annotations
 
@@ -85,34 +89,51 @@ def _jacobian_cost(system, analytic, reps=2000):
     return best, int(rosenbrock.n_groups(jpat)), J.copy()
 
 
+#: shipped diagrams made only of blocks with partials: (file, t_end, rtol, atol)
+FILES = {"lugre": ("diagrams/lugre_stick_slip.yaml", 20.0, 1e-7, 1e-10),
+         "servo": ("diagrams/servo.yaml", 1.0, 1e-6, 1e-8)}
+
+
 def run(n, kind="lags"):
-    d = spidersim.loads(chain_text(n) if kind == "lags" else dense_text(n))
+    if kind in FILES:
+        import os
+        path, t_end, rtol, atol = FILES[kind]
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        d = spidersim.load(os.path.join(root, path))
+        d.simulation.update(t_end=t_end, rtol=rtol, atol=atol)
+    else:
+        d = spidersim.loads(chain_text(n) if kind == "lags" else dense_text(n))
     s = d.compile(jit=True, loop=True)
     assert s.analytic_jacobian
     ca, ng, Ja = _jacobian_cost(s, True)
     cf, _, Jf = _jacobian_cost(s, False)
-    print(f"\n{kind}, n = {n}: {ng} column groups; one Jacobian: analytic {ca * 1e6:.2f} us, "
+    print(f"\n{kind}, n = {s.n_x if kind in FILES else n}: {ng} column groups; one Jacobian: analytic {ca * 1e6:.2f} us, "
           f"finite differences {cf * 1e6:.2f} us ({cf / ca:.1f}x); "
           f"max |J_a - J_fd| / max |J| = {np.abs(Ja - Jf).max() / np.abs(Ja).max():.1e}")
     print(f"  {'method':9} {'jacobian':9} {'wall ms':>8} {'steps':>6} {'RHS':>6} "
           f"{'Jac':>4}  final state diff")
     for method in ("ROS34PW2", "NDF"):
-        res = {}
-        for jac in ("analytic", "fd"):
-            best = np.inf
-            for _ in range(5):
+        res, best = {}, {"analytic": np.inf, "fd": np.inf}
+        for _ in range(9):                   # interleaved, best of 9 each
+            for jac in ("analytic", "fd"):
                 t0 = time.perf_counter()
-                r = d.simulate(method=method, jacobian=jac)
-                best = min(best, time.perf_counter() - t0)
-            res[jac] = r
+                res[jac] = d.simulate(method=method, jacobian=jac)
+                best[jac] = min(best[jac], time.perf_counter() - t0)
+        for jac in ("analytic", "fd"):
+            r = res[jac]
             st = r.stats
             diff = np.abs(r.final[1] - res["analytic"].final[1]).max()
-            print(f"  {method:9} {jac:9} {best * 1e3:8.2f} {st['steps']:6d} "
+            print(f"  {method:9} {jac:9} {best[jac] * 1e3:8.2f} {st['steps']:6d} "
                   f"{st['rhs_calls']:6d} {st['jacobian_calls']:4d}  {diff:.1e}")
 
 
 def main(argv):
-    sizes = [int(a) for a in argv] or [8, 24, 48]
+    names = [a for a in argv if a in FILES]
+    sizes = [int(a) for a in argv if a not in FILES]
+    if not argv:
+        names, sizes = list(FILES), [8, 24, 48]
+    for name in names:
+        run(0, name)
     for n in sizes:
         run(n, "lags")
     for n in sizes:
