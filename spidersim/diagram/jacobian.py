@@ -224,7 +224,7 @@ def jacobian(t, x, sig, p, modes, out):
     """The analytic Jacobian df/dx into out (n_x * n_x, C order; structural nonzeros
     only) by the chain rule over the blocks' partials (spidersim.diagram.jacobian)."""
 {_borrow_text()}    outputs(t, x, sig, p, modes)
-    J = out.reshape(({n_x}, {n_x}))
+    J = _m(out, 0, {n_x}, {n_x})
 ''' + "\n".join(lines) + "\n    return 1.0\n"
     return text, pl.n_ws
 

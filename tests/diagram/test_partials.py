@@ -265,3 +265,25 @@ def test_jacobian_option_is_checked():
         d.simulate(t_end=0.1, method="ROS34PW2", jacobian="exact")
     r = d.simulate(t_end=0.1, method="DP54", jacobian="analytic")
     assert r.stats["jacobian"] == "none"
+
+
+def test_compiled_jacobian_allocates_nothing():
+    """The generated ``jacobian`` (and everything numba links into it: the kernels, the
+    chain helpers, ``outputs``) calls no NRT allocation: the workspace lives in ``sig``,
+    the matrices are borrowed views."""
+    import re
+    text = LOOP.replace("x1: {type: Integrator, x0: 1.0}",
+                        "x1: {type: StateSpace, A: [[-1.0]], B: [[1.0]], C: [[1.0]]}")
+    import numba
+    s = spidersim.loads(text).compile(jit=True)
+    assert np.array_equal(s.jacobian(0.0, s.x0), np.array([[-1.0, 0.5], [-4.0, 0.0]]))
+    # compiled afresh here (the module's own was loaded from numba's cache, without IR);
+    # the IR holds the callees numba links in
+    fresh = numba.njit(s.module.jacobian.py_func)
+    J = np.zeros(s.n_x * s.n_x)
+    fresh(0.0, s.x0.copy(), s.sig, s.p, s.modes, J)
+    assert np.array_equal(J.reshape(s.n_x, s.n_x), np.array([[-1.0, 0.5], [-4.0, 0.0]]))
+    (ir,) = fresh.inspect_llvm().values()
+    assert "Gain6output" in ir and "partials" in ir      # the kernels are in the IR
+    calls = set(re.findall(r"@(NRT_\w+)", ir))
+    assert not {c for c in calls if "alloc" in c.lower() or "Allocate" in c}, calls
