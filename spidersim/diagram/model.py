@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import DiagramError, ParameterError, SpidersimError
 from ..solver import CompiledSystem, integrate
 from ..solver.compiled import load_module
-from ..solver.integrate import COMPILED
+from ..solver.integrate import COMPILED, STIFF
 from .codegen import event_tables, generate
 from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
@@ -329,23 +329,30 @@ class Diagram:
         return out
 
     # ------------------------------------------------------------------ compile & run
-    def source(self, jit=True):
-        """The generated module text."""
-        return generate(self.layout, jit)
+    def source(self, jit=True, jacobian=False):
+        """The generated module text (``jacobian``: with the analytic Jacobian when the
+        blocks declare their partials, see :mod:`spidersim.diagram.jacobian`)."""
+        return generate(self.layout, jit, jacobian)
 
-    def compile(self, jit=True, loop=False):
+    def compile(self, jit=True, loop=False, jacobian=False):
         """Generate, import and warm up the compiled functions; return the system.
 
         With ``loop``, the compiled integration loop (methods ``DP54``, ``ROS34PW2``, ``NDF``) is
         compiled too (or loaded from the cache); otherwise it is compiled on its first use.
+        With ``jacobian``, the system can assemble the analytic Jacobian when the blocks
+        allow (``system.analytic_jacobian``; what the stiff methods use): a module made
+        without it is made again with it (a superset, kept for later calls).
         """
         if loop and jit:
-            system = self.compile(jit)
+            system = self.compile(jit, jacobian=jacobian)
             if not system.loop_ready():
                 t0 = time.perf_counter()
                 system.warm_up_loop()
                 self._compile_time += time.perf_counter() - t0
             return system
+        if jit in self._modules and jacobian and not self._jacobian_reason() and not \
+                getattr(self._modules[jit][0], "HAS_JACOBIAN", False):
+            del self._modules[jit]          # made again with the Jacobian
         if jit not in self._modules:
             t0 = time.perf_counter()
             def warm_up(mod):
@@ -354,7 +361,7 @@ class Diagram:
                 self._modules[jit] = (mod, None)
                 self._system(jit).warm_up()
 
-            mod, key, _ = load_module(self.source(jit), jit, check=warm_up)
+            mod, key, _ = load_module(self.source(jit, jacobian), jit, check=warm_up)
             self._modules[jit] = (mod, key)
             self._compile_time = time.perf_counter() - t0
         else:
@@ -431,7 +438,8 @@ class Diagram:
                 cfg[k] = v
         if cfg["max_step"] is None:
             cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
-        system = self.compile(jit, loop=cfg["method"] in COMPILED)
+        system = self.compile(jit, loop=cfg["method"] in COMPILED,
+                              jacobian=cfg["method"] in STIFF and jacobian != "fd")
         a, r = self.layout.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * cfg["atol"]
         system.p[r] = LOOP_TOL_FACTOR * cfg["rtol"]

@@ -28,6 +28,8 @@ METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau"
 #: stepper of the same tableau and controller (DP54), SciPy's Radau (ROS34PW2) or SciPy's BDF
 #: (NDF, the same family)
 COMPILED = ("DP54", "ROS34PW2", "NDF")
+#: the compiled methods that use a Jacobian (the analytic one when the system has it)
+STIFF = ("ROS34PW2", "NDF")
 #: methods given the structural Jacobian pattern (ROS34PW2 runs SciPy's Radau here)
 IMPLICIT = ("Radau", "BDF", "ROS34PW2", "NDF")
 

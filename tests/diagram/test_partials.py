@@ -117,7 +117,7 @@ def test_block_partials_match_finite_differences(type_name, params, sizes):
     in the wrong row/column fails."""
     d = spidersim.loads(_wrapped(type_name, params, sizes))
     assert plan(d.layout).reason == ""
-    s = d.compile(jit=False)
+    s = d.compile(jit=False, jacobian=True)
     assert s.analytic_jacobian
     rng = np.random.default_rng(7)
     x = s.x0 + rng.uniform(-0.5, 0.5, s.n_x)
@@ -144,7 +144,7 @@ def test_state_space_jacobian_is_A_exactly():
     """A StateSpace fed by a source: the compiled analytic Jacobian is ``A`` bit for bit
     (the source depends on no state and needs no partials)."""
     d = spidersim.loads(STATE_SPACE)
-    s = d.compile(jit=True)
+    s = d.compile(jit=True, jacobian=True)
     A = np.array([[-1000.0, 1.0, 0.0], [0.0, -20.0, 5.0], [2.0, 0.0, -0.5]])
     J = s.jacobian(0.7, np.array([0.3, 0.1, -2.0]))
     assert np.array_equal(J, A)
@@ -174,7 +174,7 @@ def test_chain_through_sum_and_gain_by_hand(jit):
     """``x1' = 0.5 x2``, ``x2' = 4 (r - x1)``: by hand ``J = [[0, 0.5], [-4, 0]]``; the chain
     Sum -> Gain and Gain -> Integrator assembles exactly that (interpreted and compiled)."""
     d = spidersim.loads(LOOP)
-    s = d.compile(jit=jit)
+    s = d.compile(jit=jit, jacobian=True)
     J = s.jacobian(0.0, np.array([0.3, -0.2]))
     assert np.array_equal(J, np.array([[0.0, 0.5], [-4.0, 0.0]]))
 
@@ -187,7 +187,7 @@ def test_fallback_when_a_block_on_a_path_has_no_partials():
                         "  k: {type: Function, fn: tanh}")
     d = spidersim.loads(text)
     assert "block 'k' (Function)" in plan(d.layout).reason
-    s = d.compile(jit=False)
+    s = d.compile(jit=False, jacobian=True)
     assert not s.analytic_jacobian and s.jacobian(0.0, s.x0) is None
     r = d.simulate(t_end=0.5, method="ROS34PW2", jit=True)
     assert r.stats["jacobian"] == "finite differences"
@@ -203,7 +203,7 @@ def test_blocks_off_the_state_paths_need_no_partials():
     text = text.replace("  - r.y -> e.u1", "  - r.y -> f.u\n  - f.y -> e.u1")
     d = spidersim.loads(text)
     assert plan(d.layout).reason == ""
-    s = d.compile(jit=False)
+    s = d.compile(jit=False, jacobian=True)
     assert np.array_equal(s.jacobian(0.0, s.x0), np.array([[0.0, 0.5], [-4.0, 0.0]]))
 
 
@@ -226,7 +226,7 @@ connections:
 """
     d = spidersim.loads(text)
     assert "algebraic loop" in plan(d.layout).reason
-    assert not d.compile(jit=False).analytic_jacobian
+    assert not d.compile(jit=False, jacobian=True).analytic_jacobian
 
 
 @pytest.mark.parametrize("method", ["ROS34PW2", "NDF"])
@@ -268,22 +268,35 @@ def test_jacobian_option_is_checked():
 
 
 def test_compiled_jacobian_allocates_nothing():
-    """The generated ``jacobian`` (and everything numba links into it: the kernels, the
-    chain helpers, ``outputs``) calls no NRT allocation: the workspace lives in ``sig``,
-    the matrices are borrowed views."""
+    """The system function with its ``JACOBIAN`` branch (and everything numba links into
+    it: the kernels, the chain helpers, ``outputs``) calls no NRT allocation: the
+    workspace lives in ``sig``, the matrices are borrowed views."""
     import re
+    import numba
+    from spidersim.solver.sysfn import SYSTEM_SIG
     text = LOOP.replace("x1: {type: Integrator, x0: 1.0}",
                         "x1: {type: StateSpace, A: [[-1.0]], B: [[1.0]], C: [[1.0]]}")
-    import numba
-    s = spidersim.loads(text).compile(jit=True)
+    s = spidersim.loads(text).compile(jit=True, jacobian=True)
     assert np.array_equal(s.jacobian(0.0, s.x0), np.array([[-1.0, 0.5], [-4.0, 0.0]]))
     # compiled afresh here (the module's own was loaded from numba's cache, without IR);
     # the IR holds the callees numba links in
-    fresh = numba.njit(s.module.jacobian.py_func)
-    J = np.zeros(s.n_x * s.n_x)
-    fresh(0.0, s.x0.copy(), s.sig, s.p, s.modes, J)
-    assert np.array_equal(J.reshape(s.n_x, s.n_x), np.array([[-1.0, 0.5], [-4.0, 0.0]]))
-    (ir,) = fresh.inspect_llvm().values()
-    assert "Gain6output" in ir and "partials" in ir      # the kernels are in the IR
+    fresh = numba.cfunc(SYSTEM_SIG)(s.module._system._pyfunc)
+    ir = fresh.inspect_llvm()
+    assert "Gain6output" in ir and "partials" in ir and "chain" in ir
     calls = set(re.findall(r"@(NRT_\w+)", ir))
     assert not {c for c in calls if "alloc" in c.lower() or "Allocate" in c}, calls
+
+
+def test_jacobian_generated_only_when_asked():
+    """The analytic Jacobian costs compile time, so a module has it only when asked
+    (``compile(jacobian=True)``, or a run with ROS34PW2 or NDF): DP54 and LSODA runs
+    compile the module without it; a stiff run then makes it again with it."""
+    d = spidersim.loads(LOOP)
+    s = d.compile(jit=False)
+    assert not s.analytic_jacobian and s.jacobian(0.0, s.x0) is None
+    assert "task == 8:\n        return 0.0" in d.source(jit=False)
+    d.simulate(t_end=0.1, method="DP54", jit=False)
+    assert not d.compile(jit=False).analytic_jacobian
+    r = d.simulate(t_end=0.1, method="NDF")
+    assert r.stats["jacobian"] == "analytic"
+    assert d.compile(jit=True).analytic_jacobian      # the superset is kept
