@@ -453,5 +453,5 @@ else:
 def generate(layout: Layout, jit: bool, jacobian: bool = False) -> str:
     """Module text for ``layout`` (see the module docstring); ``jacobian``: with the
     analytic Jacobian when the blocks allow (only the stiff methods use it, and it costs
-    compile time: a new servo diagram 1.0 -> 1.8 s CPU)."""
+    compile time: a new servo diagram 1.0-1.2 -> 1.8-2.1 s CPU)."""
     return Generator(layout, jacobian).module(jit)

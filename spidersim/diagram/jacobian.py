@@ -180,9 +180,9 @@ def source(L: Layout, kernel_name, arg_expr, sig_size):
     (the table ``_JT``), the lines of the system function's ``JACOBIAN`` branch (indented
     by four spaces; ``out`` is ``J``) and its workspace size, or ``("", [], 0)`` when
     :func:`plan` finds none. The branch is written into the system function's body itself,
-    as every other task: a separately jitted function called from it would have its code,
-    and that of ``outputs`` it calls, linked in and optimised a second time (it doubled the
-    compile of a new servo diagram: 1.0 -> 2.1 s CPU).
+    as every other task (see :mod:`.codegen`: a separately jitted function is linked in and
+    optimised again; measured here within the noise of the machine: a new servo diagram
+    1.8-2.1 s CPU either way, against 1.0-1.2 s without the Jacobian).
 
     ``kernel_name(bl)``: the global name of block ``bl``'s ``partials`` kernel;
     ``arg_expr(bl, name)``: the expression of one of its other arguments (the generator's
