@@ -103,7 +103,7 @@ def run(n, kind="lags"):
         d.simulation.update(t_end=t_end, rtol=rtol, atol=atol)
     else:
         d = spidersim.loads(chain_text(n) if kind == "lags" else dense_text(n))
-    s = d.compile(jit=True, loop=True)
+    s = d.compile(jit=True, loop=True, jacobian=True)
     assert s.analytic_jacobian
     ca, ng, Ja = _jacobian_cost(s, True)
     cf, _, Jf = _jacobian_cost(s, False)
