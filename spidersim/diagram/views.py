@@ -15,13 +15,21 @@ arguments and passes them to kernels, which (by the block contract) write into t
 nothing. ``start`` and ``stop`` are literals of the layout with ``0 <= start <= stop <=
 a.size`` (the layout sizes the arrays); the view does not clamp them as slicing does.
 
-Without numba (``JIT = False`` modules, interpreted runs) ``view`` is the slice itself.
+``matrix(a, start, rows, cols)`` is the same for a ``(rows, cols)`` C-order matrix in a flat
+array (the analytic Jacobian's workspace, :mod:`spidersim.diagram.jacobian`).
+
+Without numba (``JIT = False`` modules, interpreted runs) ``view`` is the slice itself and
+``matrix`` the reshaped slice.
 """
 from __future__ import annotations
 
 
 def _view_py(a, start, stop):
     return a[start:stop]
+
+
+def _matrix_py(a, start, rows, cols):
+    return a[start:start + rows * cols].reshape((rows, cols))
 
 
 try:
@@ -91,11 +99,4 @@ if intrinsic is not None:
         return rettype(a, start, rows, cols), codegen
 else:  # pragma: no cover
     view = _view_py
-
-
-def _matrix_py(a, start, rows, cols):
-    return a[start:start + rows * cols].reshape((rows, cols))
-
-
-if intrinsic is None:  # pragma: no cover
     matrix = _matrix_py
