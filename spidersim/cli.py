@@ -68,7 +68,7 @@ def _parse_sets(items):
     return out
 
 
-def _compile_with_progress(d, jit, loop=False):
+def _compile_with_progress(d, jit, loop=False, jacobian=False):
     """Compile (or load) the diagram, saying what happens and for how long: generation,
     numba compilation of a new structure with a heartbeat every 10 s, or a cache hit."""
     import threading
@@ -79,7 +79,7 @@ def _compile_with_progress(d, jit, loop=False):
         print(f"{head}; interpreted mode (no numba) ...", file=sys.stderr)
         d.compile(jit=False)
         return
-    cached = is_cached(d.source(True), loop=loop)
+    cached = is_cached(d.source(True, jacobian), loop=loop)
     print(f"{head}; " + ("loading compiled code from the cache ..." if cached else
                          "new structure: compiling with numba (the first run of a "
                          "structure takes seconds to a minute; later runs load it) ..."),
@@ -94,7 +94,7 @@ def _compile_with_progress(d, jit, loop=False):
     if not cached:
         beat.start()
     try:
-        d.compile(jit=True, loop=loop)
+        d.compile(jit=True, loop=loop, jacobian=jacobian)
     finally:
         done.set()
     dt = time.perf_counter() - t0
@@ -195,9 +195,10 @@ def cmd_run(args):
     # results are written the writing finishes first (a second signal ends it at once,
     # leaving complete files only)
     with stop.installed():
-        from .solver.integrate import COMPILED
-        _compile_with_progress(d, jit=not args.no_jit,
-                               loop=(args.method or d.simulation["method"]) in COMPILED)
+        from .solver.integrate import COMPILED, STIFF
+        method = args.method or d.simulation["method"]
+        _compile_with_progress(d, jit=not args.no_jit, loop=method in COMPILED,
+                               jacobian=method in STIFF)
         prog = Progress(t_end)
         try:
             r = d.simulate(t_end=t_end, method=args.method, jit=not args.no_jit,

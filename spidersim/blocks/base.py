@@ -41,9 +41,36 @@ Contract for block implementers
    ``initialize(t, <states>, <inputs>, <params>, <modes>)``
        sets the modes consistent with the inputs, at the start and after every event.
 
-   Reserved argument names: ``t``, ``direction``, ``zc``, ``which``, ``inputs_ready`` and
-   ``der_<state>``; a declared name equal to one of them cannot be a kernel argument (it
-   would be ambiguous).
+   ``partials(t, <states>, <inputs>, <params>, <modes>, <outputs>, dfdx, dfdu, dydx, dydu)``
+       optional: the block's *local* partial derivatives at ``(t, states, inputs, modes)``
+       (the outputs are those of the same evaluation), as small dense matrices, C order::
+
+           dfdx[i, j] = d(der_state_i) / d(state_j)     shape (n_s, n_s)
+           dfdu[i, k] = d(der_state_i) / d(input_k)     shape (n_s, n_u)
+           dydx[r, j] = d(output_r) / d(state_j)        shape (n_y, n_s)
+           dydu[r, k] = d(output_r) / d(input_k)        shape (n_y, n_u)
+
+       ``state_j``: the block's states in declaration order, each element by element (a
+       state of size 0 takes no column); ``input_k``: its inputs in ``input_names`` order,
+       element by element (an unconnected optional input too: it reads zeros);
+       ``output_r``: its outputs in ``output_names`` order *except those that are a
+       state* (``DCMotor.w``: the engine knows ``dw/dw = 1``). Signs as the equations:
+       each entry is the derivative of the row quantity itself, in unit(row)/unit(column)
+       (``dfdx`` of ``L di/dt = v - R i`` is ``-R/L`` [1/s]). The matrices arrive zeroed:
+       the kernel writes the structurally nonzero entries only, and takes only the matrices
+       that can be nonzero (an argument left out is declared zero: a ``Gain`` takes
+       ``dydu`` alone). Dense rather than sparse because blocks are small (a few states and
+       ports: tens of entries) and a sparse format would need a second structural
+       declaration per block; the engine's structure is kept at the diagram level (which
+       states each signal depends on). A contract test compares every block's partials
+       with finite differences of its ``output`` and ``derivative``. The engine uses them to
+       assemble the Jacobian ``df/dx`` of the whole diagram by the chain rule (see
+       :mod:`spidersim.diagram.jacobian`); a block without them on a path into a derivative
+       makes the whole diagram fall back to finite differences.
+
+   Reserved argument names: ``t``, ``direction``, ``zc``, ``which``, ``inputs_ready``,
+   ``der_<state>`` and (``partials`` only) ``dfdx``, ``dfdu``, ``dydx``, ``dydu``; a
+   declared name equal to one of them cannot be a kernel argument (it would be ambiguous).
 
    An output port with the same name and size as a state *is* that state: no kernel writes
    it and it has no feedthrough (``DCMotor.w``). Ports, states and modes arrive as 1-D float arrays of their declared size (a scalar port
@@ -59,7 +86,9 @@ Contract for block implementers
    kernel argument must be a declared name or a reserved one (names computed by ``derive``
    are taken from a call with the default parameters), a name may not be declared twice in
    different roles (an output may share its state's name), a ``derivative`` needs states, a
-   ``guard`` needs events; a :class:`BlockDefinitionError` names the class and the argument.
+   ``guard`` needs events, ``partials`` takes at least one of its matrices and only those
+   the block can have (``dfdx`` needs states, ...); a :class:`BlockDefinitionError` names
+   the class and the argument.
 8. Optional class methods: ``derive(params) -> dict`` for numeric parameters computed from the
    user's (e.g. a state-space realisation of a transfer function), ``check(params)`` for
    cross-parameter validation (raise ``ValueError`` with a message), and
@@ -89,8 +118,10 @@ REGISTRY: dict[str, type["Block"]] = {}
 
 #: the kernels a block may define, and the argument names every kernel may use
 KERNELS = ("output", "derivative", "next_time", "time_event", "guard", "on_event",
-           "initialize")
+           "initialize", "partials")
 RESERVED = ("t", "direction", "zc", "which", "inputs_ready")
+#: the matrices of the ``partials`` kernel (contract item 4), reserved names too
+PARTIALS = ("dfdx", "dfdu", "dydx", "dydu")
 
 
 class BlockDefinitionError(TypeError):
@@ -248,6 +279,9 @@ def _declared_roles(cls):
             if n.startswith("der_"):
                 raise _definition_error(cls, f"{role} '{n}' uses the reserved prefix der_ "
                                              f"(state derivatives)")
+            if n in PARTIALS:
+                raise _definition_error(cls, f"{role} '{n}' is reserved (a matrix of the "
+                                             f"'partials' kernel)")
             prev = roles.get(n)
             if prev and {prev, role} != {"output", "state"}:
                 raise _definition_error(cls, f"'{n}' is declared both as {prev} and as {role}")
@@ -317,11 +351,11 @@ def _has_dynamic_names(cls):
                for m in ("kernel_source", "input_names", "output_names"))
 
 
-def _check_kernel_args(cls, kernel, fn, roles, derived):
+def _check_kernel_args(cls, kernel, fn, roles, derived, extra=()):
     """Every argument of ``kernel`` (the function ``fn``) is a declared name, a state
     derivative ``der_<state>``, a reserved name or a derived name, and no declared name is
     also reserved; unknown names get the nearest known ones."""
-    known = set(roles) | set(RESERVED) | {f"der_{n}" for n in cls.states}
+    known = set(roles) | set(RESERVED) | set(extra) | {f"der_{n}" for n in cls.states}
     for arg in inspect.signature(fn).parameters:
         if arg in RESERVED and arg in roles:
             raise _definition_error(cls, f"kernel '{kernel}' argument '{arg}' is ambiguous: "
@@ -336,6 +370,34 @@ def _check_kernel_args(cls, kernel, fn, roles, derived):
                                      f"name, nor reserved{hint}")
 
 
+def _check_partials(cls, fn):
+    """The ``partials`` kernel takes at least one of :data:`PARTIALS`, each only when the
+    block has what it differentiates (``dfdx``: states; ``dfdu``: states and inputs;
+    ``dydx``: outputs that are not states, and states; ``dydu``: such outputs and inputs),
+    and none of the event or derivative arguments."""
+    args = list(inspect.signature(fn).parameters)
+    taken = [a for a in args if a in PARTIALS]
+    if not taken:
+        raise _definition_error(cls, f"kernel 'partials' takes none of "
+                                     f"{', '.join(PARTIALS)}")
+    has_in = bool(cls.inputs) or _has_dynamic_names(cls)
+    has_y = any(o not in cls.states for o in cls.outputs) or _has_dynamic_names(cls)
+    needs = {"dfdx": (cls.states, "states"), "dfdu": (cls.states and has_in,
+                                                       "states and inputs"),
+             "dydx": (has_y and cls.states, "outputs that are not states, and states"),
+             "dydu": (has_y and has_in, "outputs that are not states, and inputs")}
+    for a in taken:
+        ok, what = needs[a]
+        if not ok:
+            raise _definition_error(cls, f"kernel 'partials' takes '{a}' but the block "
+                                         f"declares no {what}")
+    bad = [a for a in args if a in ("direction", "zc", "which", "inputs_ready")
+           or a.startswith("der_")]
+    if bad:
+        raise _definition_error(cls, f"kernel 'partials' argument '{bad[0]}' is not "
+                                     f"available to it")
+
+
 def _check_kernels(cls, roles, derived):
     """The kernels ``cls`` itself defines are static methods with known arguments (see
     :func:`_check_kernel_args`; skipped for blocks with dynamic names)."""
@@ -345,9 +407,12 @@ def _check_kernels(cls, roles, derived):
             continue
         if not isinstance(fn, staticmethod):
             raise _definition_error(cls, f"kernel '{kernel}' must be a @staticmethod")
+        if kernel == "partials":
+            _check_partials(cls, fn.__func__)
         if _has_dynamic_names(cls):
             continue
-        _check_kernel_args(cls, kernel, fn.__func__, roles, derived)
+        _check_kernel_args(cls, kernel, fn.__func__, roles, derived,
+                           PARTIALS if kernel == "partials" else ())
 
 
 class Block:

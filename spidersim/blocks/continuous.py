@@ -30,6 +30,12 @@ class Integrator(Block):
         for i in range(der_y.size):
             der_y[i] = u[i]
 
+    @staticmethod
+    def partials(t, dfdu):
+        """``d(dy_i/dt)/du_i = 1``; the output is the state."""
+        for i in range(dfdu.shape[0]):
+            dfdu[i, i] = 1.0
+
 
 class LimitedIntegrator(Block):
     """``dy/dt = u`` with ``lower <= y <= upper``: at a limit the state is *held* (mode
@@ -62,6 +68,11 @@ class LimitedIntegrator(Block):
     @staticmethod
     def derivative(t, u, m, der_y):
         der_y[0] = u[0] if m[0] == 0.0 else 0.0
+
+    @staticmethod
+    def partials(t, m, dfdu):
+        """``d(dy/dt)/du = 1`` while free, 0 while held at a limit (mode +-1)."""
+        dfdu[0, 0] = 1.0 if m[0] == 0.0 else 0.0
 
     @staticmethod
     def initialize(t, y, u, lower, upper, m):
@@ -99,6 +110,22 @@ def _ss_derivative(t, x, u, A, B, der_x):
         for k in range(u.size):
             acc += B[i, k] * u[k]
         der_x[i] = acc
+
+
+def _ss_partials(t, A, B, C, D, dfdx, dfdu, dydx, dydu):
+    """The partials of a linear state space are its matrices: ``dfdx = A``, ``dfdu = B``,
+    ``dydx = C``, ``dydu = D``."""
+    n, m = B.shape
+    for i in range(n):
+        for j in range(n):
+            dfdx[i, j] = A[i, j]
+        for k in range(m):
+            dfdu[i, k] = B[i, k]
+    for r in range(C.shape[0]):
+        for j in range(n):
+            dydx[r, j] = C[r, j]
+        for k in range(m):
+            dydu[r, k] = D[r, k]
 
 
 def _ss_output(t, x, u, C, D, y):
@@ -153,6 +180,7 @@ class StateSpace(Block):
 
     derivative = staticmethod(_ss_derivative)
     output = staticmethod(_ss_output)
+    partials = staticmethod(_ss_partials)
 
 
 class TransferFunction(Block):
@@ -203,3 +231,4 @@ class TransferFunction(Block):
 
     derivative = staticmethod(_ss_derivative)
     output = staticmethod(_ss_output)
+    partials = staticmethod(_ss_partials)

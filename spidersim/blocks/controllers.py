@@ -167,6 +167,28 @@ class PI(Block):
         der_I[0] = _i_rate_jit(e[0], v, ki, y_min, y_max, aw, kb, clamp[0])
 
     @staticmethod
+    def partials(t, I, e, kp, ki, y_min, y_max, aw, kb, clamp, dfdx, dfdu, dydx, dydu):
+        """State ``I``, input ``e``, output ``y``; ``v = kp e + I``, ``s = dsat/dv`` (1
+        strictly inside the limits, 0 outside or while sliding, ``|clamp| = 2``)::
+
+            dy/dI = s,   dy/de = kp s
+            dI'/de = ki (0 while clamped),            clamping
+            dI'/dI = kb (s - 1), dI'/de = ki + kb (s - 1) kp    back-calculation
+        """
+        v = kp * e[0] + I[0]
+        inside = 1.0 if y_min < v < y_max else 0.0
+        s = 0.0 if abs(clamp[0]) >= 1.5 else inside
+        dydx[0, 0] = s
+        dydu[0, 0] = kp * s
+        if aw == 0.0:
+            dfdu[0, 0] = 0.0 if clamp[0] != 0.0 else ki
+        elif aw == 1.0:
+            dfdx[0, 0] = kb * (inside - 1.0)
+            dfdu[0, 0] = ki + kb * (inside - 1.0) * kp
+        else:
+            dfdu[0, 0] = ki
+
+    @staticmethod
     def guard(t, I, e, kp, y_min, y_max, aw, clamp, armed, zc):
         _clamp_guard_jit(e[0], kp * e[0] + I[0], y_min, y_max, aw, clamp[0], armed[0], zc)
 

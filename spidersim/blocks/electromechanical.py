@@ -63,6 +63,36 @@ class DCMotor(Block):
         der_w[0] = (K_t * i[0] - b * w[0] - tau_load[0]) / J
         der_phi[0] = w[0]
 
+    @staticmethod
+    def partials(t, R, L, K_t, J, b, dfdx, dfdu, dydx, dydu):
+        """States ``(i, w, phi)`` (``(w, phi)`` when ``L = 0``), inputs ``(v, tau_load)``,
+        outputs that are not states ``tau`` (``(i, tau)`` when ``L = 0``)::
+
+            L > 0:  d(di/dt)/d(i, w) = (-R/L, -K_t/L),  d(di/dt)/dv = 1/L
+                    d(dw/dt)/d(i, w) = (K_t/J, -b/J),   d(dw/dt)/dtau_load = -1/J
+                    d(dphi/dt)/dw = 1,                   dtau/di = K_t
+            L = 0:  i = (v - K_t w)/R:  di/dw = -K_t/R, di/dv = 1/R (tau = K_t i alike)
+                    d(dw/dt)/dw = -(K_t^2/R + b)/J, d(dw/dt)/dv = K_t/(R J)
+        """
+        if L > 0.0:
+            dfdx[0, 0] = -R / L
+            dfdx[0, 1] = -K_t / L
+            dfdu[0, 0] = 1.0 / L
+            dfdx[1, 0] = K_t / J
+            dfdx[1, 1] = -b / J
+            dfdu[1, 1] = -1.0 / J
+            dfdx[2, 1] = 1.0
+            dydx[0, 0] = K_t
+        else:
+            dfdx[0, 0] = -(K_t * K_t / R + b) / J
+            dfdu[0, 0] = K_t / (R * J)
+            dfdu[0, 1] = -1.0 / J
+            dfdx[1, 0] = 1.0
+            dydx[0, 0] = -K_t / R
+            dydu[0, 0] = 1.0 / R
+            dydx[1, 0] = -K_t * K_t / R
+            dydu[1, 0] = K_t / R
+
 
 class BrushlessMotor(Block):
     """Two-phase permanent-magnet brushless motor (SPIDER's actuator)::
@@ -150,6 +180,56 @@ class BrushlessMotor(Block):
         der_i_b[0] = (v_b[0] - R * i_b[0] - bemf_b[0]) / L
         der_w[0] = dw[0]
         der_theta[0] = w[0]
+
+    @staticmethod
+    def partials(t, i_a, i_b, w, theta, p, R, L, K_t, J, b, h3, unbalance, tau_cog,
+                 dfdx, dfdu, dydx, dydu):
+        """States ``(i_a, i_b, w, theta)``, inputs ``(v_a, v_b, tau_load)``, outputs that
+        are not states ``(theta_e, tau, bemf_a, bemf_b, dw)``. With ``f_a' = df_a/dtheta =
+        p (-cos theta_e - 3 h3 cos 3 theta_e)``, ``f_b' = p (-sin theta_e + 3 h3 sin 3
+        theta_e)``::
+
+            dtau/d(i_a, i_b) = (K_a f_a, K_b f_b)
+            dtau/dtheta = K_a i_a f_a' + K_b i_b f_b' + 2 p tau_cog cos 2 theta_e
+            dbemf_a/d(w, theta) = (K_a f_a, K_a w f_a')      (b alike)
+            d(dw)/dx = (dtau/dx - b e_w) / J,  d(dw)/dtau_load = -1/J
+            L di_a/dt = v_a - R i_a - bemf_a                  (b alike)
+        """
+        te = p * theta[0]
+        s1, c1 = math.sin(te), math.cos(te)
+        fa = -s1 - h3 * (s1 * (3.0 - 4.0 * s1 * s1))
+        fb = c1 - h3 * (c1 * (4.0 * c1 * c1 - 3.0))
+        dfa = p * (-c1 - 3.0 * h3 * (c1 * (4.0 * c1 * c1 - 3.0)))
+        dfb = p * (-s1 + 3.0 * h3 * (s1 * (3.0 - 4.0 * s1 * s1)))
+        ka = K_t * (1.0 + 0.5 * unbalance)
+        kb = K_t * (1.0 - 0.5 * unbalance)
+        # outputs: theta_e, tau, bemf_a, bemf_b, dw
+        dydx[0, 3] = p
+        dydx[1, 0] = ka * fa
+        dydx[1, 1] = kb * fb
+        dydx[1, 3] = ka * i_a[0] * dfa + kb * i_b[0] * dfb \
+            + tau_cog * 2.0 * p * (c1 * c1 - s1 * s1)
+        dydx[2, 2] = ka * fa
+        dydx[2, 3] = ka * w[0] * dfa
+        dydx[3, 2] = kb * fb
+        dydx[3, 3] = kb * w[0] * dfb
+        for j in range(4):
+            dydx[4, j] = dydx[1, j] / J
+        dydx[4, 2] -= b / J
+        dydu[4, 2] = -1.0 / J
+        # derivatives: i_a, i_b, w, theta
+        dfdx[0, 0] = -R / L
+        dfdx[0, 2] = -dydx[2, 2] / L
+        dfdx[0, 3] = -dydx[2, 3] / L
+        dfdu[0, 0] = 1.0 / L
+        dfdx[1, 1] = -R / L
+        dfdx[1, 2] = -dydx[3, 2] / L
+        dfdx[1, 3] = -dydx[3, 3] / L
+        dfdu[1, 1] = 1.0 / L
+        for j in range(4):
+            dfdx[2, j] = dydx[4, j]
+        dfdu[2, 2] = -1.0 / J
+        dfdx[3, 2] = 1.0
 
 
 class NRPIDriver(Block):

@@ -67,3 +67,36 @@ class LuGre(Block):
     def derivative(t, z, v, T_c, T_s, v_s, delta, sigma0, sigma1, D, der_z):
         dz, f = lugre_rates_jit(v[0], z[0], T_c, T_s, v_s, delta, sigma0, sigma1, D)
         der_z[0] = dz
+
+    @staticmethod
+    def partials(t, z, v, T_c, T_s, v_s, delta, sigma0, sigma1, D, dfdx, dfdu, dydx,
+                 dydu):
+        """State ``z``, input ``v``, output ``tau``::
+
+            d(dz/dt)/dz = -sigma0 |v| / g
+            d(dz/dt)/dv = 1 - sigma0 z (sgn(v) g - |v| g') / g^2,
+                          g' = -(T_s - T_c) exp(-r^delta) delta r^(delta-1) sgn(v) / v_s
+            dtau/dz = sigma0 + sigma1 d(dz/dt)/dz,  dtau/dv = sigma1 d(dz/dt)/dv + D
+
+        (``r = |v / v_s|``; at ``v = 0`` the kink of ``|v|`` is taken with ``sgn(0) = 0``;
+        with ``g = 0``, ``dz/dt = v``).
+        """
+        vv = v[0]
+        r = abs(vv / v_s)
+        e = math.exp(-(r * r if delta == 2.0 else r ** delta))
+        g = T_c + (T_s - T_c) * e
+        if g > 0.0:
+            sg = 1.0 if vv > 0.0 else (-1.0 if vv < 0.0 else 0.0)
+            dg = 0.0
+            if vv != 0.0:
+                dg = -(T_s - T_c) * e * delta * (r if delta == 2.0 else r ** (delta - 1.0)) \
+                    * sg / v_s
+            a = -sigma0 * abs(vv) / g
+            b = 1.0 - sigma0 * z[0] * (sg * g - abs(vv) * dg) / (g * g)
+        else:
+            a = 0.0
+            b = 1.0
+        dfdx[0, 0] = a
+        dfdu[0, 0] = b
+        dydx[0, 0] = sigma0 + sigma1 * a
+        dydu[0, 0] = sigma1 * b + D

@@ -2,6 +2,8 @@
 algebraic constraint."""
 import math
 
+import numpy as np
+
 from .base import Block, Dim, Param, Port
 
 
@@ -27,6 +29,13 @@ class Gain(Block):
         nk = k.size
         for i in range(y.size):
             y[i] = k[i if nk > 1 else 0] * u[i]
+
+    @staticmethod
+    def partials(t, k, dydu):
+        """``dy_i/du_i = k_i``."""
+        nk = k.size
+        for i in range(dydu.shape[0]):
+            dydu[i, i] = k[i if nk > 1 else 0]
 
 
 #: the only operator tokens a specialised kernel may contain
@@ -95,10 +104,24 @@ class Sum(_Nary):
         # from the diagram reaches the generated source
         return " ".join(f"{_OP[s]} {n}[i]" for s, n in zip(signs, names))
 
+    @classmethod
+    def derive(cls, params):
+        """``sign``: +1.0 or -1.0 per input (for the partials)."""
+        return {"sign": np.array([1.0 if c == "+" else -1.0 for c in params["signs"]])}
+
     @staticmethod
     def output(t, u1, u2, y):
         for i in range(y.size):
             y[i] = u1[i] + u2[i]
+
+    @staticmethod
+    def partials(t, sign, dydu):
+        """``dy_i / d(u_k)_i = sign_k``: the inputs are the columns ``u1 .. uN`` one after
+        the other, each of the output's size."""
+        n = dydu.shape[0]
+        for k in range(sign.size):
+            for i in range(n):
+                dydu[i, k * n + i] = sign[k]
 
 
 def _product_unit(ops):

@@ -102,6 +102,13 @@ class Inertia(Block):
         der_w[0] = tau[0] / J
         der_phi[0] = w[0]
 
+    @staticmethod
+    def partials(t, J, dfdx, dfdu, dydu):
+        """``d(dw/dt)/dtau = 1/J``, ``d(dphi/dt)/dw = 1``, ``da/dtau = 1/J``."""
+        dfdu[0, 0] = 1.0 / J
+        dfdx[1, 0] = 1.0
+        dydu[0, 0] = 1.0 / J
+
 
 class PointMass(Block):
     """Point mass in space, base frame::

@@ -97,6 +97,16 @@ class Saturation(_Corners):
     def guard(t, lower, upper, u, zc):
         corner_guards(lower, upper, u, zc)
 
+    @staticmethod
+    def partials(t, lower, upper, zero_crossing, u, m, dydu):
+        """``dy_i/du_i`` = 1 in the linear mode (or, without zero crossing, strictly
+        between the limits), 0 at a limit."""
+        for i in range(dydu.shape[0]):
+            if zero_crossing:
+                dydu[i, i] = 1.0 if -0.5 <= m[i] <= 0.5 else 0.0
+            else:
+                dydu[i, i] = 1.0 if lower < u[i] < upper else 0.0
+
 
 class DeadZone(_Corners):
     """Dead zone: ``y = 0`` for ``start <= u <= end``, ``u - end`` above, ``u - start`` below.

@@ -45,6 +45,12 @@ class Mux(Block):
         for i in range(u2.size):
             y[u1.size + i] = u2[i]
 
+    @staticmethod
+    def partials(t, dydu):
+        """The identity: ``y`` is the inputs one after the other."""
+        for i in range(dydu.shape[0]):
+            dydu[i, i] = 1.0
+
 
 class Demux(Block):
     """Split ``u`` into outputs ``y1 .. yk`` of the given sizes."""
@@ -96,6 +102,12 @@ class Demux(Block):
         for i in range(y1.size):
             y1[i] = u[i]
 
+    @staticmethod
+    def partials(t, dydu):
+        """The identity: the outputs ``y1 .. yk`` one after the other are ``u``."""
+        for i in range(dydu.shape[0]):
+            dydu[i, i] = 1.0
+
 
 def Dim_k(k):
     from .base import Dim
@@ -128,6 +140,12 @@ class Selector(Block):
         for j in range(y.size):
             y[j] = u[int(index[j])]
 
+    @staticmethod
+    def partials(t, index, dydu):
+        """``dy_j / du_index[j] = 1``."""
+        for j in range(dydu.shape[0]):
+            dydu[j, int(index[j])] = 1.0
+
 
 class UnitCast(Block):
     """``y = u``, the numbers unchanged, read in the unit ``unit``: a deliberate
@@ -156,3 +174,9 @@ class UnitCast(Block):
     def output(t, u, y):
         for i in range(y.size):
             y[i] = u[i]
+
+    @staticmethod
+    def partials(t, dydu):
+        """The identity (the numbers are unchanged)."""
+        for i in range(dydu.shape[0]):
+            dydu[i, i] = 1.0

@@ -38,7 +38,8 @@ import networkx as nx
 
 from ..solver.newton import MAX_ITERATIONS, Workspace
 from ..solver.sysfn import (APPLY_EVENT, DERIVATIVES, GUARDS, GUARDS_AT_SIG, INITIALIZE,
-                            NEXT_TIME, TIME_EVENTS)
+                            JACOBIAN, NEXT_TIME, TIME_EVENTS)
+from . import jacobian as _jacobian
 from .graph import Layout
 from .grouping import Call, emit, group, table_text
 
@@ -218,8 +219,10 @@ def event_tables(layout: Layout):
 class Generator:
     """Collects kernel references and emits the module text."""
 
-    def __init__(self, layout: Layout):
+    def __init__(self, layout: Layout, jacobian: bool = False):
         self.layout = layout
+        #: emit the analytic Jacobian (spidersim.diagram.jacobian) when the blocks allow
+        self.jacobian = jacobian
         self.header = []
         self.kernels = {}   # (path, kernel) -> global name
         self.sources = {}   # specialised source text -> global name
@@ -337,6 +340,11 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
             ev_lines += [f"    if {a} <= k < {b}:", self.call(bl, "on_event", "        ")]
         body = "\n".join
         n_g = sum(bl.guard_slice[1] - bl.guard_slice[0] for bl in evb)
+        # the analytic Jacobian (spidersim.diagram.jacobian), when the blocks declare it
+        jac_text, jac_lines, n_jws = _jacobian.source(
+            L, lambda bl: self.kernel_name(bl, "partials"),
+            lambda bl, name: _arg_expr(bl, "partials", name), L.n_sig) \
+            if self.jacobian else ("", [], 0)
 
         def ind(lines):
             return textwrap.indent(body(lines) or "    pass", "    ")
@@ -352,7 +360,9 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
         tn = math.inf
 {ind(nt_lines)}
         return tn
-{te_text}{init_text}    if task == {GUARDS_AT_SIG}:
+{te_text}{init_text}    if task == {JACOBIAN}:
+{ind(jac_lines or ["    return 0.0"])}
+    if task == {GUARDS_AT_SIG}:
         g = out
 {ind(g_lines)}
         return 0.0
@@ -373,18 +383,21 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
 import math
 import numpy as np
 from spidersim.blocks.base import load_kernel
+from spidersim.solver import chain as _chain
 from spidersim.solver import newton as _newton
 
 JIT = {jit!r}
 if JIT:
     from numba import njit
 
+    from spidersim.diagram.views import matrix as _m
     from spidersim.diagram.views import view as _v
 
     def _jit(f):
         return njit(cache=True, nogil=True, error_model="numpy")(f)
     from spidersim.blocks.inlining import njit_inlinable as _jit_kernel
 else:
+    from spidersim.diagram.views import _matrix_py as _m
     from spidersim.diagram.views import _view_py as _v
 
     def _jit(f):
@@ -398,9 +411,13 @@ N_MODES = {L.n_modes}
 N_TIMED = {len(timed)}
 N_EVENTS = {n_g}
 N_G = N_EVENTS
+#: the analytic Jacobian: its workspace after the signals in sig (0: none, the loop uses
+#: finite differences)
+HAS_JACOBIAN = {bool(jac_text)!r}
+N_JWS = {n_jws}
 
 {body(self.header)}
-{table_text(tables)}
+{table_text(tables)}{jac_text}
 {body(loop_text)}
 
 
@@ -423,10 +440,11 @@ if JIT:
         """``evaluate`` on the data pointers of the system function: the same body,
         compiled here only (no separate ``evaluate`` to compile and link in)."""
         x = carray(x_ptr, N_X)
-        sig = carray(sig_ptr, N_SIG)
+        sig = carray(sig_ptr, N_SIG + N_JWS)
         p = carray(p_ptr, N_P)
         modes = carray(modes_ptr, N_MODES)
-        out = carray(out_ptr, N_X if task == {DERIVATIVES}
+        n_out = N_X * N_X if task == {JACOBIAN} else N_X
+        out = carray(out_ptr, n_out if task == {DERIVATIVES} or task == {JACOBIAN}
                      else (N_G if task == {GUARDS} or task == {GUARDS_AT_SIG}
                            else N_TIMED))
 {textwrap.indent(ev_body, "    ")}
@@ -438,6 +456,8 @@ else:
 
 
 
-def generate(layout: Layout, jit: bool) -> str:
-    """Module text for ``layout`` (see the module docstring)."""
-    return Generator(layout).module(jit)
+def generate(layout: Layout, jit: bool, jacobian: bool = False) -> str:
+    """Module text for ``layout`` (see the module docstring); ``jacobian``: with the
+    analytic Jacobian when the blocks allow (only the stiff methods use it, and it costs
+    compile time: a new servo diagram 1.0-1.2 -> 1.8-2.1 s CPU)."""
+    return Generator(layout, jacobian).module(jit)

@@ -148,12 +148,14 @@ def build_layout(flat: Flat) -> Layout:
                   slots.n_g, sched.partial)
 
 
-def jacobian_sparsity(layout: Layout):
-    """Boolean (n_x, n_x) pattern: which states can move each state's derivative."""
+def port_state_deps(layout: Layout):
+    """Port node -> the set of state indices its value can depend on (structurally):
+    through the wires, each block's declared feedthrough and, for a block's outputs, all of
+    its own states (an output that *is* a state depends on that state only). Computed
+    component by component of the condensation: every port of an algebraic loop depends on
+    everything the loop reads."""
     info = layout.blocks
     g = layout.graph
-    # states each port depends on, component by component of the condensation (a loop is
-    # one component: each of its ports depends on everything the loop reads)
     cond = nx.condensation(g)
     comp_deps = {}
     for c in nx.topological_sort(cond):
@@ -170,14 +172,26 @@ def jacobian_sparsity(layout: Layout):
             d |= comp_deps[pred]
         comp_deps[c] = d
     mapping = cond.graph["mapping"]
-    deps = {node: comp_deps[mapping[node]] for node in g.nodes}
+    return {node: comp_deps[mapping[node]] for node in g.nodes}
+
+
+def block_columns(layout: Layout, deps, bl):
+    """The states a block's derivatives can depend on: its own and those its inputs
+    depend on (``deps`` from :func:`port_state_deps`); one row set of the pattern."""
+    cols = set()
+    for a, b in bl.states.values():
+        cols.update(range(a, b))
+    for i in bl.inputs:
+        cols |= deps[("in", bl.path, i)]
+    return cols
+
+
+def jacobian_sparsity(layout: Layout):
+    """Boolean (n_x, n_x) pattern: which states can move each state's derivative."""
+    deps = port_state_deps(layout)
     pattern = np.zeros((layout.n_x, layout.n_x), dtype=bool)
-    for bl in info.values():
-        cols = set()
-        for a, b in bl.states.values():
-            cols.update(range(a, b))
-        for i in bl.inputs:
-            cols |= deps[("in", bl.path, i)]
+    for bl in layout.blocks.values():
+        cols = block_columns(layout, deps, bl)
         for a, b in bl.states.values():
             for c in cols:
                 pattern[a:b, c] = True

@@ -15,10 +15,11 @@ import numpy as np
 from ..errors import DiagramError, ParameterError, SpidersimError
 from ..solver import CompiledSystem, integrate
 from ..solver.compiled import load_module
-from ..solver.integrate import COMPILED
+from ..solver.integrate import COMPILED, STIFF
 from .codegen import event_tables, generate
 from .flatten import flatten
 from .graph import build_layout, jacobian_sparsity
+from .jacobian import plan as jacobian_plan
 from .units import UNKNOWN, infer_units
 from .spec import SIM_KEYS, DiagramSpec, parse_file, parse_text
 from ..text.yamlio import found
@@ -328,23 +329,30 @@ class Diagram:
         return out
 
     # ------------------------------------------------------------------ compile & run
-    def source(self, jit=True):
-        """The generated module text."""
-        return generate(self.layout, jit)
+    def source(self, jit=True, jacobian=False):
+        """The generated module text (``jacobian``: with the analytic Jacobian when the
+        blocks declare their partials, see :mod:`spidersim.diagram.jacobian`)."""
+        return generate(self.layout, jit, jacobian)
 
-    def compile(self, jit=True, loop=False):
+    def compile(self, jit=True, loop=False, jacobian=False):
         """Generate, import and warm up the compiled functions; return the system.
 
         With ``loop``, the compiled integration loop (methods ``DP54``, ``ROS34PW2``, ``NDF``) is
         compiled too (or loaded from the cache); otherwise it is compiled on its first use.
+        With ``jacobian``, the system can assemble the analytic Jacobian when the blocks
+        allow (``system.analytic_jacobian``; what the stiff methods use): a module made
+        without it is made again with it (a superset, kept for later calls).
         """
         if loop and jit:
-            system = self.compile(jit)
+            system = self.compile(jit, jacobian=jacobian)
             if not system.loop_ready():
                 t0 = time.perf_counter()
                 system.warm_up_loop()
                 self._compile_time += time.perf_counter() - t0
             return system
+        if jit in self._modules and jacobian and not self._jacobian_reason() and not \
+                getattr(self._modules[jit][0], "HAS_JACOBIAN", False):
+            del self._modules[jit]          # made again with the Jacobian
         if jit not in self._modules:
             t0 = time.perf_counter()
             def warm_up(mod):
@@ -353,7 +361,7 @@ class Diagram:
                 self._modules[jit] = (mod, None)
                 self._system(jit).warm_up()
 
-            mod, key, _ = load_module(self.source(jit), jit, check=warm_up)
+            mod, key, _ = load_module(self.source(jit, jacobian), jit, check=warm_up)
             self._modules[jit] = (mod, key)
             self._compile_time = time.perf_counter() - t0
         else:
@@ -368,6 +376,7 @@ class Diagram:
                                 L.n_sig, self._log, sig_names, x_names, sparsity,
                                 sig0=self.initial_signals(), loops=self.loop_info(),
                                 tables=tables)
+        system.jacobian_reason = self._jacobian_reason()
         a, r = L.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
         system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]
@@ -376,6 +385,14 @@ class Diagram:
         # (no-op before the first warm-up compiled the functions)
         system._bind_entry_points()
         return system
+
+    def _jacobian_reason(self):
+        """Why the diagram has no analytic Jacobian ('' when it has one; see
+        :func:`spidersim.diagram.jacobian.plan`), computed once per layout."""
+        cached = getattr(self, "_jac_reason_cache", None)
+        if cached is None or cached[0] is not self.layout:
+            cached = self._jac_reason_cache = (self.layout, jacobian_plan(self.layout).reason)
+        return cached[1]
 
     def _system_tables(self):
         """The structural tables of a system (signal and state names, Jacobian sparsity,
@@ -401,8 +418,15 @@ class Diagram:
         return tables
 
     def simulate(self, t_end=None, method=None, rtol=None, atol=None, max_step=None,
-                 output_interval=None, jit=True, progress=None, should_stop=None):
+                 output_interval=None, jit=True, progress=None, should_stop=None,
+                 jacobian="auto"):
         """Run the diagram; arguments left ``None`` come from the file's ``simulation``.
+
+        ``jacobian`` (the compiled ``ROS34PW2`` and ``NDF``): ``"auto"`` the analytic
+        Jacobian when the diagram has one (its blocks declare their partials, see
+        :mod:`spidersim.diagram.jacobian`), else finite differences; ``"fd"`` always finite
+        differences; ``"analytic"`` the analytic one or a :class:`SpidersimError` saying
+        why there is none.
 
         Returns a :class:`~spidersim.solver.result.Result`; raises
         :class:`~spidersim.errors.IntegrationError` (with ``partial``) on failure.
@@ -414,7 +438,8 @@ class Diagram:
                 cfg[k] = v
         if cfg["max_step"] is None:
             cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
-        system = self.compile(jit, loop=cfg["method"] in COMPILED)
+        system = self.compile(jit, loop=cfg["method"] in COMPILED,
+                              jacobian=cfg["method"] in STIFF and jacobian != "fd")
         a, r = self.layout.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * cfg["atol"]
         system.p[r] = LOOP_TOL_FACTOR * cfg["rtol"]
@@ -426,7 +451,7 @@ class Diagram:
                              first_step=cfg["first_step"],
                              output_interval=cfg["output_interval"], progress=progress,
                              should_stop=should_stop,
-                             stats=stats)
+                             stats=stats, jacobian=jacobian)
         except SpidersimError as exc:
             if exc.file is None:
                 exc.file = self.file

@@ -103,8 +103,9 @@ import numpy as np
 from ._jit import njit, njit_borrowed
 from .dense_lu import lu_factor, lu_solve
 from .dp54 import initial_h0
-from .rosenbrock import n_groups, perturb_group, store_group
+from .rosenbrock import analytic, n_groups, perturb_group, store_group
 from .sysfn import derivatives
+from .sysfn import jacobian as sysfn_jacobian
 
 MAX_ORDER = 5
 #: NDF coefficients kappa_k, k = 0..5 (Shampine & Reichelt 1997, Table 1; index 0 unused)
@@ -275,8 +276,14 @@ def first_step(fn, t, x, f0, span, rtol, atol, V, sig, p, modes):
 def jacobian(fn, t, V, J, jpat, iw, sig, p, modes):
     """``J`` = finite-difference Jacobian at ``(t, D[0])`` with the base ``f(t, D[0])`` in
     ``V[ROW_FCUR]`` (evaluated first when not valid): one evaluation per column group of
-    ``jpat``."""
+    ``jpat``; or, when ``jpat`` says so, the system's analytic one (one call, counted as
+    one evaluation: it evaluates the outputs; :mod:`spidersim.diagram.jacobian`)."""
     x = V[0]
+    if analytic(jpat) and sysfn_jacobian(fn, t, x, sig, p, modes, J):
+        iw[I_NFEV] += 1
+        iw[I_NJAC] += 1
+        iw[I_JVALID] = 1
+        return
     y, fp, d = V[ROW_YP], V[ROW_FP], V[ROW_DJ]
     if iw[I_FCUR_VALID] == 0:
         derivatives(fn, t, x, sig, p, modes, V[ROW_FCUR])

@@ -30,6 +30,8 @@ METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau"
 #: stepper of the same tableau and controller (DP54), SciPy's Radau (ROS34PW2) or SciPy's BDF
 #: (NDF, the same family)
 COMPILED = ("DP54", "ROS34PW2", "NDF")
+#: the compiled methods that use a Jacobian (the analytic one when the system has it)
+STIFF = ("ROS34PW2", "NDF")
 #: methods given the structural Jacobian pattern (ROS34PW2 runs SciPy's Radau here)
 IMPLICIT = ("Radau", "BDF", "ROS34PW2", "NDF")
 
@@ -82,7 +84,7 @@ def integrate(system, t_end, **kw):
 
 def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_step=math.inf,
               first_step=None, output_interval=None, progress=None, stats=None,
-              should_stop=None):
+              should_stop=None, jacobian="auto"):
     """Integrate ``system`` from ``t0`` to ``t_end``; return a :class:`Result`.
 
     Parameters
@@ -111,7 +113,15 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         ``status == "interrupted"`` (the CLI sets it from SIGINT/SIGTERM).
     stats : dict, optional
         Extra entries for ``Result.stats``.
+    jacobian : {"auto", "fd", "analytic"}
+        The Jacobian of the compiled ``ROS34PW2`` and ``NDF``: ``auto`` the system's
+        analytic one when it has one (``system.analytic_jacobian``), else finite
+        differences over coloured column groups; ``fd`` always those; ``analytic`` the
+        analytic one or an error saying why there is none. SciPy's steppers ignore it.
     """
+    if jacobian not in ("auto", "fd", "analytic"):
+        raise SpidersimError(f"jacobian must be 'auto', 'fd' or 'analytic', got "
+                             f"{jacobian!r}")
     if method not in METHODS:
         import difflib
         near = difflib.get_close_matches(str(method), METHODS, n=1)
@@ -137,7 +147,8 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         return integrate_dp54(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
                               max_step=max_step, first_step=first_step,
                               output_interval=output_interval, progress=progress,
-                              stats=stats, should_stop=should_stop, method=method)
+                              stats=stats, should_stop=should_stop, method=method,
+                              jacobian=jacobian)
     clock = system.n_x == 0
     if clock:
         system = _Clock(system)

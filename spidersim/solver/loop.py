@@ -90,8 +90,10 @@ class CompiledLoop:
     """
 
     def __init__(self, entry, system, t0, t_end, rtol, atol, max_step, first_step,
-                 output_interval, capacity=1024, method="DP54"):
+                 output_interval, capacity=1024, method="DP54", jacobian="auto"):
         s = system
+        #: the system assembles df/dx itself (:mod:`spidersim.diagram.jacobian`)
+        self.analytic = method in ("NDF", "ROS34PW2") and _use_analytic(s, jacobian)
         self.entry, self.system = entry, s
         n = s.n_x
         self.x = np.array(s.x0, dtype=float)
@@ -102,10 +104,12 @@ class CompiledLoop:
         if method == "NDF":
             V, self.JW, iw, fw = bdf.work(n)
             self.B = (V, iw, fw)
-            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n)
+            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n,
+                                                 self.analytic)
         elif method == "ROS34PW2":
             self.JW = rosenbrock.jacobian_work(n)
-            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n)
+            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n,
+                                                 self.analytic)
         else:
             self.JW = np.zeros((2, 0, 0))
             self.jpat = np.zeros(0, dtype=np.int64)
@@ -218,7 +222,10 @@ class CompiledLoop:
         i = self.ist
         return dict(steps=int(i[I_STEPS]), rhs_calls=int(i[I_NFEV]),
                     jacobian_calls=int(i[I_NJAC]), lu_decompositions=int(i[I_NLU]),
-                    jacobian_groups=int(rosenbrock.n_groups(self.jpat)), segments=int(i[I_SEGMENTS]),
+                    jacobian_groups=int(rosenbrock.n_groups(self.jpat)),
+                    jacobian="analytic" if self.analytic else (
+                        "finite differences" if self.jpat.size else "none"),
+                    segments=int(i[I_SEGMENTS]),
                     time_events=int(i[I_TIMED]), rejected_steps=int(i[I_REJECTED]))
 
 
@@ -226,9 +233,21 @@ class CompiledLoop:
 EVENT_VALUES = 3
 
 
+def _use_analytic(system, jacobian):
+    """Whether the loop asks ``system`` for its analytic Jacobian (``jacobian``: ``auto``,
+    ``fd``, ``analytic``; the last raises when the system has none)."""
+    has = bool(getattr(system, "analytic_jacobian", False))
+    if jacobian == "analytic" and not has:
+        from ..errors import SpidersimError
+        why = getattr(system, "jacobian_reason", "") or "not generated"
+        raise SpidersimError(f"jacobian='analytic': the diagram has no analytic Jacobian "
+                             f"({why}); use 'auto' or 'fd'")
+    return has and jacobian != "fd"
+
+
 def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=math.inf,
                    first_step=None, output_interval=None, progress=None, stats=None,
-                   should_stop=None, method="DP54"):
+                   should_stop=None, method="DP54", jacobian="auto"):
     """Integrate ``system`` with the compiled loop (Dormand-Prince 5(4); ROS34PW2 or the
     variable-order NDF with ``method="ROS34PW2"`` or ``"NDF"``); return a ``Result``.
 
@@ -243,7 +262,7 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
     if system.n_x == 0 and max_step == math.inf:
         max_step = (t_end - t0) / 200
     run = CompiledLoop(entry, system, t0, t_end, rtol, atol, max_step, first_step,
-                       output_interval, method=method)
+                       output_interval, method=method, jacobian=jacobian)
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
     status, message = "ok", ""

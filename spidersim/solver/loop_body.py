@@ -239,7 +239,14 @@ def _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
 @njit_borrowed
 def _jacobian(fn, t, x, K, J, jpat, ist, sig, p, modes):
     """``J`` = the finite-difference Jacobian at ``(t, x)`` (``K[0] = f(t, x)``), one
-    evaluation per column group (see :mod:`spidersim.solver.rosenbrock`)."""
+    evaluation per column group (see :mod:`spidersim.solver.rosenbrock`); or, when
+    ``jpat`` says so, the system's analytic one (one call, counted as one evaluation: it
+    evaluates the outputs; :mod:`spidersim.diagram.jacobian`)."""
+    if _ros.analytic(jpat) and _sf.jacobian(fn, t, x, sig, p, modes, J):
+        ist[I_NFEV] += 1
+        ist[I_NJAC] += 1
+        ist[I_JAGE] = 0
+        return
     y = K[_ros.ROW_TRIAL]
     fp = K[_ros.ROW_FPERT]
     d = K[_ros.ROW_SCRATCH]

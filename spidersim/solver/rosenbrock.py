@@ -38,8 +38,11 @@ then gives every column of the group, ``J[i, j] = (f_i(x + ...) - f_i(x)) / d_j`
 (RADAU5): ``d_j = sqrt(eps max(1e-5, |x_j|))``, rounded so that ``x_j + d_j`` is exact.
 
 Pattern array ``jpat`` (int64): ``[n_groups, col_ptr (n + 1), row_idx (nnz), grp_ptr
-(n_groups + 1), grp_col (n)]``: the rows of column ``j`` are ``row_idx[col_ptr[j]:col_ptr[j+1]]``
-and the columns of group ``g`` are ``grp_col[grp_ptr[g]:grp_ptr[g+1]]``.
+(n_groups + 1), grp_col (n), analytic]``: the rows of column ``j`` are
+``row_idx[col_ptr[j]:col_ptr[j+1]]`` and the columns of group ``g`` are
+``grp_col[grp_ptr[g]:grp_ptr[g+1]]``; ``analytic`` (the last element) 1 when the Jacobian is
+to be asked of the system function instead (:func:`analytic`, the task ``JACOBIAN`` of
+:mod:`.sysfn`: one call instead of ``n_groups`` evaluations).
 """
 from __future__ import annotations
 
@@ -123,10 +126,11 @@ def colour_columns(pattern):
     return group
 
 
-def pattern_array(pattern, n):
+def pattern_array(pattern, n, analytic=False):
     """The ``jpat`` array of the module docstring for an ``(n, n)`` boolean ``pattern``
     (``None``: dense, every column its own group). The diagonal is always included (the
-    matrix ``I / (h gamma) - J`` has it)."""
+    matrix ``I / (h gamma) - J`` has it). ``analytic``: the system function assembles the
+    Jacobian itself (its last element 1)."""
     S = np.ones((n, n), dtype=bool) if pattern is None else np.array(pattern, dtype=bool)
     if S.shape != (n, n):
         raise ValueError(f"Jacobian sparsity pattern of shape {S.shape}, expected {(n, n)}")
@@ -144,7 +148,13 @@ def pattern_array(pattern, n):
     for g in range(n_groups):
         grp_ptr[g + 1] = grp_ptr[g] + int(np.sum(group == g))
     return np.concatenate(([n_groups], col_ptr, np.array(row_idx, dtype=np.int64), grp_ptr,
-                           order)).astype(np.int64)
+                           order, [1 if analytic else 0])).astype(np.int64)
+
+
+@njit_borrowed
+def analytic(jpat):
+    """True when ``jpat`` says the system's analytic Jacobian is to be used."""
+    return jpat.size > 0 and jpat[jpat.size - 1] != 0
 
 
 @njit_borrowed

@@ -36,6 +36,12 @@ task                  what the system does                                      
 ``APPLY_EVENT``       apply event ``k`` with direction ``f`` on ``x``, ``modes``  0
 ``GUARDS_AT_SIG``     the zero-crossing functions from the outputs already in      0
                       ``sig`` (the caller's last evaluation was at ``(t, x)``)
+``JACOBIAN``          outputs, then ``J = df/dx`` (``n_x * n_x``, C order) from   1 (or 0:
+                      the blocks' declared partials into ``out`` (the structural   no
+                      nonzeros only; :mod:`spidersim.diagram.jacobian`)            analytic
+                                                                                   Jacobian,
+                                                                                   nothing
+                                                                                   written)
 ====================  ==========================================================  ========
 
 The functions below are the only way spidersim calls a system function: ``call`` converts
@@ -53,8 +59,9 @@ from ._jit import njit, njit_borrowed
 
 OUTPUTS, DERIVATIVES, GUARDS, NEXT_TIME, TIME_EVENTS, INITIALIZE, APPLY_EVENT = range(7)
 GUARDS_AT_SIG = 7
+JACOBIAN = 8
 TASKS = ("OUTPUTS", "DERIVATIVES", "GUARDS", "NEXT_TIME", "TIME_EVENTS", "INITIALIZE",
-         "APPLY_EVENT", "GUARDS_AT_SIG")
+         "APPLY_EVENT", "GUARDS_AT_SIG", "JACOBIAN")
 
 try:
     from numba import types
@@ -82,9 +89,11 @@ if intrinsic is not None:
         """Call the C function at ``address`` (an integer: ``cfunc.address``) with the data
         pointers of the five arrays (no reference is taken: the arrays outlive the call)."""
         arrays = (x, sig, p, modes, out)
+        # ``out`` may be a C-contiguous matrix (the Jacobian): its data pointer is passed
         if not (isinstance(address, types.Integer) and all(
                 isinstance(a, types.Array) and a.dtype == types.float64 and a.ndim == 1
-                for a in arrays)):
+                for a in arrays[:4]) and isinstance(out, types.Array)
+                and out.dtype == types.float64 and (out.ndim == 1 or out.layout == "C")):
             return None
 
         def codegen(context, builder, signature, args):
@@ -169,6 +178,14 @@ def initialize(fn, t, x, sig, p, modes):
 def apply_event(fn, t, x, sig, p, modes, k, direction):
     """Apply event ``k`` (a guard index; ``-1``: none, for a warm-up) with ``direction``."""
     call(fn, APPLY_EVENT, t, x, sig, p, modes, sig, k, direction)
+
+
+@njit_borrowed
+def jacobian(fn, t, x, sig, p, modes, J):
+    """Outputs, then the analytic ``J = df/dx`` (``J``: ``(n_x, n_x)``, C order; only the
+    structural nonzeros are written); returns False, with nothing written, when the system
+    has no analytic Jacobian (the caller uses finite differences)."""
+    return call(fn, JACOBIAN, t, x, sig, p, modes, J, 0, 0.0) != 0.0
 
 
 @njit_borrowed

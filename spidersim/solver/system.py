@@ -35,7 +35,7 @@ from .sysfn import entry_point
 #: the Python-side calls of a compiled system, compiled once for every diagram
 _OPS = {name: getattr(sysfn, name) for name in (
     "rhs", "outputs", "record", "record_guards", "guards", "next_time", "time_events",
-    "initialize", "apply_event")}
+    "initialize", "apply_event", "jacobian")}
 
 
 class CompiledSystem:
@@ -68,7 +68,14 @@ class CompiledSystem:
         self.x0 = np.ascontiguousarray(x0, dtype=float)
         self.p = np.ascontiguousarray(p, dtype=float)
         self.modes = np.array(modes0, dtype=float)
-        self.sig = np.zeros(n_sig) if sig0 is None else np.array(sig0, dtype=float)
+        # the analytic Jacobian's workspace follows the signals (N_JWS floats, zero)
+        n_jws = int(getattr(module, "N_JWS", 0))
+        self.sig = np.zeros(n_sig + n_jws)
+        if sig0 is not None:
+            self.sig[:n_sig] = sig0
+        #: the generated module assembles df/dx from the blocks' partials (the loop's
+        #: ROS34PW2 and NDF then call it instead of finite differences)
+        self.analytic_jacobian = bool(getattr(module, "HAS_JACOBIAN", False))
         self.loops = list(loops)
         self.sig_names = sig_names
         self.x_names = x_names
@@ -103,9 +110,9 @@ class CompiledSystem:
         self.record_size = k
         self.units = units
         m = module
-        for name, arr in (("N_X", self.x0), ("N_SIG", self.sig), ("N_P", self.p),
-                          ("N_MODES", self.modes)):
-            if getattr(m, name) != arr.size:    # the system function trusts these sizes
+        for name, arr, extra in (("N_X", self.x0, 0), ("N_SIG", self.sig, n_jws),
+                                 ("N_P", self.p, 0), ("N_MODES", self.modes, 0)):
+            if getattr(m, name) + extra != arr.size:   # the system function trusts these
                 raise RuntimeError(f"generated module's {name} = {getattr(m, name)} does "
                                    f"not match its array of size {arr.size}")
         self._fired = np.zeros(max(1, len(self.timed)))
@@ -122,6 +129,16 @@ class CompiledSystem:
 
     def _call(self, name, *args):
         return self._ops[name](self.fn, *args)
+
+    def jacobian(self, t, x):
+        """The analytic ``J = df/dx`` at ``(t, x)`` from the blocks' declared partials (a
+        new ``(n_x, n_x)`` array; zero outside the structural pattern), or None when the
+        diagram has none (see :mod:`spidersim.diagram.jacobian`). Leaves the outputs of
+        ``(t, x)`` in ``sig``."""
+        J = np.zeros((self.n_x, self.n_x))
+        x = np.ascontiguousarray(x, dtype=float)
+        ok = self._call("jacobian", t, x, self.sig, self.p, self.modes, J)
+        return J if ok else None
 
     def outputs(self, t, x):
         self._call("outputs", t, x, self.sig, self.p, self.modes)

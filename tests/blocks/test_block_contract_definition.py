@@ -62,3 +62,52 @@ def test_derived_names_are_accepted():
 
 def test_every_library_block_passes():
     assert len(REGISTRY) > 40      # all of them were checked when the package was imported
+
+
+@pytest.mark.parametrize("body,words", [
+    (dict(inputs={"u": Port()}, outputs={"y": Port(feedthrough=("u",))},
+          partials=staticmethod(lambda t, u: None)), "takes none of dfdx"),
+    (dict(inputs={"u": Port()}, outputs={"y": Port(feedthrough=("u",))},
+          partials=staticmethod(lambda t, dfdx: None)), "'dfdx' but the block declares no "
+                                                         "states"),
+    (dict(inputs={"u": Port()}, outputs={"y": Port()}, states={"y": State()},
+          derivative=staticmethod(lambda t, u, der_y: None),
+          partials=staticmethod(lambda t, dydu: None)), "no outputs that are not states"),
+    (dict(outputs={"y": Port()}, states={"x": State()},
+          derivative=staticmethod(lambda t, der_x: None),
+          partials=staticmethod(lambda t, dfdu: None)), "no states and inputs"),
+    (dict(inputs={"u": Port()}, outputs={"y": Port()}, states={"y": State()},
+          derivative=staticmethod(lambda t, u, der_y: None),
+          partials=staticmethod(lambda t, der_y, dfdu: None)), "'der_y' is not available"),
+    (dict(inputs={"u": Port()}, outputs={"y": Port(feedthrough=("u",))},
+          partials=staticmethod(lambda t, kk, dydu: None)), "argument 'kk'"),
+    (dict(parameters={"dydu": Param(1.0)}), "'dydu' is reserved"),
+    (dict(inputs={"u": Port()}, outputs={"y": Port(feedthrough=("u",))},
+          partials=lambda t, dydu: None), "@staticmethod"),
+])
+def test_partials_kernel_violations(body, words):
+    """The ``partials`` kernel (contract item 4) is checked at class definition: it takes
+    at least one of its matrices, only those the block can have, no event or derivative
+    arguments, only declared names; the matrix names are reserved."""
+    with pytest.raises(BlockDefinitionError, match=words):
+        _define(**body)
+
+
+def test_partials_kernel_accepted():
+    """A well-formed ``partials`` kernel (a first-order lag) defines a block."""
+    class _Lag(Block):
+        type_name = "_TestLag"
+        parameters = {"tau": Param(1.0, "s")}
+        inputs = {"u": Port()}
+        outputs = {"y": Port()}
+        states = {"y": State()}
+
+        @staticmethod
+        def derivative(t, y, u, tau, der_y):
+            der_y[0] = (u[0] - y[0]) / tau
+
+        @staticmethod
+        def partials(t, tau, dfdx, dfdu):
+            dfdx[0, 0] = -1.0 / tau
+            dfdu[0, 0] = 1.0 / tau
+    assert REGISTRY.pop("_TestLag") is _Lag
