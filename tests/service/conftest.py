@@ -61,8 +61,26 @@ def cli(*args, check=True):
     return p
 
 
-def add_user(data, name):
-    out = cli("serve", "--add-user", name, "--data", str(data)).stdout
+def add_user(data, name, process=False):
+    """``spidersim serve --add-user NAME --data DATA``; return the token it prints.
+
+    By default the command runs in this process (:func:`spidersim.cli.main`, the same
+    argument parsing and code as the console command, stdout captured): a process per user
+    cost about 2.5 s of CPU for importing spidersim, and the service tests made nine.
+    ``process=True`` runs the real console command in a fresh process (the module server's
+    first user does, so that the command as a user types it stays tested)."""
+    if process:
+        out = cli("serve", "--add-user", name, "--data", str(data)).stdout
+    else:
+        import contextlib
+        import io
+
+        from spidersim.cli import main
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            rc = main(["serve", "--add-user", name, "--data", str(data)])
+        out = buf.getvalue()
+        assert rc == 0, out
     m = re.search(r"(sst_\S+)", out)
     assert m, out
     return m.group(1)
@@ -141,7 +159,7 @@ def server(tmp_path_factory, models_dir):
     data = tmp_path_factory.mktemp("data")
     s = Server(data, models_dir, ["--workers", "2", "--max-jobs", "3", "--max-t-end", "1000",
                                   "--max-signals", "5", "--max-body", "20000"])
-    s.alice = add_user(data, "alice")
+    s.alice = add_user(data, "alice", process=True)
     s.bob = add_user(data, "bob")
     s.start()
     yield s
