@@ -211,6 +211,23 @@ ABLATIONS = {
     "DP54 advance direct": [
         ("h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)",
          "h, fac = _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes)")],
+    "helpers inlined": [
+        ("@njit_borrowed\ndef _tol(", "@njit_borrowed(inline=\"always\")\ndef _tol("),
+        ("@njit_borrowed\ndef _pause_code(", "@njit_borrowed(inline=\"always\")\ndef _pause_code("),
+        ("@njit_borrowed\ndef _cap_for_rows(",
+         "@njit_borrowed(inline=\"always\")\ndef _cap_for_rows("),
+        ("@njit_borrowed\ndef _stalled(", "@njit_borrowed(inline=\"always\")\ndef _stalled("),
+        ("@njit_borrowed\ndef _advance_dp54(",
+         "@njit_borrowed(inline=\"always\")\ndef _advance_dp54(")],
+    "row from last stage": [
+        ("            ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)",
+         "            if ist[I_METHOD] == METHOD_DP54 and t + h == t_new:\n"
+         "                r = ist[I_ROWS]\n"
+         "                ok = _sf._copy_row(x1, sig, s_idx, x_idx, buf, r)\n"
+         "                tbuf[r] = t_new\n"
+         "                ist[I_ROWS] = r + 1\n"
+         "            else:\n"
+         "                ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)")],
     "DP54 branch": [
         ("        h, fac = _advance(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes)\n",
          "        if ist[I_METHOD] == 0:\n"

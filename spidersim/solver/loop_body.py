@@ -110,7 +110,7 @@ def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, B, xs, g, xtol, sig, p, modes
     return b
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def _tol(t):
     return 1e-12 * max(1.0, abs(t))
 
@@ -364,7 +364,7 @@ def _advance_ndf(fn, t, t_seg, x, K, x1, JW, jpat, B, ist, fst, sig, p, modes):
     return h, 1.0
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def _advance_dp54(fn, t, t_seg, x, K, x1, ist, fst, sig, p, modes):
     """One accepted step from ``(t, x)`` (``K[0] = f(t, x)``), never past ``t_seg``.
 
@@ -564,7 +564,7 @@ def _time_events_now(fn, t, x, K, G, g_dir, g_block, timed_block, fired, bmask, 
     return 0
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst):
     """``ROWS_FULL``, ``EVENTS_FULL`` or ``PAUSE`` when the loop must hand back to the
     caller before the next step (``fst[F_T] = t``), else ``DONE`` (0: go on)."""
@@ -580,7 +580,7 @@ def _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst):
     return code
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def _cap_for_rows(grid, tbuf, ist, fst):
     """Step cap of this step: ``max_step``, and on an output grid the rows one step may
     write must fit in the buffer."""
@@ -591,7 +591,7 @@ def _cap_for_rows(grid, tbuf, ist, fst):
         fst[F_HCAP] = min(fst[F_HCAP], max(room, 1) * fst[F_DT])
 
 
-@njit_borrowed
+@njit_borrowed(inline="always")
 def _stalled(h, t_new, ist):
     """True after ``STALL_COUNT`` steps in a row shorter than ``STALL_STEP`` (relative)."""
     if h < STALL_STEP * max(1.0, abs(t_new)):

@@ -55,7 +55,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_borrowed
 from .dense_lu import lu_factor, lu_solve  # noqa: F401  (re-exported: the loop solver's LU)
 
 #: iteration limit of one solve
@@ -117,6 +117,22 @@ def vector(ws, n, a):
 @njit
 def jacobian(ws, n):
     """View of the ``n x n`` Jacobian (or its LU factors) of the workspace."""
+    return ws[HEAD:HEAD + n * n].reshape((n, n))
+
+
+@njit_borrowed(inline="always")
+def _vec(ws, n, a):
+    """:func:`vector` for the solver's own functions: compiled without numba's reference
+    counting (``njit_borrowed``), as they are. A view taken in a counted function costs an
+    atomic increment and decrement of the workspace's count; :func:`begin` and
+    :func:`resume` take three to six views per residual evaluation."""
+    o = HEAD + n * n + (a - 1) * n
+    return ws[o:o + n]
+
+
+@njit_borrowed(inline="always")
+def _jac(ws, n):
+    """:func:`jacobian` for the solver's own functions (not counted, see :func:`_vec`)."""
     return ws[HEAD:HEAD + n * n].reshape((n, n))
 
 
@@ -182,12 +198,12 @@ class Workspace:
                 "norm": float(ws[NORM]), "residuals": self.array(ws, RFAIL).copy()}
 
 
-@njit
+@njit_borrowed
 def begin(ws, n):
     """Start a solve from the unknowns in ``unknowns(ws, n)`` (non-finite ones replaced by
     the last converged values); returns ``EVALUATE`` (the residual at the start)."""
-    z = vector(ws, n, Z)
-    good = vector(ws, n, GOOD)
+    z = _vec(ws, n, Z)
+    good = _vec(ws, n, GOOD)
     for i in range(n):
         if not math.isfinite(z[i]):
             z[i] = good[i]
@@ -197,7 +213,7 @@ def begin(ws, n):
     return EVALUATE
 
 
-@njit
+@njit_borrowed
 def resume(ws, n, t, atol, rtol, maxit):
     """Go on with the solve once ``evaluation(ws, n)`` holds ``r(z)`` as asked.
 
@@ -221,19 +237,19 @@ def resume(ws, n, t, atol, rtol, maxit):
         ``evaluation(ws, n)`` and call again; ``DONE``: finished, ``ws[STATUS]`` says how.
     """
     phase = int(ws[PHASE])
-    e = vector(ws, n, EVAL)
-    r = vector(ws, n, RES)
-    z = vector(ws, n, Z)
+    e = _vec(ws, n, EVAL)
+    r = _vec(ws, n, RES)
+    z = _vec(ws, n, Z)
     if phase == _P_COLUMN:
         j = int(ws[COL])
         h = ws[H]
-        J = jacobian(ws, n)
+        J = _jac(ws, n)
         for i in range(n):
             J[i, j] = (e[i] - r[i]) / h
         z[j] = ws[ZCOL]
         if j + 1 < n:
             return _perturb(ws, z, j + 1)
-        if not lu_factor(J, vector(ws, n, PIV)):
+        if not lu_factor(J, _vec(ws, n, PIV)):
             ws[JVALID] = 0.0
             return _finish(ws, n, t, SINGULAR)
         ws[JVALID] = 1.0
@@ -257,7 +273,7 @@ def resume(ws, n, t, atol, rtol, maxit):
         if not (math.isfinite(n1) and n1 <= ws[N0]):
             lam = 0.5 * ws[LAM]
             ws[LAM] = lam
-            dz = vector(ws, n, STEP)
+            dz = _vec(ws, n, STEP)
             for i in range(n):
                 z[i] -= lam * dz[i]
             ws[PHASE] = _P_DAMP
@@ -267,13 +283,13 @@ def resume(ws, n, t, atol, rtol, maxit):
     return _top(ws, n, t, atol, rtol, maxit)
 
 
-@njit
+@njit_borrowed
 def _top(ws, n, t, atol, rtol, maxit):
     """Top of a Newton iteration, ``r = r(z)`` known: test, refresh the Jacobian or step."""
     if ws[IT] >= maxit:
         return _finish(ws, n, t, NO_CONVERGENCE)
-    r = vector(ws, n, RES)
-    z = vector(ws, n, Z)
+    r = _vec(ws, n, RES)
+    z = _vec(ws, n, Z)
     nrm = 0.0
     ok = True
     for i in range(n):
@@ -292,7 +308,7 @@ def _top(ws, n, t, atol, rtol, maxit):
     return _step(ws, n)
 
 
-@njit
+@njit_borrowed
 def _perturb(ws, z, j):
     """Ask for ``r(z + h_j e_j)``, Jacobian column ``j``."""
     zj = z[j]
@@ -305,15 +321,15 @@ def _perturb(ws, z, j):
     return EVALUATE
 
 
-@njit
+@njit_borrowed
 def _step(ws, n):
     """Newton step ``dz = -J^{-1} r`` from the factored Jacobian; ask for ``r(z + dz)``."""
-    r = vector(ws, n, RES)
-    z = vector(ws, n, Z)
-    dz = vector(ws, n, STEP)
+    r = _vec(ws, n, RES)
+    z = _vec(ws, n, Z)
+    dz = _vec(ws, n, STEP)
     for i in range(n):
         dz[i] = -r[i]
-    lu_solve(jacobian(ws, n), vector(ws, n, PIV), dz)
+    lu_solve(_jac(ws, n), _vec(ws, n, PIV), dz)
     tiny = True
     for i in range(n):
         if abs(dz[i]) > _ROUNDOFF * (1.0 + abs(z[i])):
@@ -336,7 +352,7 @@ def _step(ws, n):
     return EVALUATE
 
 
-@njit
+@njit_borrowed
 def _finish(ws, n, t, status):
     """Record the outcome; on a failure set the unknowns to NaN and ask for their
     evaluation."""
@@ -344,9 +360,9 @@ def _finish(ws, n, t, status):
     ws[STATUS] = status
     ws[ITERS] = it
     ws[TOTAL] += it
-    z = vector(ws, n, Z)
+    z = _vec(ws, n, Z)
     if status == CONVERGED:
-        good = vector(ws, n, GOOD)
+        good = _vec(ws, n, GOOD)
         for i in range(n):
             good[i] = z[i]
         ws[PHASE] = _P_IDLE
@@ -355,8 +371,8 @@ def _finish(ws, n, t, status):
     ws[FAIL] = status
     ws[FAIL_T] = t
     ws[FAIL_ITERS] = it
-    r = vector(ws, n, RES)
-    rf = vector(ws, n, RFAIL)
+    r = _vec(ws, n, RES)
+    rf = _vec(ws, n, RFAIL)
     for i in range(n):
         rf[i] = r[i]
     ws[JVALID] = 0.0
