@@ -26,6 +26,10 @@ When is there none (the loop then uses the coloured finite differences, as befor
   (mixing analytic and difference columns is left for later);
 * such a path goes through an algebraic loop (solving the linearised loop is left for
   later): the whole Jacobian falls back;
+* a block on such a path is evaluated in two calls (the schedule needs its outputs without
+  feedthrough before its inputs: ``BrushlessMotor`` whose torque feeds back into its load):
+  the chain makes one pass per block, at its last call, so the blocks between its two calls
+  would read sensitivities not yet written; the whole Jacobian falls back;
 * the diagram has no states, or the workspace would exceed :data:`MAX_WORKSPACE` floats.
 
 :func:`plan` says which, with the block's name (for messages and tests, never the text).
@@ -110,6 +114,17 @@ def plan(L: Layout) -> Plan:
         if not bl.cls.has_kernel("partials"):
             return Plan(f"block '{path_}' ({bl.cls.type_name}) declares no partial "
                         f"derivatives")
+    calls = {}
+    for kind, what in L.calls:
+        if kind == "call":
+            calls[what] = calls.get(what, 0) + 1
+    twice = sorted(p_ for p_ in active if calls.get(p_, 0) > 1)
+    if twice:
+        # its outputs without feedthrough are needed before its inputs: the blocks between
+        # its two calls would read sensitivity rows that the one pass per block writes
+        # only at its second call (chaining per call is left for later)
+        return Plan(f"block '{twice[0]}' is evaluated in two calls (outputs needed before "
+                    f"its inputs are known)")
     # S rows: the states, then each relevant signal element, then one zero row
     row_of = {}
     n_rows = L.n_x
