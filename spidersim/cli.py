@@ -460,9 +460,12 @@ def _check_analysis_signal(d, name, s_, line):
 
 def _valid_analysis_time(at, t_end):
     """``at`` of an analysis entry: None, 'initial', 'trim', a mapping (an operating
-    point) or a time in [0, t_end]."""
+    point) or a time in [0, t_end]: 0 (the initial point) or at least the shortest run
+    (the operating point at ``at`` is a simulation to ``at``)."""
+    from .solver.events import MIN_SPAN
     return at is None or at in ("initial", "trim") or isinstance(at, dict) or (
-        isinstance(at, (int, float)) and not isinstance(at, bool) and 0 <= at <= t_end)
+        isinstance(at, (int, float)) and not isinstance(at, bool)
+        and (at == 0 or MIN_SPAN <= at <= t_end))
 
 
 def _check_analysis(d, t_end):
@@ -481,7 +484,8 @@ def _check_analysis(d, t_end):
             _check_analysis_signal(d, name, s_, lines(name))
         if not _valid_analysis_time(at, t_end):
             raise DiagramError(f"analysis '{name}': 'at' must be 'initial', 'trim', a "
-                               f"mapping or a time in [0, t_end], got {at!r}", file=d.file,
+                               f"mapping or a time in [0, t_end] (0 or at least 1e-07 "
+                               f"s), got {at!r}", file=d.file,
                                line=lines(name))
 
 
@@ -586,7 +590,7 @@ def cmd_linearize(args):
             if not _valid_analysis_time(at, d.simulation["t_end"]):
                 raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
                                    f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
-                                   f"got {args.at}", file=d.file)
+                                   f"0 or at least 1e-07 s, got {args.at}", file=d.file)
         _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, outs[name])
     return 0
 

@@ -75,10 +75,11 @@ def test_errors(tmp_path, capsys):
     assert rc == 2 and "--at expects" in err
 
 
-@pytest.mark.parametrize("at", ["nan", "inf", "-0.1", "1.5", "1e300"])
+@pytest.mark.parametrize("at", ["nan", "inf", "-0.1", "1.5", "1e300", "1e-9"])
 def test_at_outside_the_run_is_refused(capsys, at):
     """``--at nan`` was reported as 't_end must be > 0.0, got nan'; ``1e300`` simulated to
-    1e300 s. A time must lie in [0, t_end] (servo.yaml: 1 s), as in an analysis entry."""
+    1e300 s; ``1e-9`` failed as a run too short, without naming ``--at``. A time must lie
+    in [0, t_end] (servo.yaml: 1 s), 0 or at least 1e-7 s, as in an analysis entry."""
     rc, out, err = _run(capsys, "linearize", SERVO, "--at", at, "--loop", "pos_ctrl.y",
                         "--no-jit")
     assert rc == 2 and "--at: the operating point's time must be in [0, t_end] = [0, 1] s" \

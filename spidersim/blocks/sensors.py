@@ -196,7 +196,7 @@ class RDC(Block):
         "bits": Param(0, "1", "resolution of the digital angle output theta_d in bits per "
                       "revolution (0: theta_d = theta_r)", kind="int", ge=0, le=40),
         "w_bits": Param(0, "1", "bits of the digital velocity word w_d, two's complement "
-                        "(0: w_d = w_r)", kind="int", ge=0, le=32),
+                        "(0: w_d = w_r)", kind="int", ge=0, le=40),
         "w_max": Param(2.0 * math.pi * 125.0, "rad/s", "full scale of the velocity word "
                        "(the converter's maximum tracking rate)", gt=0.0),
         "theta0": Param(0.0, "rad", "initial tracked angle"),

@@ -167,7 +167,8 @@ class CompiledLoop:
     def grow_rows(self):
         """Enlarge the row buffers (doubling, within :mod:`.record_budget`); False when
         they are already at the budget."""
-        rows = record_budget.grown_rows(len(self.tbuf), self.buf.shape[1])
+        rows = record_budget.grown_rows(len(self.tbuf), self.buf.shape[1],
+                                        self.ev_t.nbytes + self.ev_i.nbytes)
         if rows is None:
             return False
         extra = rows - len(self.tbuf)
@@ -178,7 +179,8 @@ class CompiledLoop:
     def grow_events(self):
         """Enlarge the event log (doubling, within :mod:`.record_budget`: an entry is
         four 8-byte numbers); False when it is already at the budget."""
-        n = record_budget.grown_rows(len(self.ev_t), EVENT_VALUES)
+        n = record_budget.grown_rows(len(self.ev_t), EVENT_VALUES,
+                                     self.tbuf.nbytes + self.buf.nbytes)
         if n is None:
             return False
         extra = n - len(self.ev_t)

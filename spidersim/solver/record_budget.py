@@ -11,7 +11,9 @@ module instead:
   else a :class:`~spidersim.errors.SpidersimError` says what to change;
 - :func:`grown_rows` when a buffer is full: the next capacity, never above the budget, or
   ``None`` at the budget, where the loop stops the run with an error that keeps the rows
-  already recorded (``IntegrationError.partial``).
+  already recorded (``IntegrationError.partial``). The rows and the event log share one
+  budget (each buffer gets what the other leaves); the SciPy steppers' event log, a Python
+  list, is checked by :func:`events_fit`.
 
 The budget is 40 % of the machine's physical memory, or ``SPIDERSIM_RECORD_LIMIT_MB``
 megabytes (10^6 bytes) if that environment variable is set to a positive number.
@@ -89,20 +91,39 @@ def check_planned(record_size, t0, t_end, max_step, output_interval):
             f"(or set {ENV})")
 
 
-def grown_rows(current: int, record_size: int):
+def grown_rows(current: int, record_size: int, other_bytes: float = 0.0):
     """The capacity after a full buffer of ``current`` rows: twice as many, at most the
-    budget's rows; ``None`` when ``current`` is already at the budget."""
-    limit = max_rows(record_size)
+    rows the budget holds beside ``other_bytes`` already taken by the run's other buffer
+    (the rows and the event log share one budget); ``None`` when ``current`` is already
+    there."""
+    limit = max(1024, int((budget_bytes() - other_bytes) // row_bytes(record_size)))
     if current >= limit:
         return None
     return min(2 * current, limit)
 
 
-def budget_message(rows: int, record_size: int, t: float, what="recorded data") -> str:
+#: bytes one event of the SciPy-stepper loop's log takes (a tuple of a float and two
+#: shared strings in a list; about 690 measured, rounded up)
+PY_EVENT_BYTES = 700
+
+
+def events_fit(n_events: int, rows_bytes: float) -> bool:
+    """Whether ``n_events`` entries of the SciPy-stepper loop's event log fit the budget
+    beside ``rows_bytes`` of recorded rows."""
+    return n_events * PY_EVENT_BYTES + rows_bytes <= max(budget_bytes(), 1024 * 32)
+
+
+def budget_message(rows: int, record_size: int, t: float, what="recorded data",
+                   entry_bytes=None) -> str:
     """The error of a run stopped at the budget, at time ``t`` with ``rows`` rows (of the
-    recorded data, or of the event log)."""
-    return (f"the {what} reached the memory budget at t = {t:.9g} s: {rows} rows of "
-            f"{record_size + 1} values ({_gb(rows * row_bytes(record_size))}, budget "
-            f"{_gb(budget_bytes())}); the rows so far are kept. Set "
-            f"simulation.output_interval to record on a grid instead of every step, shorten "
-            f"t_end, or set {ENV}")
+    recorded data, or of the event log; ``entry_bytes``: bytes of one, when they are not
+    ``record_size + 1`` floats)."""
+    size = rows * (entry_bytes or row_bytes(record_size))
+    advice = ("shorten t_end or sample less often (every event is logged)"
+              if what == "event log" else
+              "set simulation.output_interval to record on a grid instead of every step, "
+              "or shorten t_end")
+    return (f"the {what} reached the memory budget at t = {t:.9g} s: {rows} entries "
+            f"({_gb(size)}; the rows and the event log share the budget of "
+            f"{_gb(budget_bytes())}); the rows so far are kept. To go on: {advice}, or "
+            f"set {ENV}")

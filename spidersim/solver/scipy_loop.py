@@ -64,12 +64,14 @@ class Recorder:
         self.buf = np.zeros((capacity, system.record_size))
         self.tbuf = np.zeros(capacity)
         self.n = 0
+        #: bytes the run's event log takes (the rows and the log share one budget)
+        self.other_bytes = 0.0
 
     def add(self, t, x, g=None):
         """Record outputs at (t, x); with ``g``, also the guards into it (one evaluation).
         Return False if something is not finite."""
         if self.n == len(self.tbuf):
-            rows = record_budget.grown_rows(self.n, self.buf.shape[1])
+            rows = record_budget.grown_rows(self.n, self.buf.shape[1], self.other_bytes)
             if rows is None:
                 raise RecordBudgetFull(record_budget.budget_message(
                     self.n, self.buf.shape[1], float(self.tbuf[self.n - 1])))
@@ -123,6 +125,7 @@ class SciPyLoop:
             rows = max(rows, int((t_end - self.t0) / output_interval) + 10)
         self.rec = Recorder(system, rows)
         self.events = []               # (t, block, event name or "time")
+        self._next_budget_check = 0    # event count of the next recording-budget check
         self.grid_k = 0                # next grid point index (output_interval)
         self.tiny = 0                  # consecutive stalled steps
         n_g = self.n_g = system.n_g
@@ -155,6 +158,20 @@ class SciPyLoop:
         full = f"integration failed at t = {t:.9g} s: {msg}" + (f"; {why}" if why else "")
         raise IntegrationError(full, partial=self.rec.result(self.events, st, "failed", full))
 
+    def _log(self, entries):
+        """Append ``entries`` to the event log, within the recording budget shared with
+        the rows (:mod:`.record_budget`; checked every 1024 events)."""
+        n = len(self.events) + len(entries)
+        if n >= self._next_budget_check:
+            rec = self.rec
+            if not record_budget.events_fit(n + 1024, rec.buf.nbytes + rec.tbuf.nbytes):
+                raise RecordBudgetFull(record_budget.budget_message(
+                    len(self.events), 3, entries[0][0], what="event log",
+                    entry_bytes=record_budget.PY_EVENT_BYTES))
+            rec.other_bytes = (n + 1024) * record_budget.PY_EVENT_BYTES
+            self._next_budget_check = n + 1024
+        self.events.extend(entries)
+
     def _partial(self, msg=""):
         return self.rec.result(self.events, self.st, "failed", msg)
 
@@ -169,7 +186,7 @@ class SciPyLoop:
         timed_blocks = set()
         while s.next_time(t) <= t + _tol(t):
             fired = s.time_events(t, x, _tol(t))
-            self.events.extend((t, name, "time") for name in fired)
+            self._log([(t, name, "time") for name in fired])
             timed_blocks.update(fired)
             self.st["time_events"] += len(fired)
             s.initialize(t, x)
@@ -221,7 +238,7 @@ class SciPyLoop:
         for i in sorted(now):
             block, name, _d = s.event_table[i]
             s.apply_event(t_ev, x_ev, int(i), np.sign(g_new[i] - g_old[i]) or 1.0)
-            self.events.append((float(t_ev), block, name))
+            self._log([(float(t_ev), block, name)])
             self._chatter(block, name, t_ev, x_ev)
         s.initialize(t_ev, x_ev)
         fired = {s.event_table[i][0] for i in now}
@@ -278,7 +295,7 @@ class SciPyLoop:
             for i in hits:
                 block, name, _d = s.event_table[i]
                 s.apply_event(t, x, int(i), np.sign(g_after[i] - g_before[i]) or 1.0)
-                self.events.append((float(t), block, name))
+                self._log([(float(t), block, name)])
                 fired_blocks.add(block)
             s.initialize(t, x)
             g_before = s.guards(t, x)

@@ -23,7 +23,47 @@ class _Closed:
 
 
 def test_worker_process_applies_its_share(monkeypatch):
-    """The worker sets the budget in its own environment before any job."""
+    """The worker sets the budget in its own environment before any job (called here in
+    the test process: its SIGINT handler, which the worker sets to ignore, is restored)."""
+    import signal
     monkeypatch.setenv(rb.ENV, "999")
-    R._worker_main(_Closed(), os.getppid(), 12.5)
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        R._worker_main(_Closed(), os.getppid(), 12.5)
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert os.environ[rb.ENV] == "12.5" and rb.budget_bytes() == 12.5e6
+
+
+def test_the_share_is_handed_to_the_worker_process(monkeypatch):
+    """The slot's process is started with the share as ``_worker_main``'s argument (a
+    fake process context records the arguments instead of spawning)."""
+    monkeypatch.setenv(rb.ENV, "1200")
+    r = R.LocalRunner(None, None, workers=4)
+    started = []
+
+    class _Proc:
+        def __init__(self, target, args, daemon, name):
+            started.append((target, args))
+
+        def start(self):
+            pass
+
+        def is_alive(self):
+            return True
+
+    class _Conn:
+        def close(self):
+            pass
+
+    class _Ctx:
+        Process = _Proc
+
+        @staticmethod
+        def Pipe():
+            return _Conn(), _Conn()
+
+    r._ctx = _Ctx()
+    r._process(0)
+    (target, args), = started
+    assert target is R._worker_main and args[2] == 300.0

@@ -104,15 +104,17 @@ def test_compiled_loop_stops_at_the_budget_and_keeps_its_rows(budget_mb):
         d.simulate(t_end=1e4, method="DP54", rtol=1e-8, atol=1e-10, max_step=math.inf)
     r = ei.value.partial
     assert "reached the memory budget" in str(ei.value)
-    rows = rb.max_rows(d.compile(True, loop=True).record_size)
+    # the event log's first 1024 entries of 32 bytes share the budget with the rows
+    rows = int((0.1e6 - 1024 * 32) // rb.row_bytes(d.compile(True, loop=True).record_size))
     assert rows - ROW_RESERVE <= len(r.t) <= rows and r.status == "failed" and np.all(np.diff(r.t) >= 0)
     assert np.max(np.abs(r["x.y"] - np.cos(r.t))) < 1e-4
 
 
 def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
     """A sampled block every 0.1 ms for 1000 s logs 10^7 time events: on a grid of 1 s the
-    rows fit, the event log does not; the run stops at the budget (0.1 MB: 3125 entries of
-    32 bytes) with its grid rows and events so far, each sample at k * 0.1 ms. The loop
+    rows fit, the event log does not; the run stops at the budget (0.1 MB shared with the
+    rows: about 2350 entries of 32 bytes) with its grid rows and events so far, each sample
+    at k * 0.1 ms. The loop
     hands back while it still has room for one step's events (``4 (guards + sampled
     blocks) + 64`` = 68 here)."""
     import spidersim
@@ -127,5 +129,31 @@ def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
     r = ei.value.partial
     assert "event log reached the memory budget" in str(ei.value)
     times = np.array([t for t, blk, kind in r.events])
-    assert rb.max_rows(3) - 68 <= len(times) <= rb.max_rows(3)
+    # the grid's rows (1024 of t, u.y, z.y: 24 bytes) share the budget with the log
+    n = int((0.1e6 - 1024 * 24) // 32)
+    assert n - 68 <= len(times) <= n
+    assert np.allclose(times, 1e-4 * np.arange(len(times)), rtol=0, atol=1e-12)
+
+
+def test_scipy_loop_event_log_stops_at_the_budget(monkeypatch):
+    """The SciPy steppers' event log (a Python list, about 700 bytes an event, checked
+    every 1024 events) shares the budget with the rows: at 2 MB and 1010 grid rows it holds
+    2048 events of a sampled block every 0.1 ms (the check before the 3073rd thousand-block
+    fails), then the run stops with them, each at k * 0.1 ms (LSODA: about 60 us an event,
+    10^7 events in 1000 s would take 7 GB)."""
+    import spidersim
+    monkeypatch.setenv(rb.ENV, "2")
+    d = spidersim.loads(
+        "name: sampled\n"
+        "blocks:\n"
+        "  u: {type: Sine, amplitude: 1, f: 1}\n"
+        "  z: {type: ZeroOrderHold, Ts: 1e-4}\n"
+        "connections: [u.y -> z.u]\n")
+    with pytest.raises(IntegrationError) as ei:
+        d.simulate(t_end=1e3, method="LSODA", output_interval=1.0, jit=False)
+    r = ei.value.partial
+    assert "event log reached the memory budget" in str(ei.value)
+    assert "sample less often" in str(ei.value)
+    times = np.array([t for t, blk, kind in r.events])
+    assert len(times) == 2048
     assert np.allclose(times, 1e-4 * np.arange(len(times)), rtol=0, atol=1e-12)
