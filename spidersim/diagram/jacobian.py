@@ -96,24 +96,52 @@ def plan(L: Layout) -> Plan:
     if L.n_x == 0:
         return Plan("the diagram has no states")
     deps = port_state_deps(L)
-    g = L.graph
+    stateful, targets, relevant = _paths_into_derivatives(L, deps)
+    active = {bl.path for bl in stateful} | {n[1] for n in relevant}
+    reason = _why_none(L, deps, targets, relevant, active)
+    if reason:
+        return Plan(reason)
+    row_of, n_rows = _signal_rows(L, relevant)
+    zero_row = n_rows
+    n_rows += 1
+    ws = n_rows * L.n_x
+    blocks = []
+    for path_ in _last_call_order(L):
+        if path_ in active:
+            bp, ws = _block_plan(L, deps, relevant, row_of, zero_row, L.blocks[path_], ws)
+            blocks.append(bp)
+    if ws > MAX_WORKSPACE:
+        return Plan(f"the analytic Jacobian would need {ws} floats of workspace "
+                    f"(more than {MAX_WORKSPACE})")
+    return Plan("", blocks, n_rows, ws)
+
+
+def _paths_into_derivatives(L, deps):
+    """``(stateful, targets, relevant)``: the blocks with states, their input ports, and
+    the output ports on a path into one of those inputs that depend on a state (outputs
+    that are states excluded: their rows are the states')."""
     stateful = [bl for bl in L.blocks.values() if any(b > a for a, b in bl.states.values())]
     targets = [("in", bl.path, i) for bl in stateful for i in bl.inputs]
-    reach = _ancestors(g, targets)
+    reach = _ancestors(L.graph, targets)
     relevant = {n for n in reach if n[0] == "out" and deps[n]
                 and n[2] not in L.blocks[n[1]].state_outputs}
+    return stateful, targets, relevant
+
+
+def _why_none(L, deps, targets, relevant, active):
+    """Why there is no analytic Jacobian (``""``: there is one): an algebraic loop on a
+    path into a derivative, a block on such a path without partials, or one evaluated in
+    two calls (see the module docstring)."""
     in_loops = {n for lp in L.loops for n in lp.nodes}
     looped = sorted((n for n in relevant | set(targets) if n in in_loops and deps[n]),
                     key=str)
     if looped:
-        return Plan(f"a path into a derivative goes through an algebraic loop "
-                    f"(at {looped[0][1]}.{looped[0][2]})")
-    active = {bl.path for bl in stateful} | {n[1] for n in relevant}
+        return (f"a path into a derivative goes through an algebraic loop "
+                f"(at {looped[0][1]}.{looped[0][2]})")
     for path_ in sorted(active):
         bl = L.blocks[path_]
         if not bl.cls.has_kernel("partials"):
-            return Plan(f"block '{path_}' ({bl.cls.type_name}) declares no partial "
-                        f"derivatives")
+            return f"block '{path_}' ({bl.cls.type_name}) declares no partial derivatives"
     calls = {}
     for kind, what in L.calls:
         if kind == "call":
@@ -123,9 +151,14 @@ def plan(L: Layout) -> Plan:
         # its outputs without feedthrough are needed before its inputs: the blocks between
         # its two calls would read sensitivity rows that the one pass per block writes
         # only at its second call (chaining per call is left for later)
-        return Plan(f"block '{twice[0]}' is evaluated in two calls (outputs needed before "
-                    f"its inputs are known)")
-    # S rows: the states, then each relevant signal element, then one zero row
+        return (f"block '{twice[0]}' is evaluated in two calls (outputs needed before "
+                f"its inputs are known)")
+    return ""
+
+
+def _signal_rows(L, relevant):
+    """Rows of ``S`` for the relevant signal elements, after the ``n_x`` state rows, in
+    the blocks' last-call order: ``(row_of, n_rows)`` (``row_of``: signal index -> row)."""
     row_of = {}
     n_rows = L.n_x
     for path_ in _last_call_order(L):
@@ -136,46 +169,40 @@ def plan(L: Layout) -> Plan:
                 for k in range(a, b):
                     row_of[k] = n_rows
                     n_rows += 1
-    zero_row = n_rows
-    n_rows += 1
-    ws = n_rows * L.n_x
-    blocks = []
-    for path_ in _last_call_order(L):
-        if path_ not in active:
+    return row_of, n_rows
+
+
+def _block_plan(L, deps, relevant, row_of, zero_row, bl, ws):
+    """Block ``bl``'s part of the chain (:class:`_BlockPlan`: its state and input rows,
+    its relevant outputs' rows and columns, its derivative columns, its matrices placed
+    from workspace offset ``ws``); returns it and the next free offset."""
+    bp = _BlockPlan(bl)
+    for s in bl.cls.states:
+        if s in bl.states:
+            bp.x_rows += list(range(*bl.states[s]))
+    for i in bl.inputs:
+        arr, a, b = bl.input_src[i]
+        bp.u_rows += [k if arr == "x" else row_of.get(k, zero_row) for k in range(a, b)]
+    r0 = 0
+    for o in bl.outputs:
+        if o in bl.state_outputs:
             continue
-        bl = L.blocks[path_]
-        bp = _BlockPlan(bl)
-        for s in bl.cls.states:
-            if s in bl.states:
-                bp.x_rows += list(range(*bl.states[s]))
-        for i in bl.inputs:
-            arr, a, b = bl.input_src[i]
-            bp.u_rows += [k if arr == "x" else row_of.get(k, zero_row) for k in range(a, b)]
-        r0 = 0
-        for o in bl.outputs:
-            if o in bl.state_outputs:
-                continue
-            size = bl.ports[("out", o)].size
-            node = ("out", path_, o)
-            if node in relevant:
-                _arr, a, b = bl.ports[("out", o)].loc
-                bp.outs.append((r0, [row_of[k] for k in range(a, b)], sorted(deps[node])))
-            r0 += size
-        n_s, n_u, n_y = len(bp.x_rows), len(bp.u_rows), r0
-        if bl.states:
-            bp.der_cols = sorted(block_columns(L, deps, bl))
-        shapes = {"dfdx": (n_s, n_s), "dfdu": (n_s, n_u), "dydx": (n_y, n_s),
-                  "dydu": (n_y, n_u)}
-        for name in bl.cls.kernel_args("partials", bl.params):
-            if name in PARTIALS:
-                r, c = shapes[name]
-                bp.mats[name] = (ws, r, c)
-                ws += r * c
-        blocks.append(bp)
-    if ws > MAX_WORKSPACE:
-        return Plan(f"the analytic Jacobian would need {ws} floats of workspace "
-                    f"(more than {MAX_WORKSPACE})")
-    return Plan("", blocks, n_rows, ws)
+        node = ("out", bl.path, o)
+        if node in relevant:
+            _arr, a, b = bl.ports[("out", o)].loc
+            bp.outs.append((r0, [row_of[k] for k in range(a, b)], sorted(deps[node])))
+        r0 += bl.ports[("out", o)].size
+    n_s, n_u, n_y = len(bp.x_rows), len(bp.u_rows), r0
+    if bl.states:
+        bp.der_cols = sorted(block_columns(L, deps, bl))
+    shapes = {"dfdx": (n_s, n_s), "dfdu": (n_s, n_u), "dydx": (n_y, n_s),
+              "dydu": (n_y, n_u)}
+    for name in bl.cls.kernel_args("partials", bl.params):
+        if name in PARTIALS:
+            r, c = shapes[name]
+            bp.mats[name] = (ws, r, c)
+            ws += r * c
+    return bp, ws
 
 
 def _chain_line(target, mat, d0, dst, src, cols, acc, table):
