@@ -18,3 +18,13 @@ def interleaved(variants, repeat):
             outs[name] = fn()
             times[name].append(time.perf_counter() - t0)
     return times, outs
+
+
+def best_time(fn, repeat):
+    """The shortest wall time [s] of ``repeat`` calls of ``fn()``."""
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best

@@ -40,7 +40,6 @@ the diagram's functions and run ``run_loop`` for 8 s, for
 from __future__ import annotations
 
 import importlib
-import math
 import os
 import sys
 import tempfile
@@ -49,6 +48,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_common import best_time as _best  # noqa: E402
 from check_loop_identical import CASES  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -180,13 +180,6 @@ def _hand_direct():
     return hand
 
 
-def _best(fn, repeat):
-    best = math.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def measure(problem, rounds):

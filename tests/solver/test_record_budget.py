@@ -110,6 +110,17 @@ def test_compiled_loop_stops_at_the_budget_and_keeps_its_rows(budget_mb):
     assert np.max(np.abs(r["x.y"] - np.cos(r.t))) < 1e-4
 
 
+def _sampled_every_0_1_ms():
+    """A zero-order hold sampling a sine every 0.1 ms: one time event per sample."""
+    import spidersim
+    return spidersim.loads(
+        "name: sampled\n"
+        "blocks:\n"
+        "  u: {type: Sine, amplitude: 1, f: 1}\n"
+        "  z: {type: ZeroOrderHold, Ts: 1e-4}\n"
+        "connections: [u.y -> z.u]\n")
+
+
 def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
     """A sampled block every 0.1 ms for 1000 s logs 10^7 time events: on a grid of 1 s the
     rows fit, the event log does not; the run stops at the budget (0.1 MB shared with the
@@ -117,13 +128,7 @@ def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
     at k * 0.1 ms. The loop
     hands back while it still has room for one step's events (``4 (guards + sampled
     blocks) + 64`` = 68 here)."""
-    import spidersim
-    d = spidersim.loads(
-        "name: sampled\n"
-        "blocks:\n"
-        "  u: {type: Sine, amplitude: 1, f: 1}\n"
-        "  z: {type: ZeroOrderHold, Ts: 1e-4}\n"
-        "connections: [u.y -> z.u]\n")
+    d = _sampled_every_0_1_ms()
     with pytest.raises(IntegrationError) as ei:
         d.simulate(t_end=1e3, method="DP54", output_interval=1.0)
     r = ei.value.partial
@@ -138,17 +143,11 @@ def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
 def test_scipy_loop_event_log_stops_at_the_budget(monkeypatch):
     """The SciPy steppers' event log (a Python list, about 700 bytes an event, checked
     every 1024 events) shares the budget with the rows: at 2 MB and 1010 grid rows it holds
-    2048 events of a sampled block every 0.1 ms (the check before the 3073rd thousand-block
-    fails), then the run stops with them, each at k * 0.1 ms (LSODA: about 60 us an event,
+    2048 events of a sampled block every 0.1 ms (the check for the block of 1024 events after the
+    2048th fails), then the run stops with them, each at k * 0.1 ms (LSODA: about 60 us an event,
     10^7 events in 1000 s would take 7 GB)."""
-    import spidersim
     monkeypatch.setenv(rb.ENV, "2")
-    d = spidersim.loads(
-        "name: sampled\n"
-        "blocks:\n"
-        "  u: {type: Sine, amplitude: 1, f: 1}\n"
-        "  z: {type: ZeroOrderHold, Ts: 1e-4}\n"
-        "connections: [u.y -> z.u]\n")
+    d = _sampled_every_0_1_ms()
     with pytest.raises(IntegrationError) as ei:
         d.simulate(t_end=1e3, method="LSODA", output_interval=1.0, jit=False)
     r = ei.value.partial
