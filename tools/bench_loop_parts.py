@@ -172,6 +172,11 @@ def main(argv):
     if argv and argv[0] == "--impacts":
         impacts()
         return
+    unknown = [n for n in argv if n not in CASES]
+    if unknown:
+        print(__doc__)
+        print(f"problems: {', '.join(CASES)}; not known: {', '.join(unknown)}")
+        sys.exit(0 if unknown in (["--help"], ["-h"]) else 2)
     for n in argv or ["servo", "ball", "loop"]:
         part(n)
 
