@@ -9,8 +9,10 @@ the chain rule, in schedule order:
 1. the outputs at ``(t, x)`` (one evaluation of the diagram's outputs, no derivatives);
 2. each such block's partials ``dfdx, dfdu, dydx, dydu`` into its matrices (zeroed first);
 3. the sensitivities ``S[v] = d v / d x`` of every signal element ``v`` on a path into a
-   derivative, block after block (``S[y] = dydx S[x_b] + dydu S[u_b]``; a state's row is
-   ``e_k``; a signal that depends on no state, a source's, reads a zero row);
+   derivative, output after output in dependency order (a topological order of the port
+   graph; not the call order, since a block called twice makes its outputs at two places)
+   (``S[y] = dydx S[x_b] + dydu S[u_b]``; a state's row is ``e_k``; a signal that depends
+   on no state, a source's, reads a zero row);
 4. the derivative rows ``J[x'_b] = dfdx S[x_b] + dfdu S[u_b]``,
 
 each row only over the columns of the structural pattern (:func:`.graph.port_state_deps`),
@@ -26,10 +28,6 @@ When is there none (the loop then uses the coloured finite differences, as befor
   (mixing analytic and difference columns is left for later);
 * such a path goes through an algebraic loop (solving the linearised loop is left for
   later): the whole Jacobian falls back;
-* a block on such a path is evaluated in two calls (the schedule needs its outputs without
-  feedthrough before its inputs: ``BrushlessMotor`` whose torque feeds back into its load):
-  the chain makes one pass per block, at its last call, so the blocks between its two calls
-  would read sensitivities not yet written; the whole Jacobian falls back;
 * the diagram has no states, or the workspace would exceed :data:`MAX_WORKSPACE` floats.
 
 :func:`plan` says which, with the block's name (for messages and tests, never the text).
@@ -54,7 +52,8 @@ class _BlockPlan:
     mats: dict = field(default_factory=dict)    # matrix name -> (offset, rows, cols)
     x_rows: list = field(default_factory=list)  # S rows of its state elements (x indices)
     u_rows: list = field(default_factory=list)  # S rows of its input elements
-    outs: list = field(default_factory=list)    # (row offset in dydx/dydu, S rows, columns)
+    outs: list = field(default_factory=list)    # (port, row offset in dydx/dydu, S rows,
+    #                                             columns)
     der_cols: list = field(default_factory=list)
 
 
@@ -66,6 +65,9 @@ class Plan:
     blocks: list = field(default_factory=list)
     n_rows: int = 0             # rows of S: states, chained signal elements, one zero row
     n_ws: int = 0               # floats of workspace after the signals
+    #: ``(block plan, output entry)`` in an order where every output's sensitivity rows come
+    #: after those of the outputs it is computed from (a topological order of the port graph)
+    emit: list = field(default_factory=list)
 
 
 def _ancestors(g, targets):
@@ -113,7 +115,22 @@ def plan(L: Layout) -> Plan:
     if ws > MAX_WORKSPACE:
         return Plan(f"the analytic Jacobian would need {ws} floats of workspace "
                     f"(more than {MAX_WORKSPACE})")
-    return Plan("", blocks, n_rows, ws)
+    return Plan("", blocks, n_rows, ws, _emission_order(L, blocks, relevant))
+
+
+def _emission_order(L, blocks, relevant):
+    """Every relevant output's ``(block plan, output entry)``, its sensitivity rows after
+    those of the outputs it is computed from: a topological order of the port graph over
+    the relevant outputs and the inputs of the blocks in the chain (acyclic: a cycle there
+    would be an algebraic loop, which has no plan). Not the blocks' call order: a block
+    called twice (its outputs without feedthrough needed before its inputs) has its
+    outputs' rows at different places."""
+    import networkx as nx
+    entry = {("out", bp.bl.path, e[0]): (bp, e) for bp in blocks for e in bp.outs}
+    nodes = set(relevant) | {("in", bp.bl.path, i) for bp in blocks for i in bp.bl.inputs}
+    sub = L.graph.subgraph(n for n in L.graph.nodes if tuple(n) in nodes)
+    order = nx.lexicographical_topological_sort(sub, key=str)
+    return [entry[tuple(n)] for n in order if tuple(n) in entry]
 
 
 def _paths_into_derivatives(L, deps):
@@ -130,8 +147,8 @@ def _paths_into_derivatives(L, deps):
 
 def _why_none(L, deps, targets, relevant, active):
     """Why there is no analytic Jacobian (``""``: there is one): an algebraic loop on a
-    path into a derivative, a block on such a path without partials, or one evaluated in
-    two calls (see the module docstring)."""
+    path into a derivative or a block on such a path without partials (see the module
+    docstring)."""
     in_loops = {n for lp in L.loops for n in lp.nodes}
     looped = sorted((n for n in relevant | set(targets) if n in in_loops and deps[n]),
                     key=str)
@@ -142,17 +159,6 @@ def _why_none(L, deps, targets, relevant, active):
         bl = L.blocks[path_]
         if not bl.cls.has_kernel("partials"):
             return f"block '{path_}' ({bl.cls.type_name}) declares no partial derivatives"
-    calls = {}
-    for kind, what in L.calls:
-        if kind == "call":
-            calls[what] = calls.get(what, 0) + 1
-    twice = sorted(p_ for p_ in active if calls.get(p_, 0) > 1)
-    if twice:
-        # its outputs without feedthrough are needed before its inputs: the blocks between
-        # its two calls would read sensitivity rows that the one pass per block writes
-        # only at its second call (chaining per call is left for later)
-        return (f"block '{twice[0]}' is evaluated in two calls (outputs needed before "
-                f"its inputs are known)")
     return ""
 
 
@@ -190,7 +196,7 @@ def _block_plan(L, deps, relevant, row_of, zero_row, bl, ws):
         node = ("out", bl.path, o)
         if node in relevant:
             _arr, a, b = bl.ports[("out", o)].loc
-            bp.outs.append((r0, [row_of[k] for k in range(a, b)], sorted(deps[node])))
+            bp.outs.append((o, r0, [row_of[k] for k in range(a, b)], sorted(deps[node])))
         r0 += bl.ports[("out", o)].size
     n_s, n_u, n_y = len(bp.x_rows), len(bp.u_rows), r0
     if bl.states:
@@ -253,10 +259,9 @@ def source(L: Layout, kernel_name, arg_expr, sig_size):
             else:
                 args.append(_as_matrix(arg_expr(bp.bl, name)))
         lines.append(f"    {kernel_name(bp.bl)}({', '.join(args)})")
-    # outputs in schedule order, then the derivative rows
-    for bp in pl.blocks:
-        for r0, dst, cols in bp.outs:
-            lines += _pair(bp, "dydx", "dydu", "S", r0, dst, cols, mat_expr, table)
+    # the outputs' sensitivities in dependency order, then the derivative rows
+    for bp, (_port, r0, dst, cols) in pl.emit:
+        lines += _pair(bp, "dydx", "dydu", "S", r0, dst, cols, mat_expr, table)
     for bp in pl.blocks:
         if bp.x_rows:
             lines += _pair(bp, "dfdx", "dfdu", "J", 0, bp.x_rows, bp.der_cols, mat_expr,
