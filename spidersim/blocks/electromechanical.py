@@ -294,3 +294,39 @@ class NRPIDriver(Block):
         vb = kp * eb + I_b[0]
         der_I_a[0] = ki * ea + kb * (min(max(va, -V_supply), V_supply) - va)
         der_I_b[0] = ki * eb + kb * (min(max(vb, -V_supply), V_supply) - vb)
+
+    @staticmethod
+    def partials(t, I_a, I_b, i_cmd, theta_e, i_a, i_b, kp, ki, kb, V_supply, I_max, gain_a,
+                 gain_b, offset_a, offset_b, dfdx, dfdu, dydx, dydu):
+        """States ``(I_a, I_b)``, inputs ``(i_cmd, theta_e, i_a, i_b)``, outputs ``(v_a,
+        v_b, i_a_ref, i_b_ref)``. With ``s_I = 1`` strictly inside the command limit (else
+        0), ``s_x = 1`` when ``kp e_x + I_x`` is strictly inside the supply (else 0, the
+        output clipped)::
+
+            d i_a*/d(i_cmd, theta_e) = (-s_I sin theta_e, -I cos theta_e)
+            d i_b*/d(i_cmd, theta_e) = ( s_I cos theta_e, -I sin theta_e)
+            d e_x/d u = d i_x*/d u - (1 + gain_x) [u = i_x]
+            d v_x/d I_x = s_x,  d v_x/d u = s_x kp d e_x/d u
+            d(dI_x/dt)/d I_x = kb (s_x - 1),  d(dI_x/dt)/d u = (ki + kb (s_x - 1) kp) d e_x/d u
+        """
+        c = i_cmd[0]
+        s_i = 1.0 if -I_max < c < I_max else 0.0
+        amp = min(max(c, -I_max), I_max)
+        sn, cs = math.sin(theta_e[0]), math.cos(theta_e[0])
+        d_ref = ((-s_i * sn, -amp * cs), (s_i * cs, -amp * sn))     # d(i_x*)/d(i_cmd, th)
+        refs = (-amp * sn, amp * cs)
+        states = (I_a[0], I_b[0])
+        meas = ((1.0 + gain_a) * i_a[0] + offset_a, (1.0 + gain_b) * i_b[0] + offset_b)
+        gains = (1.0 + gain_a, 1.0 + gain_b)
+        for x in range(2):
+            vu = kp * (refs[x] - meas[x]) + states[x]
+            s_v = 1.0 if -V_supply < vu < V_supply else 0.0
+            g_f = ki + kb * (s_v - 1.0) * kp
+            dfdx[x, x] = kb * (s_v - 1.0)
+            dydx[x, x] = s_v
+            for j in range(2):
+                dfdu[x, j] = g_f * d_ref[x][j]
+                dydu[x, j] = s_v * kp * d_ref[x][j]
+                dydu[2 + x, j] = d_ref[x][j]
+            dfdu[x, 2 + x] = -g_f * gains[x]
+            dydu[x, 2 + x] = -s_v * kp * gains[x]
