@@ -43,6 +43,24 @@ def _jit(fn):
 lugre_rates_jit = _jit(lugre_rates)
 
 
+def lugre_slopes(v, z, T_c, T_s, v_s, delta, sigma0):
+    """``(d(dz/dt)/dz, d(dz/dt)/dv)`` of the LuGre model at ``(v, z)`` (see
+    :meth:`LuGre.partials` for the equations; ``sgn(0) = 0`` at the kink of ``|v|``)."""
+    r = abs(v / v_s)
+    e = math.exp(-(r * r if delta == 2.0 else r ** delta))
+    g = T_c + (T_s - T_c) * e
+    if not g > 0.0:
+        return 0.0, 1.0
+    sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+    dg = 0.0
+    if v != 0.0:
+        dg = -(T_s - T_c) * e * delta * (r if delta == 2.0 else r ** (delta - 1.0)) * sg / v_s
+    return -sigma0 * abs(v) / g, 1.0 - sigma0 * z * (sg * g - abs(v) * dg) / (g * g)
+
+
+lugre_slopes_jit = _jit(lugre_slopes)
+
+
 class LuGre(Block):
     """LuGre friction (see the module docstring): relative velocity in, friction out."""
 
@@ -81,21 +99,7 @@ class LuGre(Block):
         (``r = |v / v_s|``; at ``v = 0`` the kink of ``|v|`` is taken with ``sgn(0) = 0``;
         with ``g = 0``, ``dz/dt = v``).
         """
-        vv = v[0]
-        r = abs(vv / v_s)
-        e = math.exp(-(r * r if delta == 2.0 else r ** delta))
-        g = T_c + (T_s - T_c) * e
-        if g > 0.0:
-            sg = 1.0 if vv > 0.0 else (-1.0 if vv < 0.0 else 0.0)
-            dg = 0.0
-            if vv != 0.0:
-                dg = -(T_s - T_c) * e * delta * (r if delta == 2.0 else r ** (delta - 1.0)) \
-                    * sg / v_s
-            a = -sigma0 * abs(vv) / g
-            b = 1.0 - sigma0 * z[0] * (sg * g - abs(vv) * dg) / (g * g)
-        else:
-            a = 0.0
-            b = 1.0
+        a, b = lugre_slopes_jit(v[0], z[0], T_c, T_s, v_s, delta, sigma0)
         dfdx[0, 0] = a
         dfdu[0, 0] = b
         dydx[0, 0] = sigma0 + sigma1 * a

@@ -31,7 +31,7 @@ friction through LuGre).
 import math
 
 from .base import Block, Event, Mode, Param, Port, State
-from .friction import LUGRE_PARAMS, lugre_rates_jit
+from .friction import LUGRE_PARAMS, lugre_rates_jit, lugre_slopes_jit
 
 
 def three_slope(phi, K1, K2, K3, T1, T2):
@@ -49,6 +49,18 @@ def three_slope(phi, K1, K2, K3, T1, T2):
 
 
 
+def three_slope_stiffness(phi, K1, K2, T1, T2, K3):
+    """``d three_slope / d phi`` at ``phi``: ``K1``, ``K2`` or ``K3`` by the segment of
+    ``|phi|`` (the corners belong to the lower segment, as in :func:`three_slope`)."""
+    a = abs(phi)
+    p1 = T1 / K1
+    if a <= p1:
+        return K1
+    if a <= p1 + (T2 - T1) / K2:
+        return K2
+    return K3
+
+
 def _spring(delta, w_rel, contact, half, linear, K1, K2, K3, T1, T2, d):
     """Transmitted torque for the contact mode (see the module docstring)."""
     if half > 0.0 and contact == 0.0:
@@ -64,6 +76,7 @@ def _jit(fn):
 
 
 three_slope_jit = _jit(three_slope)
+three_slope_stiffness_jit = _jit(three_slope_stiffness)
 spring_jit = _jit(_spring)
 
 
@@ -147,6 +160,53 @@ class HarmonicDrive(Block):
             der_z[0] = dz
         else:
             der_z[0] = 0.0
+
+    @staticmethod
+    def partials(t, z, phi_m, w_m, phi_l, w_l, ratio, K1, K2, K3, T1, T2, d, half, linear,
+                 friction, load_side, efficiency, T_c, T_s, v_s, delta, sigma0, sigma1, D,
+                 contact, dfdx, dfdu, dydx, dydu):
+        """State ``z``, inputs ``(phi_m, w_m, phi_l, w_l)``, outputs ``(tau_l, tau_m, tau_f,
+        deflection)``, in the contact mode (the mesh efficiency's factor ``e`` held, as
+        between events). With ``k'`` the spring's slope at the deflection (``K1``, or the
+        three-slope segment's; 0 in the gap) and ``(a, b)`` the LuGre slopes
+        ``d(dz/dt)/d(z, v)`` at the friction's speed ``v`` (``w_m``, or ``w_l`` on the load
+        side)::
+
+            d tau_s/d(phi_m, w_m, phi_l, w_l) = (k'/ratio, d/ratio, -k', -d)  (0 in the gap)
+            d tau_f/dz = sigma0 + sigma1 a,     d tau_f/dv = sigma1 b + D
+            tau_l = tau_s (- tau_f on the load side),  tau_m = tau_s / (ratio e) (+ tau_f
+            on the motor side),  deflection = phi_m / ratio - phi_l,  dz/dt: (a, b)
+        """
+        gap = half > 0.0 and contact[0] == 0.0
+        kp = 0.0
+        dd = 0.0
+        if not gap:
+            de = phi_m[0] / ratio - phi_l[0] - (half * contact[0] if half > 0.0 else 0.0)
+            kp = K1 if linear > 0.5 else three_slope_stiffness_jit(de, K1, K2, T1, T2, K3)
+            dd = d
+        ts = spring_jit(phi_m[0] / ratio - phi_l[0], w_m[0] / ratio - w_l[0], contact[0],
+                        half, linear > 0.5, K1, K2, K3, T1, T2, d)
+        e = efficiency if ts * w_l[0] >= 0.0 else 1.0 / efficiency
+        dts = (kp / ratio, dd / ratio, -kp, -dd)
+        for j in range(4):
+            dydu[0, j] = dts[j]
+            dydu[1, j] = dts[j] / (ratio * e)
+        dydu[3, 0] = 1.0 / ratio
+        dydu[3, 2] = -1.0
+        if friction:
+            iv = 3 if load_side > 0.5 else 1
+            v = w_l[0] if load_side > 0.5 else w_m[0]
+            a, b = lugre_slopes_jit(v, z[0], T_c, T_s, v_s, delta, sigma0)
+            fz = sigma0 + sigma1 * a
+            fv = sigma1 * b + D
+            dfdx[0, 0] = a
+            dfdu[0, iv] = b
+            dydx[2, 0] = fz
+            dydu[2, iv] = fv
+            row = 0 if load_side > 0.5 else 1
+            sgn = -1.0 if load_side > 0.5 else 1.0
+            dydx[row, 0] = sgn * fz
+            dydu[row, iv] += sgn * fv
 
     @staticmethod
     def initialize(t, phi_m, w_m, phi_l, w_l, ratio, K1, K2, K3, T1, T2, d, half, linear,

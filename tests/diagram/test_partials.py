@@ -96,6 +96,22 @@ BLOCK_CASES = [
      {"i_cmd": 1, "theta_e": 1, "i_a": 1, "i_b": 1}),
     ("NRPIDriver", {"kp": 20.0, "ki": 300.0, "kb": 50.0, "V_supply": 0.5, "I_max": 0.3,
                     "gain_a": 0.02}, {"i_cmd": 1, "theta_e": 1, "i_a": 1, "i_b": 1}),
+    ("HarmonicDrive", {"ratio": 5.0, "K1": 40.0, "d": 0.5}, {"phi_m": 1, "w_m": 1,
+                                                              "phi_l": 1, "w_l": 1}),
+    # three-slope law: deflections of the random states (|delta| < 1.5) on the first
+    # segment (T1 / K1 = 2.5), the second (0.01 .. 3.3) and the third (beyond 0.009)
+    ("HarmonicDrive", {"ratio": 5.0, "stiffness": "three_slope", "K1": 40.0, "K2": 60.0,
+                       "K3": 90.0, "T1": 100.0, "T2": 300.0, "d": 0.5,
+                       "friction_side": "load", "efficiency": 0.8, "T_c": 0.3, "T_s": 0.5,
+                       "v_s": 0.7}, {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1}),
+    ("HarmonicDrive", {"ratio": 5.0, "stiffness": "three_slope", "K1": 40.0, "K2": 60.0,
+                       "K3": 90.0, "T1": 0.4, "T2": 200.0, "d": 0.5},
+     {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1}),
+    ("HarmonicDrive", {"ratio": 5.0, "stiffness": "three_slope", "K1": 40.0, "K2": 60.0,
+                       "K3": 90.0, "T1": 0.1, "T2": 0.5, "d": 0.5, "friction": False},
+     {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1}),
+    ("HarmonicDrive", {"ratio": 5.0, "K1": 40.0, "d": 0.5, "backlash": 0.02},  # in the gap
+     {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1}),
     ("Inertia", {"J": 0.3}, {"tau": 1}),
     ("LuGre", {}, {"v": 1}),
     ("LuGre", {"delta": 1.5, "T_c": 0.02, "T_s": 0.09, "v_s": 0.4}, {"v": 1}),
@@ -137,7 +153,11 @@ def test_block_partials_match_finite_differences(type_name, params, sizes):
     assert np.abs(J_fd).max() > 0       # the case exercises something
 
 
+GEAR_GAP = ({"ratio": 5.0, "K1": 40.0, "d": 0.5, "backlash": 0.02},
+            {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1})
 MODE_CASES = [
+    ("HarmonicDrive", *GEAR_GAP, "contact", [1.0]),
+    ("HarmonicDrive", *GEAR_GAP, "contact", [-1.0]),
     ("LimitedIntegrator", {"x0": 0.2, "lower": -1.0, "upper": 1.5}, {"u": 1}, "m", [-1.0]),
     ("LimitedIntegrator", {"x0": 0.2, "lower": -1.0, "upper": 1.5}, {"u": 1}, "m", [1.0]),
     ("Saturation", {"lower": -0.4, "upper": 0.9}, {"u": 3}, "m", [-1.0, 0.0, 1.0]),
