@@ -355,6 +355,33 @@ class JointCascade(Block):
         return k[0] * Ts if Ts > 0.0 else math.inf
 
     @staticmethod
+    def partials(t, I, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ki_w, ff, I_max, kb, Ts,
+                 dfdx, dfdu, dydx, dydu):
+        """Inputs ``(q_ref, qd_ref, q, w_m)``, outputs ``(i_cmd, w_ref)``; sampled
+        (``Ts > 0``): the held outputs depend on nothing between samples, all zero.
+        Continuous, with ``s = 1`` while ``v = kp_w e + I`` is strictly inside the limit
+        (else 0)::
+
+            d w_ref/du = ratio (kp_q, ff, -kp_q, 0),   d e/du = d w_ref/du - (0, 0, 0, 1)
+            d i_cmd/dI = s,  d i_cmd/du = s kp_w d e/du
+            d(dI/dt)/dI = kb (s - 1),  d(dI/dt)/du = (ki_w + kb (s - 1) kp_w) d e/du
+        """
+        if Ts > 0.0:
+            return
+        wr = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0])
+        v = kp_w * (wr - w_m[0]) + I[0]
+        s = 1.0 if -I_max < v < I_max else 0.0
+        dwr = (ratio * kp_q, ratio * ff, -ratio * kp_q, 0.0)
+        g_f = ki_w + kb * (s - 1.0) * kp_w
+        dfdx[0, 0] = kb * (s - 1.0)
+        dydx[0, 0] = s
+        for j in range(4):
+            de = dwr[j] - (1.0 if j == 3 else 0.0)
+            dfdu[0, j] = g_f * de
+            dydu[0, j] = s * kp_w * de
+            dydu[1, j] = dwr[j]
+
+    @staticmethod
     def time_event(t, q_ref, qd_ref, q, w_m, ratio, kp_q, kp_w, ki_w, ff, I_max, kb, Ts, I_k,
                    i_held, w_held, k):
         wr = ratio * (kp_q * (q_ref[0] - q[0]) + ff * qd_ref[0])

@@ -94,6 +94,15 @@ class Resolver(Block):
         w_m[0] = w[0]
 
     @staticmethod
+    def partials(t, bits, Ts, dydu):
+        """Inputs ``(theta, w)``, outputs ``(theta_m, w_m)``: ``d w_m / d w = 1``;
+        ``d theta_m / d theta = 1`` without quantization (continuous, ``bits = 0``), 0 for
+        the staircase and for the held sample (between its steps and samples)."""
+        if Ts == 0.0 and bits <= 0:
+            dydu[0, 0] = 1.0
+        dydu[1, 1] = 1.0
+
+    @staticmethod
     def next_time(t, Ts, k):
         return k[0] * Ts if Ts > 0.0 else math.inf
 
@@ -223,3 +232,24 @@ class RDC(Block):
         e = math.sin(theta[0] - theta_r[0])
         der_theta_r[0] = w_r[0] + 2.0 * zeta * wn * e
         der_w_r[0] = wn * wn * e
+
+    @staticmethod
+    def partials(t, theta, theta_r, f_n, zeta, bits, w_bits, dfdx, dfdu, dydx):
+        """States ``(theta_r, w_r)``, input ``theta``, outputs that are not states
+        ``(theta_d, w_d)``; with ``c = cos(theta - theta_r)``::
+
+            d(dtheta_r/dt)/d(theta_r, w_r, theta) = (-2 zeta w_n c, 1, 2 zeta w_n c)
+            d(dw_r/dt)/d(theta_r, theta) = (-w_n^2 c, w_n^2 c)
+            d theta_d/d theta_r = 1 for bits = 0 (else the staircase: 0), w_d alike
+        """
+        wn = 2.0 * math.pi * f_n
+        c = math.cos(theta[0] - theta_r[0])
+        dfdx[0, 0] = -2.0 * zeta * wn * c
+        dfdx[0, 1] = 1.0
+        dfdx[1, 0] = -wn * wn * c
+        dfdu[0, 0] = 2.0 * zeta * wn * c
+        dfdu[1, 0] = wn * wn * c
+        if bits <= 0:
+            dydx[0, 0] = 1.0
+        if w_bits <= 0:
+            dydx[1, 1] = 1.0

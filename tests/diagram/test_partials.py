@@ -112,6 +112,15 @@ BLOCK_CASES = [
      {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1}),
     ("HarmonicDrive", {"ratio": 5.0, "K1": 40.0, "d": 0.5, "backlash": 0.02},  # in the gap
      {"phi_m": 1, "w_m": 1, "phi_l": 1, "w_l": 1}),
+    ("Resolver", {"bits": 0}, {"theta": 1, "w": 1}),
+    ("Resolver", {"bits": 12}, {"theta": 1, "w": 1}),
+    ("RDC", {"f_n": 3.0, "zeta": 0.6}, {"theta": 1}),
+    ("RDC", {"f_n": 3.0, "zeta": 0.6, "bits": 12, "w_bits": 12, "w_max": 100.0},
+     {"theta": 1}),
+    ("JointCascade", {"ratio": 10.0, "kp_q": 2.0, "kp_w": 0.3, "ki_w": 1.5, "ff": 0.7,
+                      "I_max": 50.0, "kb": 4.0}, {"q_ref": 1, "qd_ref": 1, "q": 1, "w_m": 1}),
+    ("JointCascade", {"ratio": 10.0, "kp_q": 2.0, "kp_w": 0.3, "ki_w": 1.5, "ff": 0.7,
+                      "I_max": 0.5, "kb": 4.0}, {"q_ref": 1, "qd_ref": 1, "q": 1, "w_m": 1}),
     ("Inertia", {"J": 0.3}, {"tau": 1}),
     ("LuGre", {}, {"v": 1}),
     ("LuGre", {"delta": 1.5, "T_c": 0.02, "T_s": 0.09, "v_s": 0.4}, {"v": 1}),
@@ -402,11 +411,14 @@ def test_jacobian_generated_only_when_asked():
     assert d.compile(jit=True).analytic_jacobian      # the superset is kept
 
 
-def test_joint_ripple_drive_has_an_exact_jacobian():
+@pytest.mark.parametrize("name", ["joint_ripple.yaml", "joint_step.yaml"])
+def test_joint_diagrams_have_an_exact_jacobian(name):
     """diagrams/joint_ripple.yaml (NRPI driver, brushless motor called twice, ripple
-    sources on): the analytic Jacobian equals central differences at the initial state
-    and at a state with currents, speed and integrals off their start."""
-    d = spidersim.load(os.path.join(ROOT, "diagrams", "joint_ripple.yaml"))
+    sources on) and joint_step.yaml (the whole SPIDER joint subsystem: driver, motor,
+    Harmonic Drive with LuGre, resolvers, RDC, sampled cascade, a load inertia): the
+    analytic Jacobian equals central differences at the initial state and at a state with
+    currents, speeds, angles, bristles and integrals off their start."""
+    d = spidersim.load(os.path.join(ROOT, "diagrams", name))
     assert plan(d.layout).reason == ""
     s = d.compile(jit=False, jacobian=True)
     rng = np.random.default_rng(5)
