@@ -216,3 +216,35 @@ class Function(Block):
                 y[i] = abs(v)
             else:
                 y[i] = v * v
+
+    @staticmethod
+    def partials(t, code, u, dydu):
+        """``dy_i/du_i = fn'(u_i)``: cos, -sin, 1/cos^2, 1 - tanh^2, 1/(1 + u^2), exp, 1/u,
+        1/(2 sqrt u), sgn u (0 at 0), 2u; NaN outside the domain of ``log`` and ``sqrt``
+        (as the value)."""
+        c = int(code)
+        for i in range(dydu.shape[0]):
+            v = u[i]
+            if c == 0:
+                g = math.cos(v)
+            elif c == 1:
+                g = -math.sin(v)
+            elif c == 2:
+                cv = math.cos(v)
+                g = 1.0 / (cv * cv)
+            elif c == 3:
+                th = math.tanh(v)
+                g = 1.0 - th * th
+            elif c == 4:
+                g = 1.0 / (1.0 + v * v)
+            elif c == 5:
+                g = math.exp(v)
+            elif c == 6:
+                g = 1.0 / v if v > 0.0 else math.nan
+            elif c == 7:
+                g = 0.5 / math.sqrt(v) if v > 0.0 else math.nan
+            elif c == 8:
+                g = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+            else:
+                g = 2.0 * v
+            dydu[i, i] = g

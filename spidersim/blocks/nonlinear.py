@@ -142,6 +142,16 @@ class DeadZone(_Corners):
         corner_modes(start, end, u, m)
 
     @staticmethod
+    def partials(t, start, end, zero_crossing, u, m, dydu):
+        """``dy_i/du_i`` = 1 outside the zone (by the mode; without zero crossing, strictly
+        outside ``[start, end]``), 0 inside."""
+        for i in range(dydu.shape[0]):
+            if zero_crossing:
+                dydu[i, i] = 0.0 if -0.5 <= m[i] <= 0.5 else 1.0
+            else:
+                dydu[i, i] = 1.0 if (u[i] > end or u[i] < start) else 0.0
+
+    @staticmethod
     def guard(t, start, end, u, zc):
         corner_guards(start, end, u, zc)
 

@@ -121,6 +121,9 @@ BLOCK_CASES = [
                       "I_max": 50.0, "kb": 4.0}, {"q_ref": 1, "qd_ref": 1, "q": 1, "w_m": 1}),
     ("JointCascade", {"ratio": 10.0, "kp_q": 2.0, "kp_w": 0.3, "ki_w": 1.5, "ff": 0.7,
                       "I_max": 0.5, "kb": 4.0}, {"q_ref": 1, "qd_ref": 1, "q": 1, "w_m": 1}),
+    *[("Function", {"fn": f}, {"u": 2}) for f in ("sin", "cos", "tan", "tanh", "atan",
+                                                   "exp", "log", "sqrt", "abs", "square")],
+    ("DeadZone", {"start": -0.1, "end": 0.2, "zero_crossing": False}, {"u": 3}),
     ("Inertia", {"J": 0.3}, {"tau": 1}),
     ("LuGre", {}, {"v": 1}),
     ("LuGre", {"delta": 1.5, "T_c": 0.02, "T_s": 0.09, "v_s": 0.4}, {"v": 1}),
@@ -169,6 +172,7 @@ MODE_CASES = [
     ("HarmonicDrive", *GEAR_GAP, "contact", [-1.0]),
     ("LimitedIntegrator", {"x0": 0.2, "lower": -1.0, "upper": 1.5}, {"u": 1}, "m", [-1.0]),
     ("LimitedIntegrator", {"x0": 0.2, "lower": -1.0, "upper": 1.5}, {"u": 1}, "m", [1.0]),
+    ("DeadZone", {"start": -0.1, "end": 0.2}, {"u": 3}, "m", [-1.0, 0.0, 1.0]),
     ("Saturation", {"lower": -0.4, "upper": 0.9}, {"u": 3}, "m", [-1.0, 0.0, 1.0]),
     ("Saturation", {"lower": -0.4, "upper": 0.9}, {"u": 3}, "m", [1.0, 1.0, -1.0]),
     ("PI", {"kp": 2.0, "ki": 5.0, "y_min": -0.5, "y_max": 0.5}, {"e": 1}, "clamp", [1.0]),
@@ -289,13 +293,14 @@ def test_chain_through_sum_and_gain_by_hand(jit):
 
 
 def test_fallback_when_a_block_on_a_path_has_no_partials():
-    """A Function (no partials) between a state and a derivative: no analytic Jacobian,
+    """A Product (no partials) between a state and a derivative: no analytic Jacobian,
     the reason names the block, ``jacobian='analytic'`` is refused with it, and the run
     uses finite differences (stats) and still works."""
     text = LOOP.replace("  k: {type: Gain, k: 4.0}",
-                        "  k: {type: Function, fn: tanh}")
+                        "  k: {type: Product, ops: '*'}").replace("e.y -> k.u",
+                                                                 "e.y -> k.u1")
     d = spidersim.loads(text)
-    assert "block 'k' (Function)" in plan(d.layout).reason
+    assert "block 'k' (Product)" in plan(d.layout).reason
     s = d.compile(jit=False, jacobian=True)
     assert not s.analytic_jacobian and s.jacobian(0.0, s.x0) is None
     r = d.simulate(t_end=0.5, method="ROS34PW2", jit=True)
@@ -305,11 +310,11 @@ def test_fallback_when_a_block_on_a_path_has_no_partials():
 
 
 def test_blocks_off_the_state_paths_need_no_partials():
-    """A Function block (no partials) between a source and an integrator: its output
+    """A Product block (no partials) between a source and an integrator: its output
     depends on no state, so the Jacobian is still analytic (and zero there)."""
     text = LOOP.replace("  r: {type: Step, t_step: 0.1}",
-                        "  r: {type: Step, t_step: 0.1}\n  f: {type: Function, fn: tanh}")
-    text = text.replace("  - r.y -> e.u1", "  - r.y -> f.u\n  - f.y -> e.u1")
+                        "  r: {type: Step, t_step: 0.1}\n  f: {type: Product, ops: '*'}")
+    text = text.replace("  - r.y -> e.u1", "  - r.y -> f.u1\n  - f.y -> e.u1")
     d = spidersim.loads(text)
     assert plan(d.layout).reason == ""
     s = d.compile(jit=False, jacobian=True)
