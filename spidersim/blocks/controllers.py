@@ -234,6 +234,36 @@ class PID(Block):
         der_f[0] = N * (e[0] - f[0])
 
     @staticmethod
+    def partials(t, I, f, e, kp, ki, kd, N, y_min, y_max, aw, kb, clamp, dfdx, dfdu, dydx,
+                 dydu):
+        """States ``(I, f)``, input ``e``, output ``y``; ``v = kp e + I + kd N (e - f)``,
+        ``dv/d(I, f, e) = (1, -kd N, kp + kd N)``, ``s = dsat/dv`` (1 strictly inside the
+        limits, 0 outside or while sliding, ``|clamp| = 2``)::
+
+            dy/d(I, f, e) = s dv/d(I, f, e)
+            dI'/de = ki (0 while clamped)                         clamping
+            dI'/d(I, f, e) = (0, 0, ki) + kb (s_in - 1) dv/d(...)  back-calculation
+            df'/d(f, e) = (-N, N)
+        """
+        dv = (1.0, -kd * N, kp + kd * N)
+        v = kp * e[0] + I[0] + kd * N * (e[0] - f[0])
+        inside = 1.0 if y_min < v < y_max else 0.0
+        s = 0.0 if abs(clamp[0]) >= 1.5 else inside
+        dydx[0, 0] = s * dv[0]
+        dydx[0, 1] = s * dv[1]
+        dydu[0, 0] = s * dv[2]
+        if aw == 0.0:
+            dfdu[0, 0] = 0.0 if clamp[0] != 0.0 else ki
+        elif aw == 1.0:
+            dfdx[0, 0] = kb * (inside - 1.0) * dv[0]
+            dfdx[0, 1] = kb * (inside - 1.0) * dv[1]
+            dfdu[0, 0] = ki + kb * (inside - 1.0) * dv[2]
+        else:
+            dfdu[0, 0] = ki
+        dfdx[1, 1] = -N
+        dfdu[1, 0] = N
+
+    @staticmethod
     def guard(t, I, f, e, kp, kd, N, y_min, y_max, aw, clamp, armed, zc):
         v = kp * e[0] + I[0] + kd * N * (e[0] - f[0])
         _clamp_guard_jit(e[0], v, y_min, y_max, aw, clamp[0], armed[0], zc)
