@@ -232,12 +232,20 @@ class CompiledSystem:
         """Call the machine code of the hot Python-side calls directly: numba's dispatcher
         re-checks every argument type on each call (about 0.4 us of 1 us here). The
         argument types are the same for every diagram, so the entry points are looked up
-        once per process (:func:`entry_point`)."""
+        once per process (:func:`entry_point`) and kept in ``shared`` for the next system
+        of this structure (no arrays made to look them up again)."""
         if not self.jit:
             return
-        x = self.x0.copy()
         fn, sig, p_, modes = self.fn, self.sig, self.p, self.modes
+        bound = self.shared.get("entry_points") if self.shared is not None else None
+        if bound is not None:         # looked up by an earlier system of this structure
+            self._ops.update(bound)
+            rhs = self._ops["rhs"]
+            self.rhs = lambda t, x: rhs(fn, t, x, sig, p_, modes)
+            return
+        x = self.x0.copy()
         rows = np.zeros((1, self.record_size))
+        found = {}
         for name, args in (("rhs", (fn, 0.0, x, sig, p_, modes)),
                            ("record", (fn, 0.0, x, sig, p_, modes, self._s_idx, self._x_idx,
                                        rows, 0)),
@@ -247,6 +255,9 @@ class CompiledSystem:
             e = entry_point(_OPS[name], args)
             if e is not None:
                 self._ops[name] = e
+                found[name] = e
+        if self.shared is not None and len(found) == 4:
+            self.shared["entry_points"] = found
         rhs = self._ops["rhs"]
         self.rhs = lambda t, x: rhs(fn, t, x, sig, p_, modes)
 
