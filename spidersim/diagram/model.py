@@ -375,7 +375,7 @@ class Diagram:
         system = CompiledSystem(mod, self.initial_state(), self.p.copy(), self.initial_modes(),
                                 L.n_sig, self._log, sig_names, x_names, sparsity,
                                 sig0=self.initial_signals(), loops=self.loop_info(),
-                                tables=tables)
+                                tables=tables, shared=self._shared(mod))
         system.jacobian_reason = self._jacobian_reason()
         a, r = L.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
@@ -385,6 +385,14 @@ class Diagram:
         # (no-op before the first warm-up compiled the functions)
         system._bind_entry_points()
         return system
+
+    def _shared(self, mod):
+        """The dict every system of this layout and module shares (what does not change
+        between runs: record layout, event tables; see :class:`CompiledSystem`)."""
+        cached = getattr(self, "_shared_cache", None)
+        if cached is None or cached[0] is not self.layout or cached[1] is not mod:
+            cached = self._shared_cache = (self.layout, mod, {})
+        return cached[2]
 
     def _jacobian_reason(self):
         """Why the diagram has no analytic Jacobian ('' when it has one; see

@@ -23,13 +23,13 @@ Without numba (``JIT = False`` modules, interpreted runs) ``view`` is the slice 
 """
 from __future__ import annotations
 
+# matrix lives with the solver (its Newton takes its Jacobian view the same way: solver/
+# imports nothing from diagram/); re-exported here for the generated modules
+from ..solver.borrow import _matrix_py, matrix  # noqa: F401
+
 
 def _view_py(a, start, stop):
     return a[start:stop]
-
-
-def _matrix_py(a, start, rows, cols):
-    return a[start:start + rows * cols].reshape((rows, cols))
 
 
 try:
@@ -72,31 +72,5 @@ if intrinsic is not None:
 
         return rettype(a, start, stop), codegen
 
-    @intrinsic
-    def matrix(typingctx, a, start, rows, cols):
-        """``a[start:start + rows * cols].reshape((rows, cols))`` of a C-contiguous 1-D
-        float64 array, borrowing ``a``'s memory (no reference counting, and none of the run-time
-        work of ``reshape``): the analytic Jacobian's workspace matrices."""
-        if not (isinstance(a, types.Array) and a.ndim == 1 and a.layout == "C"
-                and a.dtype == types.float64 and all(isinstance(v, types.Integer) for v in (start, rows, cols))):
-            return None
-        rettype = types.Array(a.dtype, 2, "C")
-
-        def codegen(context, builder, sig, args):
-            arr, lo, r, c = args
-            src = context.make_array(sig.args[0])(context, builder, arr)
-            lo = context.cast(builder, lo, sig.args[1], types.intp)
-            r = context.cast(builder, r, sig.args[2], types.intp)
-            c = context.cast(builder, c, sig.args[3], types.intp)
-            out = context.make_array(rettype)(context, builder)
-            data = cgutils.gep_inbounds(builder, src.data, lo)
-            eight = context.get_constant(types.intp, 8)
-            context.populate_array(out, data=data, shape=[r, c],
-                                   strides=[builder.mul(c, eight), eight],
-                                   itemsize=src.itemsize, meminfo=None, parent=None)
-            return out._getvalue()
-
-        return rettype(a, start, rows, cols), codegen
 else:  # pragma: no cover
     view = _view_py
-    matrix = _matrix_py

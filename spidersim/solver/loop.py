@@ -37,10 +37,13 @@ events, or a uniform grid) and the same failure reports.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
+from ..errors import AlgebraicLoopError, IntegrationError
 from . import bdf, record_budget, rosenbrock
+from .result import Result
 from .sysfn import entry_point
 from .events import zeno_message
 from .loop_body import run_loop
@@ -71,6 +74,18 @@ _FAILURES = {
     FAIL_SMALL_STEP: "required step size is less than spacing between numbers",
     FAIL_START: "non-finite value at the start",
 }
+
+
+def _event_arrays(event_table, timed):
+    """``(g_dir, g_block, timed_block, n_blocks)``: each guard's direction, the index of
+    each guard's and each timed entry's block among the ``n_blocks`` blocks with events
+    (sorted by path), as :func:`~spidersim.solver.loop_body.run_loop` takes them."""
+    names = sorted({blk for blk, _e, _d in event_table} | set(timed))
+    bid = {b: k for k, b in enumerate(names)}
+    g_dir = np.array([d for _b, _e, d in event_table], dtype=float)
+    g_block = np.array([bid[b] for b, _e, _d in event_table], dtype=np.int64)
+    timed_block = np.array([bid[b] for b in timed], dtype=np.int64)
+    return g_dir, g_block, timed_block, len(names)
 
 
 class CompiledLoop:
@@ -116,17 +131,20 @@ class CompiledLoop:
         self.x1 = np.zeros(n)
         self.xs = np.zeros(n)
         ng = s.n_g
-        names = sorted({blk for blk, _e, _d in s.event_table} | set(s.timed))
-        bid = {b: k for k, b in enumerate(names)}
+        # the event tables as arrays (read only in run_loop): once per compiled structure
+        shared = getattr(s, "shared", None)
+        tab = shared.get("loop_events") if shared is not None else None
+        if tab is None:
+            tab = _event_arrays(s.event_table, s.timed)
+            if shared is not None:
+                shared["loop_events"] = tab
+        self.g_dir, self.g_block, self.timed_block, n_blocks = tab
         self.G = np.zeros((N_G_ROWS, max(1, ng)))
         self.G[G_ARMED] = 1.0
-        self.g_dir = np.array([d for _b, _e, d in s.event_table], dtype=float)
-        self.g_block = np.array([bid[b] for b, _e, _d in s.event_table], dtype=np.int64)
-        self.timed_block = np.array([bid[b] for b in s.timed], dtype=np.int64)
         self.fired = np.zeros(max(1, len(s.timed)))
-        self.bmask = np.zeros(max(1, len(names)), dtype=np.int64)
+        self.bmask = np.zeros(max(1, n_blocks), dtype=np.int64)
         self.hit = np.zeros(max(1, ng), dtype=np.int64)
-        self.chat = np.zeros((max(1, len(names)), CHATTER_COUNT + 1))
+        self.chat = np.zeros((max(1, n_blocks), CHATTER_COUNT + 1))
         rows = capacity
         if output_interval:        # the grid's rows are known: no growth, no copy at the end
             rows = max(capacity, int((t_end - t0) / output_interval) + 2 + 2 * ROW_RESERVE)
@@ -212,13 +230,12 @@ class CompiledLoop:
         self.ist[I_ROWS] = n + 1
 
     def result(self, stats, status="ok", message=""):
-        from .result import Result
         s = self.system
         n = int(self.ist[I_ROWS])
         t, buf = self.tbuf[:n], self.buf[:n]
         if n < 0.9 * len(self.tbuf):         # trim a buffer much larger than its rows
             t, buf = t.copy(), buf.copy()
-        return Result(t, buf, s.record_slices, s.units, self.events(), stats, status, message)
+        return Result(t, buf, s.record_slices, dict(s.units), self.events(), stats, status, message)
 
     def stats(self):
         i = self.ist
@@ -258,8 +275,6 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
     :class:`~spidersim.errors.IntegrationError` (or ``AlgebraicLoopError``) with the partial
     result, exactly as the SciPy-stepper loop does.
     """
-    import time
-    from ..errors import IntegrationError
     wall0 = time.perf_counter()
     if system.n_x == 0 and max_step == math.inf:
         max_step = (t_end - t0) / 200
@@ -312,8 +327,6 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
 
 def _fail(system, run, code, st, wall0, IntegrationError):
     """Raise the error of failure ``code`` (messages as the SciPy-stepper loop's)."""
-    import time
-    from ..errors import AlgebraicLoopError
     t = run.t
     st["t_reached"] = t
     st["wall_time"] = time.perf_counter() - wall0

@@ -56,6 +56,7 @@ import math
 import numpy as np
 
 from ._jit import njit, njit_borrowed
+from .borrow import matrix
 from .dense_lu import lu_factor, lu_solve  # noqa: F401  (re-exported: the loop solver's LU)
 
 #: iteration limit of one solve
@@ -132,8 +133,10 @@ def _vec(ws, n, a):
 
 @njit_borrowed(inline="always")
 def _jac(ws, n):
-    """:func:`jacobian` for the solver's own functions (not counted, see :func:`_vec`)."""
-    return ws[HEAD:HEAD + n * n].reshape((n, n))
+    """:func:`jacobian` for the solver's own functions (not counted, see :func:`_vec`):
+    a borrowed ``n x n`` view (:func:`spidersim.solver.borrow.matrix`), without the call of
+    numba's reshape helper that ``reshape`` makes once per factorisation and solve step."""
+    return matrix(ws, HEAD, n, n)
 
 
 @njit

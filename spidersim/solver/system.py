@@ -29,13 +29,36 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import sysfn
+from . import newton, sysfn
 from .sysfn import entry_point
 
 #: the Python-side calls of a compiled system, compiled once for every diagram
 _OPS = {name: getattr(sysfn, name) for name in (
     "rhs", "outputs", "record", "record_guards", "guards", "next_time", "time_events",
     "initialize", "apply_event", "jacobian")}
+
+
+def _record_layout(log):
+    """The record layout of ``log`` (see :class:`CompiledSystem`): ``(s_idx, x_idx,
+    names, slices, size, units)``; a row holds all logged signal values first, then the
+    logged states."""
+    x_idx, s_idx, names, slices, units = [], [], [], {}, {}
+    for name, arr, a, b, unit in log:
+        (x_idx if arr == "x" else s_idx).append(np.arange(a, b))
+        names.append(name)
+        units[name] = unit
+    k = 0
+    for name, arr, a, b, unit in log:
+        if arr == "sig":
+            slices[name] = (k, k + b - a)
+            k += b - a
+    for name, arr, a, b, unit in log:
+        if arr == "x":
+            slices[name] = (k, k + b - a)
+            k += b - a
+    s_idx = (np.concatenate(s_idx) if s_idx else np.zeros(0)).astype(np.int64)
+    x_idx = (np.concatenate(x_idx) if x_idx else np.zeros(0)).astype(np.int64)
+    return s_idx, x_idx, names, slices, k, units
 
 
 class CompiledSystem:
@@ -55,6 +78,11 @@ class CompiledSystem:
         Logged signals: ``array`` is ``"x"`` or ``"sig"``.
     sig_names, x_names : list of (name, start, stop)
         Every signal and state, in schedule / layout order, for diagnostics.
+    shared : dict, optional
+        Kept by the caller for every system of the same module and ``log`` (a diagram
+        keeps one per layout): the record index arrays, slices and units, and the compiled
+        loop's event tables, computed by the first system and reused (read only: nothing
+        that a run writes is kept there).
     tables : (timed, events)
         Block paths flagged by ``time_events`` and ``(block, event, direction)`` per guard,
         from :func:`spidersim.diagram.codegen.event_tables`; the generated module holds only
@@ -62,8 +90,11 @@ class CompiledSystem:
     """
 
     def __init__(self, module, x0, p, modes0, n_sig, log, sig_names, x_names,
-                 jac_sparsity=None, sig0=None, loops=(), tables=((), ())):
+                 jac_sparsity=None, sig0=None, loops=(), tables=((), ()), shared=None):
         self.module = module
+        #: what does not change between the systems of one compiled structure (record
+        #: layout, the compiled loop's event tables), kept by the caller across runs
+        self.shared = shared
         self.n_x = len(x0)
         self.x0 = np.ascontiguousarray(x0, dtype=float)
         self.p = np.ascontiguousarray(p, dtype=float)
@@ -86,25 +117,12 @@ class CompiledSystem:
         if len(self.timed) != module.N_TIMED or len(self.event_table) != module.N_EVENTS:
             raise RuntimeError("generated module does not match its diagram's event tables")
         self.n_g = len(self.event_table)
-        x_idx, s_idx, names, slices, units = [], [], [], {}, {}
-        k = 0
-        for name, arr, a, b, unit in log:
-            idx = np.arange(a, b)
-            (x_idx if arr == "x" else s_idx).append(idx)
-            names.append(name)
-            units[name] = unit
-        # record layout: all logged sig values first, then logged states
-        k = 0
-        for name, arr, a, b, unit in log:
-            if arr == "sig":
-                slices[name] = (k, k + b - a)
-                k += b - a
-        for name, arr, a, b, unit in log:
-            if arr == "x":
-                slices[name] = (k, k + b - a)
-                k += b - a
-        self._s_idx = (np.concatenate(s_idx) if s_idx else np.zeros(0)).astype(np.int64)
-        self._x_idx = (np.concatenate(x_idx) if x_idx else np.zeros(0)).astype(np.int64)
+        rec = shared.get("record") if shared is not None else None
+        if rec is None or rec[0] is not log:
+            rec = (log,) + _record_layout(log)
+            if shared is not None:
+                shared["record"] = rec
+        _, self._s_idx, self._x_idx, names, slices, k, units = rec
         self.record_names = names
         self.record_slices = slices
         self.record_size = k
@@ -214,12 +232,20 @@ class CompiledSystem:
         """Call the machine code of the hot Python-side calls directly: numba's dispatcher
         re-checks every argument type on each call (about 0.4 us of 1 us here). The
         argument types are the same for every diagram, so the entry points are looked up
-        once per process (:func:`entry_point`)."""
+        once per process (:func:`entry_point`) and kept in ``shared`` for the next system
+        of this structure (no arrays made to look them up again)."""
         if not self.jit:
             return
-        x = self.x0.copy()
         fn, sig, p_, modes = self.fn, self.sig, self.p, self.modes
+        bound = self.shared.get("entry_points") if self.shared is not None else None
+        if bound is not None:         # looked up by an earlier system of this structure
+            self._ops.update(bound)
+            rhs = self._ops["rhs"]
+            self.rhs = lambda t, x: rhs(fn, t, x, sig, p_, modes)
+            return
+        x = self.x0.copy()
         rows = np.zeros((1, self.record_size))
+        found = {}
         for name, args in (("rhs", (fn, 0.0, x, sig, p_, modes)),
                            ("record", (fn, 0.0, x, sig, p_, modes, self._s_idx, self._x_idx,
                                        rows, 0)),
@@ -229,13 +255,19 @@ class CompiledSystem:
             e = entry_point(_OPS[name], args)
             if e is not None:
                 self._ops[name] = e
+                found[name] = e
+        if self.shared is not None and len(found) == 4:
+            self.shared["entry_points"] = found
         rhs = self._ops["rhs"]
         self.rhs = lambda t, x: rhs(fn, t, x, sig, p_, modes)
 
     def newton_iterations(self):
-        """Newton iterations over all loops since the start (0 without loops)."""
-        from .newton import Workspace
-        return sum(Workspace.total_iterations(self._workspace(lp)) for lp in self.loops)
+        """Newton iterations over all loops since the start (0 without loops): the
+        ``TOTAL`` slot of each loop's workspace."""
+        total = 0
+        for lp in self.loops:
+            total += int(self.sig[lp["ws0"] + newton.TOTAL])
+        return total
 
     def _workspace(self, lp):
         """The Newton workspace of loop ``lp`` (a view of ``sig``)."""

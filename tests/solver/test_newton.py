@@ -86,6 +86,28 @@ def test_linear_loop_converges_in_one_iteration():
     assert np.allclose(x, np.linalg.solve(A, [1.0, 2.0]), rtol=1e-14)
 
 
+def test_non_symmetric_linear_loop_converges_in_one_iteration():
+    """Guards the orientation of the Jacobian view (row i = residual i, column j = unknown j;
+    the solver's borrowed ``n x n`` matrix of the workspace): for the non-symmetric
+    ``A = [[3, 1], [0.5, 2]]`` (dyadic: the differences are exact) one Newton step solves
+    ``A z = b``; with ``A^T`` in its place the step would miss and need more iterations.
+    The factors kept in the workspace solve ``A x = (1, 2)``."""
+    An = np.array([[3.0, 1.0], [0.5, 2.0]])
+    b = np.array([1.0, -2.0])
+
+    def f(z, r):
+        r[0] = 3.0 * z[0] + 1.0 * z[1] - b[0]
+        r[1] = 0.5 * z[0] + 2.0 * z[1] - b[1]
+    ws = start(2, [0.0, 0.0])
+    res = Counted(f)
+    assert N.solve(res, ws, 2, atol=1e-14, rtol=1e-14) == N.CONVERGED
+    assert ws[N.ITERS] == 1 and res.calls == 4
+    assert np.allclose(N.unknowns(ws, 2), np.linalg.solve(An, b), rtol=1e-14, atol=1e-15)
+    x = np.array([1.0, 2.0])
+    N.lu_solve(N.jacobian(ws, 2), Workspace(2).array(ws, N.PIV), x)
+    assert np.allclose(x, np.linalg.solve(An, [1.0, 2.0]), rtol=1e-14)
+
+
 def test_chord_jacobian_is_reused_between_solves():
     """Guards the chord iteration: a second solve of the linear system with a new right-hand
     side keeps the factored Jacobian (no column evaluations: start + step = 2 evaluations,
