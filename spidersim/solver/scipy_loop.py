@@ -94,7 +94,8 @@ class Recorder:
         t, buf = self.t, self.buf[:self.n]
         if self.n < 0.9 * len(self.tbuf):         # trim a buffer much larger than its rows
             t, buf = t.copy(), buf.copy()
-        return Result(t, buf, s.record_slices, s.units, events, stats, status, message)
+        return Result(t, buf, s.record_slices, dict(s.units), events, stats, status,
+                      message)
 
 
 class SciPyLoop:
@@ -162,7 +163,7 @@ class SciPyLoop:
         """Append ``entries`` to the event log, within the recording budget shared with
         the rows (:mod:`.record_budget`; checked every 1024 events)."""
         n = len(self.events) + len(entries)
-        if n >= self._next_budget_check:
+        if entries and n >= self._next_budget_check:
             rec = self.rec
             if not record_budget.events_fit(n + 1024, rec.buf.nbytes + rec.tbuf.nbytes):
                 raise RecordBudgetFull(record_budget.budget_message(

@@ -126,7 +126,7 @@ class CompiledSystem:
         self.record_names = names
         self.record_slices = slices
         self.record_size = k
-        self.units = units
+        self.units = dict(units)      # the system's own: the shared one stays as built
         m = module
         for name, arr, extra in (("N_X", self.x0, 0), ("N_SIG", self.sig, n_jws),
                                  ("N_P", self.p, 0), ("N_MODES", self.modes, 0)):

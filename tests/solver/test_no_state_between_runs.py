@@ -80,3 +80,17 @@ def test_bouncing_ball_second_run_as_a_fresh_one(method):
     got = [ev[0] for ev in second.events]
     assert len(got) == 5
     np.testing.assert_allclose(got, expect, rtol=1e-7)
+
+
+@pytest.mark.parametrize("method", ["RK45", "DP54"])
+def test_a_results_units_are_its_own(method):
+    """Editing one result's units does not reach later results (found in review: the
+    units dict kept per layout went into every SciPy-stepper Result as is)."""
+    import spidersim
+    d = spidersim.loads("blocks:\n  c: {type: Constant, value: 1}\n  i: {type: Integrator}\n"
+                        "connections: [c.y -> i.u]\n")
+    r1 = d.simulate(t_end=0.1, method=method)
+    unit = r1.units["i.y"]
+    r1.units["i.y"] = "furlong"
+    for m in ("RK45", "DP54"):
+        assert d.simulate(t_end=0.1, method=m).units["i.y"] == unit
