@@ -28,3 +28,20 @@ def best_time(fn, repeat):
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+def pointer_loop():
+    """A compiled function ``many(fn, task, n, t, x, sig, p, modes, out, x2)`` calling the
+    system function ``fn`` ``n`` times through its pointer (alternating ``x`` and ``x2`` so
+    that nothing is hoisted out of the loop); returns the sum of the results."""
+    from spidersim.solver import sysfn
+    from spidersim.solver._jit import njit
+
+    @njit
+    def many(fn, task, n, t, x, sig, p, modes, out, x2):
+        acc = 0.0
+        for i in range(n):
+            xx = x if (i & 1) == 0 else x2
+            acc += sysfn.call(fn, task, t + 1e-9 * i, xx, sig, p, modes, out, 0, 0.0)
+        return acc
+    return many

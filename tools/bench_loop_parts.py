@@ -97,16 +97,9 @@ def _run_loop_only(d, kw, entry=None):
 
 def _task_costs(system, n=20000, repeat=7):
     """ns per call of each task through the pointer (in a compiled loop)."""
+    from bench_common import pointer_loop
     from spidersim.solver import sysfn
-    from spidersim.solver._jit import njit
-
-    @njit
-    def many(fn, task, n, t, x, sig, p, modes, out, x2):
-        acc = 0.0
-        for i in range(n):
-            xx = x if (i & 1) == 0 else x2
-            acc += sysfn.call(fn, task, t + 1e-9 * i, xx, sig, p, modes, out, 0, 0.0)
-        return acc
+    many = pointer_loop()
 
     fn = system.compiled_entry
     x = system.x0.copy() + 0.1

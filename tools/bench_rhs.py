@@ -144,16 +144,8 @@ def _hand_servo():
 
 def _many():
     import numba
-    from spidersim.solver import sysfn
-    from spidersim.solver._jit import njit
-
-    @njit
-    def many(fn, task, n, t, x, sig, p, modes, out, x2):
-        acc = 0.0
-        for i in range(n):
-            xx = x if (i & 1) == 0 else x2
-            acc += sysfn.call(fn, task, t + 1e-9 * i, xx, sig, p, modes, out, 0, 0.0)
-        return acc
+    from bench_common import pointer_loop
+    many = pointer_loop()
 
     # not cached: its type names the variant module's dispatcher, which a later process
     # cannot import
@@ -311,6 +303,11 @@ def main(argv):
     if argv and argv[0] == "--perf":
         perf_loop(argv[1] if len(argv) > 1 else "servo")
         return
+    unknown = [a for a in argv if a not in CASES]
+    if unknown:
+        print(__doc__)
+        print(f"problems: {', '.join(CASES)}; not known: {', '.join(unknown)}")
+        sys.exit(0 if unknown in (["--help"], ["-h"]) else 2)
     for problem in argv or ["servo"]:
         measure(problem, rounds)
 
