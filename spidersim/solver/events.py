@@ -11,8 +11,10 @@ import numpy as np
 
 from ._jit import njit, njit_borrowed
 
-#: iterations of the bracketing root finder: the bracket at least halves every third one
+#: iterations of the bracketing root finder: after the first LOCATE_FREE_ITER the bracket at
+#: least halves every third one (2**43 >= the widest step over the narrowest tolerance)
 LOCATE_MAX_ITER = 200
+LOCATE_FREE_ITER = 8
 
 # the event rules both loops share
 #: events (and rounds of time events) allowed at one instant before the run fails
@@ -133,9 +135,11 @@ def locate(gfun, t_a, t_b, g_a, xtol):
 @njit_borrowed
 def bracket_trial(a, b, fa, fb, it, xtol):
     """Next trial time inside the bracket ``[a, b]`` (``fa``, ``fb`` of opposite signs):
-    regula falsi on Illinois-weighted values, a bisection every third iteration (the
-    bracket at least halves every three), kept ``xtol/2`` away from the ends."""
-    if it % 3 == 2 or fb == fa:
+    regula falsi on the weighted end values of :func:`bracket_weight`; from iteration
+    ``LOCATE_FREE_ITER`` on, a bisection every third iteration (the bracket at least halves
+    every three, whatever the guard); the trial is kept ``xtol/2`` away from the ends, so a
+    secant that has converged on one side closes the bracket with its next trial."""
+    if fb == fa or (it >= LOCATE_FREE_ITER and (it - LOCATE_FREE_ITER) % 3 == 2):
         s = 0.5 * (a + b)
     else:
         s = b - fb * (b - a) / (fb - fa)
@@ -149,9 +153,37 @@ def bracket_trial(a, b, fa, fb, it, xtol):
 
 
 @njit_borrowed
+def bracket_weight(f_new, f_old):
+    """Anderson-Bjoerck weight of the bracket end kept twice in a row: the moving end went
+    from ``f_old`` to ``f_new`` (same sign), the kept end's value is multiplied by
+    ``m = 1 - f_new / f_old`` (``0.5``, the Illinois weight, when ``m <= 0``). Without it
+    regula falsi converges from one side only and the bracket never closes.
+
+    On the ball's parabolas this halves the iterations of the former Illinois weight with a
+    bisection every third trial (5.5 against 11.6 on average, ``tools/bench_loop.py``)."""
+    m = 1.0 - f_new / f_old
+    return m if m > 0.0 else 0.5
+
+
+@njit_borrowed
 def bracket_done(a, b, xtol):
     """The bracket is as narrow as asked, or as floating point allows."""
     return b - a <= xtol or b - a <= 4e-16 * max(abs(a), abs(b))
+
+
+@njit_borrowed
+def bracket_update(a, b, fa, fb, side, s, fs):
+    """The bracket after the trial ``(s, fs)``: ``s`` replaces the end of the same sign;
+    the end kept for the second time in a row is weighted by :func:`bracket_weight`.
+    ``side`` is ``-1`` when ``b`` moved last, ``1`` when ``a`` did (``0`` at the start).
+    Returns ``(a, b, fa, fb, side)``."""
+    if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
+        if side == -1:
+            fa *= bracket_weight(fs, fb)
+        return a, s, fa, fs, -1
+    if side == 1:
+        fb *= bracket_weight(fs, fa)
+    return s, b, fs, fb, 1
 
 
 def locate_on(gfun, a, b, fa, fb, xtol):
@@ -163,15 +195,5 @@ def locate_on(gfun, a, b, fa, fb, xtol):
         if bracket_done(a, b, xtol):
             break
         s = bracket_trial(a, b, fa, fb, it, xtol)
-        fs = gfun(s)
-        if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
-            b, fb = s, fs
-            if side == -1:
-                fa *= 0.5
-            side = -1
-        else:
-            a, fa = s, fs
-            if side == 1:
-                fb *= 0.5
-            side = 1
+        a, b, fa, fb, side = bracket_update(a, b, fa, fb, side, s, gfun(s))
     return b

@@ -75,6 +75,19 @@ class _Clock:
         return self._s.diagnose(t, x[:0])
 
 
+def _compiled_loop():
+    """:func:`spidersim.solver.loop.integrate_dp54`, imported on first use (it brings
+    numba; an import statement in the call cost 2 us per run)."""
+    global _INTEGRATE_COMPILED
+    if _INTEGRATE_COMPILED is None:
+        from .loop import integrate_dp54
+        _INTEGRATE_COMPILED = integrate_dp54
+    return _INTEGRATE_COMPILED
+
+
+_INTEGRATE_COMPILED = None
+
+
 def integrate(system, t_end, **kw):
     """Integrate ``system`` to ``t_end`` (see :func:`_integrate`), floating-point warnings
     silenced: non-finite values are detected and reported by name instead."""
@@ -143,8 +156,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     record_budget.check_planned(system.record_size, t0, t_end, max_step, output_interval)
     entry = getattr(system, "compiled_entry", None)
     if method in COMPILED and entry is not None:
-        from .loop import integrate_dp54
-        return integrate_dp54(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
+        return _compiled_loop()(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
                               max_step=max_step, first_step=first_step,
                               output_interval=output_interval, progress=progress,
                               stats=stats, should_stop=should_stop, method=method,

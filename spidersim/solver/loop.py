@@ -116,15 +116,16 @@ class CompiledLoop:
         # the NDF method's history and state (V, iw, fw); placeholders of the same types
         # for the other methods (one compiled loop serves all three)
         self.B = (np.zeros((1, 1)), np.zeros(1, dtype=np.int64), np.zeros(1))
+        shared = getattr(s, "shared", None)
+        if shared is None:
+            shared = {}
         if method == "NDF":
             V, self.JW, iw, fw = bdf.work(n)
             self.B = (V, iw, fw)
-            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n,
-                                                 self.analytic)
+            self.jpat = _pattern(s, shared, n, self.analytic)
         elif method == "ROS34PW2":
             self.JW = rosenbrock.jacobian_work(n)
-            self.jpat = rosenbrock.pattern_array(getattr(s, "jac_sparsity", None), n,
-                                                 self.analytic)
+            self.jpat = _pattern(s, shared, n, self.analytic)
         else:
             self.JW = np.zeros((2, 0, 0))
             self.jpat = np.zeros(0, dtype=np.int64)
@@ -132,12 +133,9 @@ class CompiledLoop:
         self.xs = np.zeros(n)
         ng = s.n_g
         # the event tables as arrays (read only in run_loop): once per compiled structure
-        shared = getattr(s, "shared", None)
-        tab = shared.get("loop_events") if shared is not None else None
+        tab = shared.get("loop_events")
         if tab is None:
-            tab = _event_arrays(s.event_table, s.timed)
-            if shared is not None:
-                shared["loop_events"] = tab
+            tab = shared["loop_events"] = _event_arrays(s.event_table, s.timed)
         self.g_dir, self.g_block, self.timed_block, n_blocks = tab
         self.G = np.zeros((N_G_ROWS, max(1, ng)))
         self.G[G_ARMED] = 1.0
@@ -152,12 +150,11 @@ class CompiledLoop:
         self.buf = np.zeros((rows, s.record_size))
         self.ev_t = np.zeros(capacity)
         self.ev_i = np.zeros((capacity, 3), dtype=np.int64)
-        self.ist = np.zeros(N_IST, dtype=np.int64)
-        self.ist[I_NG] = ng
-        self.ist[I_METHOD] = METHODS[method]
-        self.ist[I_JAGE] = -1
-        self.fst = np.zeros(N_FST)
-        f = self.fst
+        # the integer and float state of the run, built as lists (one array call each)
+        ist = [0] * N_IST
+        ist[I_NG], ist[I_METHOD], ist[I_JAGE] = ng, METHODS[method], -1
+        self.ist = np.array(ist, dtype=np.int64)
+        f = [0.0] * N_FST
         f[F_T], f[F_T0], f[F_TEND] = t0, t0, t_end
         f[F_RTOL], f[F_ATOL], f[F_MAXSTEP] = rtol, atol, max_step
         f[F_FIRST] = first_step or 0.0
@@ -166,6 +163,7 @@ class CompiledLoop:
         f[F_JAC_MAX_AGE] = rosenbrock.JAC_MAX_AGE
         f[F_JAC_REJECTIONS] = rosenbrock.JAC_REJECTIONS
         f[F_HOLD_MAX] = rosenbrock.HOLD_MAX
+        self.fst = np.array(f, dtype=float)
 
     def arguments(self, pause_steps=PAUSE_STEPS):
         """The arguments of :func:`~spidersim.solver.loop_body.run_loop` after the system
@@ -250,6 +248,17 @@ class CompiledLoop:
 
 #: values of one event-log entry after its time (``ev_i``: index, kind, direction)
 EVENT_VALUES = 3
+
+
+def _pattern(system, shared, n, analytic):
+    """The Jacobian pattern array (:func:`.rosenbrock.pattern_array`: a graph colouring),
+    once per compiled structure."""
+    key = ("jpat", analytic)
+    jpat = shared.get(key)
+    if jpat is None:
+        jpat = shared[key] = rosenbrock.pattern_array(
+            getattr(system, "jac_sparsity", None), n, analytic)
+    return jpat
 
 
 def _use_analytic(system, jacobian):

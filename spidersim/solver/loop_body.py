@@ -94,19 +94,7 @@ def _locate(fn, meth, i, g_a, g_b, t, h, x, x1, K, B, xs, g, xtol, sig, p, modes
         s = _events.bracket_trial(a, b, fa, fb, it, xtol)
         _dense(meth, t, h, x, x1, K, B, s, xs)
         _sf.guards(fn, s, xs, sig, p, modes, g)
-        fs = g[i]
-        if fs == 0.0 or (fs > 0.0) != (fa > 0.0):
-            b = s
-            fb = fs
-            if side == -1:
-                fa *= 0.5
-            side = -1
-        else:
-            a = s
-            fa = fs
-            if side == 1:
-                fb *= 0.5
-            side = 1
+        a, b, fa, fb, side = _events.bracket_update(a, b, fa, fb, side, s, g[i])
     return b
 
 

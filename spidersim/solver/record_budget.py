@@ -20,6 +20,7 @@ megabytes (10^6 bytes) if that environment variable is set to a positive number.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 
@@ -44,11 +45,18 @@ def budget_bytes() -> float:
             raise SpidersimError(f"{ENV} must be a positive number of megabytes, "
                                  f"got {text[:40]!r}")
         return mb * 1e6
+    phys = _physical_bytes()
+    return _FALLBACK if phys is None else DEFAULT_FRACTION * phys
+
+
+@functools.lru_cache(maxsize=1)
+def _physical_bytes():
+    """The machine's physical memory [bytes], None when it cannot be read (read once: two
+    system calls were a quarter of ``simulate``'s Python time on short runs)."""
     try:
-        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
-        return _FALLBACK
-    return DEFAULT_FRACTION * phys
+        return None
 
 
 def row_bytes(record_size: int) -> int:

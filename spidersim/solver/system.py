@@ -61,6 +61,12 @@ def _record_layout(log):
     return s_idx, x_idx, names, slices, k, units
 
 
+def loop_compiled() -> bool:
+    """Whether the compiled integration loop has machine code in this process."""
+    from .loop_body import run_loop
+    return len(run_loop.overloads) > 0
+
+
 class CompiledSystem:
     """A diagram compiled into a generated module (see :mod:`spidersim.diagram.codegen`).
 
@@ -213,8 +219,7 @@ class CompiledSystem:
 
     def loop_ready(self) -> bool:
         """Whether the compiled integration loop has machine code (compiled or loaded)."""
-        from .loop_body import run_loop
-        return self.compiled_entry is not None and len(run_loop.overloads) > 0
+        return self.compiled_entry is not None and loop_compiled()
 
     def warm_up_loop(self):
         """Compile the integration loop (once for every diagram) or load it from numba's
