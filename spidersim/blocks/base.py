@@ -29,6 +29,8 @@ Contract for block implementers
        read them instead of computing the same terms again (``BrushlessMotor``'s back EMF).
    ``next_time(t, <params>, <modes>) -> float``
        time of the block's next *time event* (``inf`` for none): the integrator stops there.
+       A function of the parameters and modes only (``t`` is the time it is asked at): the
+       compiled loop asks again only after events, the only places modes change.
    ``time_event(t, <states>, <inputs>, <params>, <modes>)``
        applied at that time; may change the block's own modes and states only.
    ``guard(t, <states>, <inputs>, <params>, <modes>, zc)``

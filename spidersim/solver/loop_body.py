@@ -674,9 +674,12 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
         if code:
             return code
     ist[I_NEW_STEPS] = 0
+    # the blocks' next time event depends on their parameters and modes only (contract,
+    # blocks/base.py): asked again only after events, which alone change modes (one call
+    # of the system function fewer per step)
+    t_next = _sf.next_time(fn, t, p, modes)
     while True:
         tol = _tol(t)
-        t_next = _sf.next_time(fn, t, p, modes)
         if t >= t_end and t_next > t + tol:
             break
         code = _pause_code(t, ev_reserve, pause_steps, tbuf, ev_t, ist, fst)
@@ -690,6 +693,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                 fst[F_T] = t
                 _copy(xs, x)
                 return code
+            t_next = _sf.next_time(fn, t, p, modes)
             continue
         t_seg = min(t_next, t_end)
         if ist[I_FRESH]:
@@ -740,6 +744,7 @@ def run_loop(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_b
                     fst[F_T] = t
                     return FAIL_NONFINITE
                 fst[F_T] = t
+                t_next = _sf.next_time(fn, t, p, modes)
                 continue
             _accept_guards(G, ng)
         elif not grid:

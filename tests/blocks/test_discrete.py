@@ -156,5 +156,12 @@ def test_chained_samplers_pass_a_sample_on_at_once(method):
     one period."""
     r = spidersim.loads(CHAIN).simulate(t_end=T_END, method=method, rtol=1e-8, atol=1e-10)
     expected = TS * np.arange(11)
+    # one round of time events per instant: the ramp's start and three samplers at
+    # t_0 = 0, three samplers at t_1..t_10; a row before and after each round except at
+    # the start (a loop that asked for the next sample time with stale modes fired
+    # "nothing" again and again, adding rows at the same instant)
+    assert r.stats["time_events"] == 1 + 3 * 11
+    assert [e[0] for e in r.events if e[1] == "a"] == pytest.approx(list(expected), abs=1e-12)
+    assert np.count_nonzero(np.diff(r.t) == 0.0) == 10
     for name in ("a", "b", "c"):
         np.testing.assert_allclose(_held(r, f"{name}.y"), expected, rtol=0, atol=1e-12)
