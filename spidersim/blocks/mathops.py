@@ -152,6 +152,36 @@ class Product(_Nary):
         for i in range(y.size):
             y[i] = u1[i] * u2[i]
 
+    @staticmethod
+    def partials(t, u1, u2, dydu):
+        """Two inputs, ``"**"`` (the specialised kernel of :meth:`kernel_source` replaces it
+        for any other ``ops``): ``dy_i/d(u1)_i = (u2)_i``, ``dy_i/d(u2)_i = (u1)_i``."""
+        n = dydu.shape[0]
+        for i in range(n):
+            dydu[i, i] = u2[i]
+            dydu[i, n + i] = u1[i]
+
+    @classmethod
+    def kernel_source(cls, params, kernel):
+        """``output`` as the other N-ary blocks; ``partials`` specialised to ``ops``: for
+        ``y = u1^s1 u2^s2 ...`` (``s_k = +1`` for ``*``, ``-1`` for ``/``), element-wise,
+
+        ``dy/du_k = P_k`` for ``*`` and ``dy/du_k = -P_k / u_k^2`` for ``/``, ``P_k`` the
+        product (quotient) of the other inputs with their operators (no division by
+        ``u_k`` itself: exact at ``u_k = 0`` for ``*``). The inputs are the columns
+        ``u1 .. uN`` one after the other, each of the output's size."""
+        if kernel != "partials":
+            return super().kernel_source(params, kernel)
+        ops, names = params[cls.key], cls.input_names(params)
+        lines = [f"def partials(t, {', '.join(names)}, dydu):",
+                 "    n = dydu.shape[0]",
+                 "    for i in range(n):"]
+        for k, (op, name) in enumerate(zip(ops, names)):
+            others = cls.expression(ops[:k] + ops[k + 1:], names[:k] + names[k + 1:])
+            d = others if op == "*" else f"-({others}) / ({name}[i] * {name}[i])"
+            lines.append(f"        dydu[i, {k} * n + i] = {d}")
+        return "\n".join(lines) + "\n"
+
 
 class AlgebraicConstraint(Block):
     """Output ``z`` such that the input ``f`` is zero: ``f(z) = 0`` (Simulink's Algebraic

@@ -228,6 +228,18 @@ class Switch(Block):
             y[i] = u1[i] if first[0] > 0.5 else u3[i]
 
     @staticmethod
+    def partials(t, first, dydu):
+        """``dy_i/d(u1)_i = 1`` while ``u1`` is passed, ``dy_i/d(u3)_i = 1`` otherwise; the
+        control input acts through events only (``dy/du2 = 0`` between them). Columns:
+        ``u1`` (n), ``u2`` (1), ``u3`` (n)."""
+        n = dydu.shape[0]
+        for i in range(n):
+            if first[0] > 0.5:
+                dydu[i, i] = 1.0
+            else:
+                dydu[i, n + 1 + i] = 1.0
+
+    @staticmethod
     def initialize(t, threshold, u2, first):
         first[0] = 1.0 if u2[0] >= threshold else 0.0
 

@@ -138,6 +138,11 @@ BLOCK_CASES = [
     ("PID", {"kp": 2.0, "ki": 5.0, "kd": 0.3, "N": 20.0, "y_min": -0.5, "y_max": 0.5,
              "antiwindup": "backcalc", "kb": 3.0}, {"e": 1}),
     ("PID", {"kp": 2.0, "ki": 5.0, "kd": 0.3, "N": 20.0, "antiwindup": "none"}, {"e": 1}),
+    ("Product", {"ops": "**"}, {"u1": 2, "u2": 2}),
+    ("Product", {"ops": "*/*"}, {"u1": 2, "u2": 2, "u3": 2}),
+    ("Product", {"ops": "/**/"}, {"u1": 1, "u2": 1, "u3": 1, "u4": 1}),
+    ("Product", {"ops": "/"}, {"u1": 3}),
+    ("Switch", {"threshold": 0.5}, {"u1": 2, "u2": 1, "u3": 2}),      # mode 0: u3 passed
 ]
 
 
@@ -188,6 +193,7 @@ MODE_CASES = [
     ("PI", {"kp": 2.0, "ki": 5.0, "y_min": -0.5, "y_max": 0.5}, {"e": 1}, "clamp", [-1.0]),
     ("PI", {"kp": 2.0, "ki": 5.0, "y_min": -0.5, "y_max": 0.5}, {"e": 1}, "clamp", [2.0]),
     ("PI", {"kp": 2.0, "ki": 5.0, "y_min": -0.5, "y_max": 0.5}, {"e": 1}, "clamp", [-2.0]),
+    ("Switch", {"threshold": 0.5}, {"u1": 2, "u2": 1, "u3": 2}, "first", [1.0]),
 ]
 
 
@@ -302,14 +308,14 @@ def test_chain_through_sum_and_gain_by_hand(jit):
 
 
 def test_fallback_when_a_block_on_a_path_has_no_partials():
-    """A Product (no partials) between a state and a derivative: no analytic Jacobian,
-    the reason names the block, ``jacobian='analytic'`` is refused with it, and the run
-    uses finite differences (stats) and still works."""
-    text = LOOP.replace("  k: {type: Gain, k: 4.0}",
-                        "  k: {type: Product, ops: '*'}").replace("e.y -> k.u",
-                                                                 "e.y -> k.u1")
+    """A block without partials (a Brake, its torque a function of the speed input)
+    between a state and a derivative: no analytic Jacobian, the reason names the block,
+    ``jacobian='analytic'`` is refused with it, and the run uses finite differences
+    (stats) and still works."""
+    text = LOOP.replace("  k: {type: Gain, k: 4.0}", "  k: {type: Brake}").replace(
+        "e.y -> k.u", "e.y -> k.w").replace("k.y -> x2.u", "k.tau -> x2.u")
     d = spidersim.loads(text)
-    assert "block 'k' (Product)" in plan(d.layout).reason
+    assert "block 'k' (Brake)" in plan(d.layout).reason
     s = d.compile(jit=False, jacobian=True)
     assert not s.analytic_jacobian and s.jacobian(0.0, s.x0) is None
     r = d.simulate(t_end=0.5, method="ROS34PW2", jit=True)
@@ -319,11 +325,11 @@ def test_fallback_when_a_block_on_a_path_has_no_partials():
 
 
 def test_blocks_off_the_state_paths_need_no_partials():
-    """A Product block (no partials) between a source and an integrator: its output
+    """A block without partials (a Relay) between a source and the loop: its output
     depends on no state, so the Jacobian is still analytic (and zero there)."""
     text = LOOP.replace("  r: {type: Step, t_step: 0.1}",
-                        "  r: {type: Step, t_step: 0.1}\n  f: {type: Product, ops: '*'}")
-    text = text.replace("  - r.y -> e.u1", "  - r.y -> f.u1\n  - f.y -> e.u1")
+                        "  r: {type: Step, t_step: 0.1}\n  f: {type: Relay}")
+    text = text.replace("  - r.y -> e.u1", "  - r.y -> f.u\n  - f.y -> e.u1")
     d = spidersim.loads(text)
     assert plan(d.layout).reason == ""
     s = d.compile(jit=False, jacobian=True)
