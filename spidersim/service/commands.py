@@ -156,17 +156,22 @@ def _command_entry(name, c, spec, where):
         raise ParameterError(f"command '{name}': unknown key(s) {', '.join(sorted(bad))}; "
                              f"keys are doc, set, arguments, t_end", file=spec.file,
                              line=where)
-    args = c.get("arguments") or {}
+    args = c.get("arguments")
+    args = {} if args is None else args     # absent or null; '', 0 or false are errors
     if isinstance(args, list):
         if not all(isinstance(a, str) for a in args):
             raise ParameterError(f"command '{name}': a list of 'arguments' must hold "
                                  f"parameter paths (texts)", file=getattr(spec, "file", None),
                                  line=where)
         args = {a: {} for a in args}
-    sets = c.get("set") or {}
-    if not isinstance(args, dict) or not isinstance(sets, dict):
-        raise ParameterError(f"command '{name}': 'arguments' and 'set' must be mappings",
-                             file=spec.file, line=where)
+    sets = c.get("set")
+    sets = {} if sets is None else sets
+    for key, v in (("arguments", args), ("set", sets)):
+        if not isinstance(v, dict):
+            raise ParameterError(f"command '{name}': '{key}' must be a mapping"
+                                 + (" or a list of parameter paths" if key == "arguments"
+                                    else "") + f", got {found(v)}",
+                                 file=spec.file, line=where)
     t_end = c.get("t_end")
     if t_end is not None and not _is_time(t_end):
         raise ParameterError(f"command '{name}': t_end must be a finite time > 0 s, got "

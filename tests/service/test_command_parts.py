@@ -135,6 +135,17 @@ def test_named_commands_section_checks():
     with pytest.raises(ParameterError, match="unknown key\\(s\\) dco; keys are doc") as ei:
         C._command_entry("c", {"dco": "x"}, SimpleNamespace(file="m.yaml"), 5)
     assert ei.value.line == 5
+    assert C._command_entry("c", {"arguments": None, "set": None}, None, 5)["set"] == {}
+
+
+@pytest.mark.parametrize("key, value", [("arguments", ""), ("arguments", 0),
+                                        ("arguments", False), ("arguments", "a.x"),
+                                        ("set", ""), ("set", []), ("set", 0)])
+def test_named_command_arguments_and_set_must_be_mappings(key, value):
+    """An empty text, 0 or false for ``arguments`` or ``set`` is an error naming the key
+    and what was found (they used to pass as "nothing", hiding a typo)."""
+    with pytest.raises(ParameterError, match=f"command 'c': '{key}' must be a mapping"):
+        C._command_entry("c", {key: value}, SimpleNamespace(file="m.yaml"), 5)
 
 
 def test_initial_states_through_their_parameters_and_run_length():
