@@ -89,10 +89,10 @@ _INTEGRATE_COMPILED = None
 
 
 def integrate(system, t_end, **kw):
-    """Integrate ``system`` to ``t_end`` (see :func:`_integrate`), floating-point warnings
-    silenced: non-finite values are detected and reported by name instead."""
-    with np.errstate(all="ignore"):
-        return _integrate(system, t_end, **kw)
+    """Integrate ``system`` to ``t_end`` (see :func:`_integrate`). Floating-point warnings
+    are silenced around SciPy's steppers (the compiled loop raises none): non-finite
+    values are detected and reported by name instead."""
+    return _integrate(system, t_end, **kw)
 
 
 def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_step=math.inf,
@@ -173,8 +173,9 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         kw["jac_sparsity"] = csr_matrix(system.jac_sparsity)
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
-    result = SciPyLoop(system, METHODS[method], kw, t0, t_end, output_interval, progress,
-                       should_stop, st).run()
+    with np.errstate(all="ignore"):
+        result = SciPyLoop(system, METHODS[method], kw, t0, t_end, output_interval,
+                           progress, should_stop, st).run()
     if clock:                     # the dummy state is not the system's
         t, x, modes = result.final
         result.final = (t, x[:0], modes)
