@@ -197,7 +197,7 @@ def cmd_run(args):
     with stop.installed():
         from .solver.integrate import COMPILED, STIFF
         method = args.method or d.simulation["method"]
-        _compile_with_progress(d, jit=not args.no_jit, loop=method in COMPILED,
+        _compile_with_progress(d, jit=not args.no_jit, loop=method in COMPILED and method,
                                jacobian=method in STIFF)
         prog = Progress(t_end)
         try:

@@ -258,7 +258,7 @@ def _scratch_loops(names):
             text = text.replace(old, new)
         with open(os.path.join(tmp, f"lb_ablation_{k}.py"), "w") as fh:
             fh.write(text)
-        loops[name] = importlib.import_module(f"lb_ablation_{k}").run_loop
+        loops[name] = importlib.import_module(f"lb_ablation_{k}").run_loop_dp54   # DP54 cases
     return loops
 
 

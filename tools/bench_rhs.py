@@ -270,12 +270,14 @@ def perf_loop(problem, seconds=8.0):
     compiled functions (:func:`write_perf_map`)."""
     import spidersim
     from spidersim.solver import loop as L
-    from spidersim.solver.loop_body import run_loop
+    from spidersim.solver.system import loop_entry
     from spidersim.solver.sysfn import entry_point
     path, sets, kw = CASES[problem]
     d = spidersim.load(os.path.join(ROOT, path), set=sets)
     d.simulate(**kw)
-    system = d.compile(True, loop=True)
+    method = kw.get("method", d.simulation["method"])
+    run_loop = loop_entry(method)             # the compiled loop's entry of the method
+    system = d.compile(True, loop=method)
     mod = d._modules[True][0]
     libs = [c.library for c in run_loop.overloads.values()] + [mod._system._library]
     print(f"perf map: {write_perf_map(libs)}", flush=True)

@@ -2,11 +2,14 @@
 
     python tools/check_loop_identical.py save REF.npz      # before a change
     python tools/check_loop_identical.py compare REF.npz   # after it: exit 1 on any difference
+    python tools/check_loop_identical.py save REF.npz --stiff   # the stiff methods' cases too
 
 Runs the servo (1 s, DP54), the bouncing ball (100 impacts, DP54), the algebraic loop (2 s,
 DP54) as in ``tools/bench_loop.py``, and ``spider.yaml`` for 2 s with its own method, and
 stores every logged array, ``t``, the event log and the step/RHS counts; ``compare`` requires
-exact equality (not a tolerance).
+exact equality (not a tolerance). ``--stiff`` adds the compiled stiff methods: the bouncing
+ball (20 impacts) with NDF and with ROS34PW2, the LuGre stick-slip (ROS34PW2), servo.yaml and
+joint_ripple.yaml (NDF) with a finite-difference and with the analytic Jacobian.
 """
 from __future__ import annotations
 
@@ -35,12 +38,24 @@ CASES = {
                                                       max_step=math.inf, method="DP54")),
     "spider": ("spider.yaml", {}, dict(t_end=2.0)),
 }
+STIFF = {
+    "ball_ndf": ("diagrams/bouncing_ball.yaml", {"ball.e": 0.9, "ball.v_rest": 0},
+                 dict(t_end=12.0, rtol=1e-8, atol=1e-10, method="NDF")),
+    "ball_ros": ("diagrams/bouncing_ball.yaml", {"ball.e": 0.9, "ball.v_rest": 0},
+                 dict(t_end=12.0, rtol=1e-8, atol=1e-10, method="ROS34PW2")),
+    "lugre_ros": ("diagrams/lugre_stick_slip.yaml", {}, dict(method="ROS34PW2")),
+    "lugre_ndf": ("diagrams/lugre_stick_slip.yaml", {}, dict(method="NDF", jacobian="fd")),
+    "servo_ndf": ("diagrams/servo.yaml", {}, dict(t_end=1.0, method="NDF", jacobian="fd")),
+    "ripple_ndf": ("diagrams/joint_ripple.yaml", {}, dict(t_end=0.05, method="NDF")),
+    "ripple_ros_grid": ("diagrams/joint_ripple.yaml", {},
+                        dict(t_end=0.05, method="ROS34PW2", output_interval=1e-4)),
+}
 
 
-def runs():
+def runs(stiff=False):
     import spidersim
     out = {}
-    for name, (path, sets, kw) in CASES.items():
+    for name, (path, sets, kw) in (CASES | STIFF if stiff else CASES).items():
         d = spidersim.load(os.path.join(ROOT, path), set=sets)
         r = d.simulate(**kw)
         out[f"{name}|t"] = np.asarray(r.t)
@@ -58,7 +73,7 @@ def runs():
 
 def main(argv):
     mode, ref = argv[0], argv[1]
-    res = runs()
+    res = runs("--stiff" in argv)
     if mode == "save":
         np.savez(ref, **res)
         return 0

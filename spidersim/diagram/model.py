@@ -344,8 +344,9 @@ class Diagram:
     def compile(self, jit=True, loop=False, jacobian=False):
         """Generate, import and warm up the compiled functions; return the system.
 
-        With ``loop``, the compiled integration loop (methods ``DP54``, ``ROS34PW2``, ``NDF``) is
-        compiled too (or loaded from the cache); otherwise it is compiled on its first use.
+        With ``loop``, the compiled integration loop's entry of the diagram's method (or of the
+        method ``loop`` names: ``DP54``, ``ROS34PW2``, ``NDF``) is compiled too (or loaded
+        from the cache); otherwise it is compiled on its first use.
         With ``jacobian``, the system can assemble the analytic Jacobian when the blocks
         allow (``system.analytic_jacobian``; what the stiff methods use): a module made
         without it is made again with it (a superset, kept for later calls).
@@ -372,9 +373,10 @@ class Diagram:
             self._compile_time = time.perf_counter() - t0
         else:
             self._compile_time = 0.0
-        if loop and jit and not loop_compiled():
+        method = loop if isinstance(loop, str) else self.simulation["method"]
+        if loop and jit and not loop_compiled(method):
             t0 = time.perf_counter()
-            self._system(jit).warm_up_loop()
+            self._system(jit).warm_up_loop(method)
             self._compile_time += time.perf_counter() - t0
 
     def _system(self, jit):
@@ -478,7 +480,7 @@ class Diagram:
                 cfg[k] = v
         if cfg["max_step"] is None:
             cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
-        self._ensure_compiled(jit, cfg["method"] in COMPILED,
+        self._ensure_compiled(jit, cfg["method"] in COMPILED and cfg["method"],
                               cfg["method"] in STIFF and jacobian != "fd")
         gen = self._param_gen
         system = self._run_system(jit)

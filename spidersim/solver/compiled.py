@@ -229,15 +229,15 @@ def _remove(f):
         pass
 
 
-def is_cached(text: str, loop: bool = False) -> bool:
+def is_cached(text: str, loop=False) -> bool:
     """Whether the module ``text`` is already compiled in the cache (verified), i.e. the
-    next :func:`load_module` loads machine code instead of compiling; with ``loop``, the
-    compiled integration loop too (compiled once for every diagram, cached by numba with
-    spidersim's own kernels)."""
+    next :func:`load_module` loads machine code instead of compiling; with ``loop`` (True:
+    DP54, or a method's name), the compiled integration loop's entry of that method too
+    (compiled once for every diagram, cached by numba with spidersim's own kernels)."""
     key = _sha(package_hash() + text)[:20]
     name = f"{PREFIX}{key}"
     path = os.path.join(cache_dir(), name + ".py")
-    if loop and not loop_cached():
+    if loop and not loop_cached(loop if isinstance(loop, str) else "DP54"):
         return False
     if name in _LOADED:
         return True
@@ -245,14 +245,17 @@ def is_cached(text: str, loop: bool = False) -> bool:
     return os.path.exists(path) and _verified(path, text, key) and bool(files)
 
 
-def loop_cached() -> bool:
-    """Whether the integration loop's machine code is loaded or in numba's cache."""
-    from .loop_body import run_loop
-    if run_loop.overloads:
+def loop_cached(method="DP54") -> bool:
+    """Whether the integration loop's entry of ``method`` has machine code loaded or in
+    numba's cache."""
+    from .system import loop_entry
+    entry = loop_entry(method)
+    if entry.overloads:
         return True
     try:
-        cache_path = run_loop._cache._cache_path
-        return any(f.startswith("loop_body.run_loop-") and f.endswith(".nbi")
+        cache_path = entry._cache._cache_path
+        prefix = f"loop_body.{entry.py_func.__name__}-"
+        return any(f.startswith(prefix) and f.endswith(".nbi")
                    for f in os.listdir(cache_path))
     except (AttributeError, OSError):
         return False

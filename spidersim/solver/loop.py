@@ -5,22 +5,39 @@ again), every ``pause_steps`` steps (progress and Ctrl-C) and at the end: steppi
 output, guard evaluation, crossing location, event application, time events and recording
 into preallocated buffers all run in machine code.
 
-The loop is made of named parts, each a small compiled function:
+The loop is made of named parts, each a small compiled function (:mod:`.loop_body`; the
+per-step ones are inlined by numba, so the split costs no calls):
 
-=================  ===========================================================================
-part               what it does
-=================  ===========================================================================
-``advance``        one accepted step: trial steps of :mod:`.dp54` or :mod:`.rosenbrock` (the
-                   run's method, ``ist[I_METHOD]``) until the error norm is
-                   <= 1, never past the end of the segment (the next time event or ``t_end``)
-``detect``         guards at the step end, crossings against the step start
-                   (:func:`.events.crossings`)
-``state_events``   locate every crossing on the dense output (:func:`.events.locate_dense`),
-                   keep the earliest, apply its events, watch for chattering
-``fire_due``       apply the time events due now (sources switching, sampled blocks)
-``settle``         fire the crossings caused by a jump at an event instant
-``record_grid``    rows on the uniform output grid from the dense output
-=================  ===========================================================================
+======================  ======================================================================
+part                    what it does
+======================  ======================================================================
+``run_loop_dp54``,      the entries, one per method: each passes its method to ``_run_loop``
+``run_loop_ros34pw2``,  as a compile-time constant and is compiled (or loaded from numba's
+``run_loop_ndf``        cache) on its own, with that method's code only (a DP54 run never
+                        compiles the stiff solvers); :class:`CompiledLoop` calls the run's one
+``_run_loop``           the loop: start, then until ``t_end``: hand back to Python when a
+                        buffer is full or every ``pause_steps`` steps (``_pause_code``), the
+                        time events due (``_time_events_now``), else one step
+``_one_step``           a new segment's first step size (``_segment_start``), the step cap for
+                        the rows (``_cap_for_rows``), one accepted step, the stall watch, the
+                        step's events and rows, the step taken (``_accept_step``)
+``_advance``            one accepted step of the method: trial steps of :mod:`.dp54`,
+                        :mod:`.rosenbrock` or :mod:`.bdf` until the error norm is <= 1, never
+                        past the end of the segment (the next time event or ``t_end``)
+``_step_events``        guards at the step end (``_guards_at_step_end``), a guard that
+                        returned unseen (``_unseen_return``: the step retried shorter),
+                        crossings against the step start (:func:`.events.crossings`)
+``_event_in_step``      the earliest crossing located and applied (``_state_events``: every
+                        crossing located on the dense output by ``_locate``, chattering
+                        watched), then the run resumed there (``_resume_after_event``)
+``_fire_due``           apply the time events due now (sources switching, sampled blocks)
+``_settle``             fire the crossings caused by a jump at an event instant
+``_record_grid``        rows on the uniform output grid from the dense output (``_dense``)
+======================  ======================================================================
+
+The method-specific parts (``_advance``, ``_dense``, the first step of a segment) are
+functions of the method: numba types them for the entry's constant method alone
+(:func:`spidersim.solver._jit.for_method`), a method known only at run time would branch.
 
 The state of the run lives in arrays (``ist`` integers, ``fst`` floats, ``x``, ``K``, ``G``,
 the buffers), so that the loop can return to Python and resume exactly where it stopped.
@@ -46,7 +63,7 @@ from . import bdf, record_budget, rosenbrock
 from .result import Result
 from .sysfn import entry_point
 from .events import zeno_message
-from .loop_body import run_loop
+from .loop_body import entry as loop_entry
 from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
     METHOD_DP54, METHOD_ROS34PW2, METHODS, DONE, ROWS_FULL, EVENTS_FULL, PAUSE,
     FAIL_NONFINITE, FAIL_STALL, FAIL_SMALL_STEP, FAIL_CHATTER, FAIL_TIME_EVENTS,
@@ -110,6 +127,8 @@ class CompiledLoop:
         #: the system assembles df/dx itself (:mod:`spidersim.diagram.jacobian`)
         self.analytic = method in ("NDF", "ROS34PW2") and _use_analytic(s, jacobian)
         self.entry, self.system = entry, s
+        #: the compiled loop's entry of the method (:data:`.loop_body.ENTRIES`)
+        self.run_loop = loop_entry(method)
         n = s.n_x
         self.x = np.array(s.x0, dtype=float)
         self.K = rosenbrock.work_array(n)      # rows enough for either method
@@ -177,8 +196,8 @@ class CompiledLoop:
 
     def call(self, pause_steps=PAUSE_STEPS):
         args = (self.entry,) + self.arguments(pause_steps)
-        e = entry_point(run_loop, args)
-        return int((e or run_loop)(*args))
+        e = entry_point(self.run_loop, args)
+        return int((e or self.run_loop)(*args))
 
     def grow_rows(self):
         """Enlarge the row buffers (doubling, within :mod:`.record_budget`); False when

@@ -61,10 +61,18 @@ def _record_layout(log):
     return s_idx, x_idx, names, slices, k, units
 
 
-def loop_compiled() -> bool:
-    """Whether the compiled integration loop has machine code in this process."""
-    from .loop_body import run_loop
-    return len(run_loop.overloads) > 0
+def loop_compiled(method="DP54") -> bool:
+    """Whether the compiled integration loop's entry of ``method`` (:func:`loop_entry`) has
+    machine code in this process."""
+    return len(loop_entry(method).overloads) > 0
+
+
+def loop_entry(method):
+    """The compiled loop's entry of ``method`` (``DP54``, ``ROS34PW2``, ``NDF``; a SciPy
+    method gives DP54's): each is compiled or loaded on its own, with only its method's code
+    (:mod:`.loop_body`)."""
+    from .loop_body import entry
+    return entry(method)
 
 
 class CompiledSystem:
@@ -217,21 +225,26 @@ class CompiledSystem:
         self.modes[:] = modes
         self._bind_entry_points()
 
-    def loop_ready(self) -> bool:
-        """Whether the compiled integration loop has machine code (compiled or loaded)."""
-        return self.compiled_entry is not None and loop_compiled()
+    def loop_ready(self, method="DP54") -> bool:
+        """Whether the compiled integration loop of ``method`` has machine code (compiled or
+        loaded)."""
+        return self.compiled_entry is not None and loop_compiled(method)
 
-    def warm_up_loop(self):
-        """Compile the integration loop (once for every diagram) or load it from numba's
-        cache, without running it."""
-        from .loop_body import run_loop
-        if self.compiled_entry is None or run_loop.overloads:
+    def warm_up_loop(self, method="DP54"):
+        """Compile the integration loop's entry of ``method`` (once for every diagram; the
+        other methods' entries are not compiled) or load it from numba's cache, without
+        running it."""
+        entry = loop_entry(method)
+        if self.compiled_entry is None or entry.overloads:
             return
         import numba
         from .loop import CompiledLoop
-        args = (self.fn,) + CompiledLoop(self.fn, self, 0.0, 1.0, 1e-6, 1e-8, np.inf, None,
-                                         None, capacity=1).arguments(1)
-        run_loop.compile(tuple(numba.typeof(a) for a in args))
+        from .loop_state import METHODS
+        method = method if method in METHODS else "DP54"
+        run = CompiledLoop(self.fn, self, 0.0, 1.0, 1e-6, 1e-8, np.inf, None, None,
+                           capacity=1, method=method, jacobian="fd")
+        args = (self.fn,) + run.arguments(1)
+        entry.compile(tuple(numba.typeof(a) for a in args))
 
     def _bind_entry_points(self):
         """Call the machine code of the hot Python-side calls directly: numba's dispatcher
