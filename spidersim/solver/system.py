@@ -71,8 +71,14 @@ def loop_entry(method):
     """The compiled loop's entry of ``method`` (``DP54``, ``ROS34PW2``, ``NDF``; a SciPy
     method gives DP54's): each is compiled or loaded on its own, with only its method's code
     (:mod:`.loop_body`)."""
-    from .loop_body import entry
-    return entry(method)
+    global _ENTRY_OF
+    if _ENTRY_OF is None:           # imported on first use (numba), then kept
+        from .loop_body import entry
+        _ENTRY_OF = entry
+    return _ENTRY_OF(method)
+
+
+_ENTRY_OF = None
 
 
 class CompiledSystem:
