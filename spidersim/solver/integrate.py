@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 from scipy.sparse import csr_matrix
 
 from ..errors import SpidersimError
@@ -23,8 +22,8 @@ from . import record_budget
 from .events import MIN_SPAN, STALL_STEP
 from .scipy_loop import SciPyLoop
 
-METHODS = {"LSODA": LSODA, "RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau,
-           "BDF": BDF, "DP54": RK45, "ROS34PW2": Radau, "NDF": BDF}
+METHODS = {"LSODA": "LSODA", "RK45": "RK45", "RK23": "RK23", "DOP853": "DOP853",
+           "Radau": "Radau", "BDF": "BDF", "DP54": "RK45", "ROS34PW2": "Radau", "NDF": "BDF"}
 #: methods integrated by the compiled loop (:mod:`spidersim.solver.loop`) when the system
 #: has one (numba-compiled diagrams); interpreted diagrams run them through the SciPy
 #: stepper of the same tableau and controller (DP54), SciPy's Radau (ROS34PW2) or SciPy's BDF
@@ -73,6 +72,14 @@ class _Clock:
 
     def diagnose(self, t, x):
         return self._s.diagnose(t, x[:0])
+
+
+def _scipy_stepper(method):
+    """SciPy's stepper class for ``method`` (:data:`METHODS`), imported on first use:
+    ``scipy.integrate`` takes 0.3 s to import, paid by every process before, also those
+    that run only the compiled loop."""
+    import scipy.integrate
+    return getattr(scipy.integrate, METHODS[method])
 
 
 def _compiled_loop():
@@ -174,7 +181,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
     with np.errstate(all="ignore"):
-        result = SciPyLoop(system, METHODS[method], kw, t0, t_end, output_interval,
+        result = SciPyLoop(system, _scipy_stepper(method), kw, t0, t_end, output_interval,
                            progress, should_stop, st).run()
     if clock:                     # the dummy state is not the system's
         t, x, modes = result.final
