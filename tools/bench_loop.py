@@ -2,7 +2,8 @@
 
     python tools/bench_loop.py [servo|ball|loop|lugre|servo_stiff|spider]
 
-For each problem, interleaved in one process (best of 7):
+For each problem, interleaved in one process (best of 7 rounds of the mean time of a call,
+each round as many calls as fill 20 ms):
 
 * **spidersim DP54**: the diagram run with ``method: DP54`` (compiled loop, events inside);
 * **hand DP54**: a fully compiled Dormand-Prince 5(4) integrator written by hand in this file
@@ -191,12 +192,20 @@ def make_dp54(f, guard, jump):
     return solve
 
 
-def _best(fn, repeat=7):
-    times, out = [], None
+def _best(fn, repeat=7, round_time=0.02):
+    """Best and median over ``repeat`` rounds of the mean time of one call; a round is as
+    many calls as fill about ``round_time`` seconds (at least one), the same rule for every
+    variant: single calls of a fraction of a millisecond vary by 10-20 % from one to the
+    next (the garbage collector, the caches after the previous variant)."""
+    t0 = time.perf_counter()
+    out = fn()
+    number = max(1, int(round_time / max(time.perf_counter() - t0, 1e-7)))
+    times = []
     for _ in range(repeat):
         t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
+        for _ in range(number):
+            out = fn()
+        times.append((time.perf_counter() - t0) / number)
     return min(times), statistics.median(times), out
 
 
