@@ -152,8 +152,9 @@ def _diagram_copy(d, flat, blocks):
     log of every signal and compiled modules), made without importing the model module."""
     from .graph import build_layout
     dlin = type(d).__new__(type(d))
-    dlin.__dict__.update({k: v for k, v in d.__dict__.items() if k not in ("_modules",)})
-    dlin._modules = {}
+    dlin.__dict__.update({k: v for k, v in d.__dict__.items()
+                          if k not in ("_modules", "_idle")})
+    dlin._modules, dlin._idle = {}, {}
     dlin.flat = flat
     dlin.blocks = blocks
     dlin.layout = build_layout(flat)

@@ -281,16 +281,18 @@ class Diagram:
         if np.shape(new[name]) != old_shape:
             raise ParameterError(f"set {path}: shape {np.shape(new[name])} differs from "
                                  f"{old_shape}; reload to change sizes", block=block)
-        self.blocks[block].params = new
-        self._param_gen += 1
-        merged = dict(new)
-        merged.update(bl.cls.derive(new))
-        bl.params = merged
-        for pname, (a, b, _s) in bl.pslots.items():
-            if np.size(merged[pname]) != b - a:
-                raise ParameterError(f"set {path}: changes the size of '{pname}'; reload",
-                                     block=block)
-            self.p[a:b] = np.ravel(merged[pname])
+        try:
+            self.blocks[block].params = new
+            merged = dict(new)
+            merged.update(bl.cls.derive(new))
+            bl.params = merged
+            for pname, (a, b, _s) in bl.pslots.items():
+                if np.size(merged[pname]) != b - a:
+                    raise ParameterError(f"set {path}: changes the size of '{pname}'; "
+                                         f"reload", block=block)
+                self.p[a:b] = np.ravel(merged[pname])
+        finally:                        # after every update: a run kept until now is stale
+            self._param_gen += 1
 
     def initial_state(self):
         x0 = np.zeros(self.layout.n_x)
@@ -415,10 +417,11 @@ class Diagram:
             return system
         return self._system(jit)
 
-    def _release(self, jit, system, modes0, sig0):
-        """Keep ``system`` (just run) for the next run, with its start values."""
+    def _release(self, jit, system, modes0, sig0, gen):
+        """Keep ``system`` (just run) for the next run, with its start values, made at
+        parameter generation ``gen`` (a :meth:`set` since then makes it stale)."""
         if system.jit == bool(jit) and self._modules.get(jit, (None,))[0] is system.module:
-            self._idle[jit] = (system.module, self._param_gen, system, modes0, sig0)
+            self._idle[jit] = (system.module, gen, system, modes0, sig0)
 
     def _shared(self, mod):
         """The dict every system of this layout and module shares (what does not change
@@ -501,8 +504,7 @@ class Diagram:
             if exc.file is None:
                 exc.file = self.file
             raise
-        if gen == self._param_gen:
-            self._release(jit, system, modes0, sig0)
+        self._release(jit, system, modes0, sig0, gen)
         return result
 
     # ------------------------------------------------------------------ analysis

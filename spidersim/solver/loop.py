@@ -290,14 +290,15 @@ _PLACEHOLDERS = ((np.zeros((1, 1)), np.zeros(1, dtype=np.int64), np.zeros(1)),
 def _rows_hint(shared, span, capacity, record_size):
     """Rows to allocate for a run of ``span`` seconds recording every step: the last
     successful run of the same structure's rows, scaled by the spans and with 5 % to
-    spare, within the recording budget (no growth, and no trimming copy at the end, when
-    the same run is made again: a sweep, a benchmark); ``capacity`` without a last run."""
+    spare (no growth, and no trimming copy at the end, when the same run is made again: a
+    sweep, a benchmark); a longer run starts with at most 2^16 rows and grows as usual
+    (within the recording budget); ``capacity`` without a last run."""
     hint = shared.get("rows_hint")
     if hint is None or not hint[1] > 0:
         return capacity
-    rows = int(hint[0] * min(1e3, max(span / hint[1], 1e-3)) * 1.05) + 4 * ROW_RESERVE
-    if rows > 1 << 16:
-        rows = min(rows, record_budget.max_rows(record_size))
+    rows = int(hint[0] * min(1.0, span / hint[1]) * 1.05) + 4 * ROW_RESERVE
+    if span > hint[1]:              # a longer run: scaled, but at most 2^16 rows at first
+        rows = max(rows, min(int(rows * span / hint[1]), 1 << 16))
     return max(64, rows)
 
 

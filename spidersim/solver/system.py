@@ -101,8 +101,9 @@ class CompiledSystem:
     shared : dict, optional
         Kept by the caller for every system of the same module and ``log`` (a diagram
         keeps one per layout): the record index arrays, slices and units, and the compiled
-        loop's event tables, computed by the first system and reused (read only: nothing
-        that a run writes is kept there).
+        loop's event tables, its event names and Jacobian colouring, computed by the first
+        system and reused (never written by a run), and the row count of the last
+        successful run (``rows_hint``: only the size of the next run's first buffers).
     tables : (timed, events)
         Block paths flagged by ``time_events`` and ``(block, event, direction)`` per guard,
         from :func:`spidersim.diagram.codegen.event_tables`; the generated module holds only
