@@ -888,36 +888,37 @@ def _run_loop(meth, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, 
 
 # The entries, one per method: each is compiled (or loaded from numba's cache) on its own,
 # with its method a constant, so that only that method's code is typed and compiled
-# (:func:`spidersim.solver._jit.for_method`); :mod:`.loop` calls the run's one.
+# (:func:`spidersim.solver._jit.for_method`); :mod:`.loop` calls the run's one. Three
+# functions written out, not made by a factory: numba caches top-level functions only.
 
 @njit_borrowed
-def run_loop_dp54(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
-             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
-             pause_steps):
+def run_loop_dp54(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block,
+                  timed_block, fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx,
+                  sig, p, modes, pause_steps):
     """:func:`_run_loop` with Dormand-Prince 5(4) (:mod:`.dp54`)."""
-    return _run_loop(METHOD_DP54, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
-             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
-             pause_steps)
+    return _run_loop(METHOD_DP54, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block,
+                     timed_block, fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx,
+                     x_idx, sig, p, modes, pause_steps)
 
 
 @njit_borrowed
-def run_loop_ros34pw2(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
-             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
-             pause_steps):
+def run_loop_ros34pw2(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block,
+                      timed_block, fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx,
+                      sig, p, modes, pause_steps):
     """:func:`_run_loop` with the Rosenbrock-W method ROS34PW2 (:mod:`.rosenbrock`)."""
-    return _run_loop(METHOD_ROS34PW2, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
-             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
-             pause_steps)
+    return _run_loop(METHOD_ROS34PW2, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block,
+                     timed_block, fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx,
+                     x_idx, sig, p, modes, pause_steps)
 
 
 @njit_borrowed
-def run_loop_ndf(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
-             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
-             pause_steps):
+def run_loop_ndf(fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block,
+                 timed_block, fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx,
+                 sig, p, modes, pause_steps):
     """:func:`_run_loop` with the variable-order NDF method (:mod:`.bdf`)."""
-    return _run_loop(METHOD_NDF, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block, timed_block,
-             fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx, x_idx, sig, p, modes,
-             pause_steps)
+    return _run_loop(METHOD_NDF, fn, ist, fst, x, K, x1, xs, JW, jpat, B, G, g_dir, g_block,
+                     timed_block, fired, bmask, hit, chat, tbuf, buf, ev_t, ev_i, s_idx,
+                     x_idx, sig, p, modes, pause_steps)
 
 
 #: the entry of each method, by its number (``ist[I_METHOD]``, :data:`.loop_state.METHODS`)
