@@ -28,11 +28,18 @@ import math
 import os
 import re
 
-import matplotlib.pyplot as plt  # the CLI selects Agg; notebooks keep their backend
 import numpy as np
 
 from .errors import DiagramError
 from .outputs import atomic_path
+
+def _pyplot():
+    """``matplotlib.pyplot``, imported when a figure is drawn (about 0.3 s): checking plot
+    entries, reading signals and ``run --no-plots`` never import it. The CLI selects the
+    Agg backend (``MPLBACKEND``); notebooks keep theirs."""
+    import matplotlib.pyplot as plt
+    return plt
+
 
 KINDS = ("time", "spectrum", "animation")
 KEYS = ("title", "signals", "kind", "file", "t_min", "t_max", "ylabel", "f_max", "peaks",
@@ -218,6 +225,7 @@ def time_plot(result, spec, path):
             units.append(u)
     if spec.get("one_panel"):
         units = [", ".join(units)]
+    plt = _pyplot()
     fig, axes = plt.subplots(len(units), 1, sharex=True, squeeze=False,
                              figsize=(8, 2.2 + 2.0 * len(units)))
     t = result.t
@@ -291,6 +299,7 @@ def _label_peaks(ax, peaks, min_rel=0.05):
 
 def spectrum_plot(result, spec, path):
     """Draw the amplitude spectra of the plot's signals, peaks labelled in Hz."""
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     f_max = spec.get("f_max")
     n_peaks = int(spec.get("peaks", 3))

@@ -38,6 +38,7 @@ import re
 from dataclasses import dataclass, field
 
 from ..blocks.base import PARTIALS
+from ..solver.chain import RECORD
 from .graph import Layout, block_columns, port_state_deps
 
 #: largest workspace (floats) of an analytic Jacobian; beyond it, finite differences
@@ -212,15 +213,17 @@ def _block_plan(L, deps, relevant, row_of, zero_row, bl, ws):
 
 
 def _chain_line(target, mat, d0, dst, src, cols, acc, table):
-    """One :func:`spidersim.solver.chain.chain` call; appends its index lists to
-    ``table``."""
-    offs = []
+    """One :func:`spidersim.solver.chain.chain` call; appends its record (``d0``, the
+    offset and length of each index list, ``acc``: :data:`spidersim.solver.chain.RECORD`
+    numbers) and its index lists to ``table``."""
+    h = len(table)
+    table.extend([0] * RECORD)
+    record = [int(d0)]
     for lst in (dst, src, cols):
-        offs.append((len(table), len(lst)))
+        record += [len(table), len(lst)]
         table.extend(int(v) for v in lst)
-    (o_d, n_d), (o_s, n_s), (o_c, n_c) = offs
-    return (f"    _chain.chain({target}, {mat}, {int(d0)}, S, _JT, {o_d}, {n_d}, {o_s}, "
-            f"{n_s}, {o_c}, {n_c}, {bool(acc)})")
+    table[h:h + RECORD] = record + [int(bool(acc))]
+    return f"    _chain.chain({target}, {mat}, S, _JT, np.int64({h}))"
 
 
 def source(L: Layout, kernel_name, arg_expr, sig_size):
@@ -244,7 +247,7 @@ def source(L: Layout, kernel_name, arg_expr, sig_size):
     base = sig_size
     table = []
     lines = [f"    S = _m(sig, {base}, {pl.n_rows}, {n_x})",
-             f"    _chain.seed(S, {n_x})"]
+             f"    _chain.seed(S, np.int64({n_x}))"]
     mat_expr = {}
     for bp in pl.blocks:
         args = []

@@ -18,17 +18,29 @@ from __future__ import annotations
 from ._jit import njit_borrowed
 
 
+#: the fields of one :func:`chain` call's record in the index table (``tab[h + FIELD]``)
+D0, DST0, NDST, SRC0, NSRC, COL0, NCOL, ACC = range(8)
+RECORD = 8
+
+
 @njit_borrowed
-def chain(T, D, d0, S, tab, dst0, ndst, src0, nsrc, col0, ncol, acc):
+def chain(T, D, S, tab, h):
     """``T[dst_i, c] (+)= sum_j D[d0 + i, j] S[src_j, c]`` for the target rows ``dst_i =
     tab[dst0 + i]`` (``i < ndst``), source rows ``src_j = tab[src0 + j]`` (``j < nsrc``) and
     columns ``c = tab[col0 + q]`` (``q < ncol``); ``acc``: add to ``T`` instead of
-    overwriting it. Zero entries of ``D`` are skipped, and a source row that is a state's
-    (``src_j < n_x``, ``S[src_j] = e_(src_j)``, always among the target's columns) adds
-    ``D[d0 + i, j]`` to the one entry ``T[dst_i, src_j]`` instead of a pass over the
-    columns (a block's own states: ``dfdx`` costs its entries, not entries times
+    overwriting it. The eight numbers ``d0, dst0, ndst, src0, nsrc, col0, ncol, acc`` are
+    the call's record ``tab[h:h + 8]`` (:data:`RECORD`): the generated module passes one
+    run-time integer ``h`` (``np.int64(h)``), so that numba compiles this function once for
+    every diagram instead of once for every combination of constants (a literal integer
+    argument is a type of its own). Zero entries of ``D`` are skipped, and a source row
+    that is a state's (``src_j < n_x``, ``S[src_j] = e_(src_j)``, always among the target's
+    columns) adds ``D[d0 + i, j]`` to the one entry ``T[dst_i, src_j]`` instead of a pass
+    over the columns (a block's own states: ``dfdx`` costs its entries, not entries times
     columns)."""
     n_x = S.shape[1]
+    d0, dst0, ndst = tab[h + D0], tab[h + DST0], tab[h + NDST]
+    src0, nsrc = tab[h + SRC0], tab[h + NSRC]
+    col0, ncol, acc = tab[h + COL0], tab[h + NCOL], tab[h + ACC] != 0
     for i in range(ndst):
         r = tab[dst0 + i]
         if not acc:
@@ -56,6 +68,7 @@ def zero(a):
 @njit_borrowed
 def seed(S, n):
     """``S[k, k] = 1`` for the ``n`` state rows (``d x_k / d x_k``; the other entries of those
-    rows are never written)."""
+    rows are never written). ``n`` is passed as a run-time integer (``np.int64(n)``), as
+    :func:`chain`'s record."""
     for k in range(n):
         S[k, k] = 1.0

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.sparse import csr_matrix
 
 from ..errors import SpidersimError
 from . import record_budget
@@ -177,6 +176,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if first_step is not None:
         kw["first_step"] = first_step
     if method in IMPLICIT and system.jac_sparsity is not None and system.n_x > 1:
+        from scipy.sparse import csr_matrix    # only for SciPy's BDF and Radau (0.1 s)
         kw["jac_sparsity"] = csr_matrix(system.jac_sparsity)
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
