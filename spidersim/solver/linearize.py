@@ -7,10 +7,13 @@ central difference balance). ``f`` and ``g`` come from the compiled diagram, so 
 loops are solved at every perturbation, and blocks stay in their current event mode.
 
 :func:`siso_figures` reads poles, zeros, DC gain, -3 dB bandwidth, gain and phase crossover
-frequencies and margins from a SISO ``control.StateSpace``. The bandwidth is computed here
-rather than by ``control.bandwidth``: it is the first frequency where ``|G(jw)|`` falls
-3 dB below ``|G(0)|``, for a negative DC gain as well; it is undefined (reported as
-``None`` with the reason) when the DC gain is infinite (an integrator) or zero.
+frequencies and margins from a SISO ``control.StateSpace``, through its minimal pole-zero
+form (:mod:`.siso`: states the pair cannot move or see removed structurally and by
+pole-zero cancellation on the eigenvalues, never through polynomial coefficients, which
+lose the zeros of a model whose poles spread over decades). The bandwidth is the first
+frequency where ``|G(jw)|`` falls 3 dB below ``|G(0)|``, for a negative DC gain as well; it
+is undefined (reported as ``None`` with the reason) when the DC gain is infinite (an
+integrator) or zero. Margins and crossovers follow ``control.margin``'s definitions.
 """
 from __future__ import annotations
 
@@ -51,73 +54,58 @@ def jacobians(evaluate, x0, u0):
     return A, B, C, D
 
 
-def _mag(sys, w):
-    return np.abs(np.atleast_1d(sys(1j * np.atleast_1d(w))).ravel())
+def _zpk(sys):
+    from .siso import Zpk
+    return sys if isinstance(sys, Zpk) else Zpk.from_ss(sys)
 
 
 def bandwidth(sys, w_max=None):
     """-3 dB bandwidth [rad/s] of a SISO system and a note: ``(value, note)``.
 
     ``value`` is None when undefined: infinite DC gain (integrator), zero DC gain, or no
-    crossing below ``w_max`` (then the note says so).
+    crossing below ``w_max`` (then the note says so). ``sys``: a SISO state space or its
+    :class:`~.siso.Zpk`.
     """
-    import control
     from scipy.optimize import brentq
 
-    poles = control.poles(sys)
-    top = max([abs(p) for p in poles] + [1.0])
-    # a pole at the origin comes out as round-off ~eps ||A||, a multiple one (rigid-body
-    # modes) splits to ~sqrt(eps ||A||): compare with the lowest frequency examined below
-    if np.any(np.abs(poles) < 1e-6 * top):
+    g = _zpk(sys)
+    if g.has_integrator():
         return None, "undefined: infinite DC gain (the system has an integrator)"
-    g0 = abs(complex(np.atleast_1d(sys(0j)).ravel()[0]))
+    g0 = abs(g.dc_gain())
     if not np.isfinite(g0):
         return None, "undefined: infinite DC gain"
     if g0 == 0.0:
         return None, "undefined: zero DC gain"
-    level = g0 / math.sqrt(2.0)
-    scale = max([abs(p) for p in poles if abs(p) > 0] + [1.0])
+    level = math.log(g0 / math.sqrt(2.0))
+    scale = max([abs(p) for p in g.poles if abs(p) > 0] + [1.0])
     w_max = w_max or 1e4 * scale
     w = np.logspace(np.log10(scale) - 6, np.log10(w_max), 4000)
-    m = _mag(sys, w)
+    m = g.log_mag_phase(w)[0]
     below = np.flatnonzero(m < level)
     if not len(below):
         return None, f"undefined: |G| stays above -3 dB up to {w_max:.3g} rad/s"
     k = below[0]
     if k == 0:
         return float(w[0]), "below the lowest frequency examined"
-    wb = brentq(lambda v: _mag(sys, v)[0] - level, w[k - 1], w[k], xtol=1e-12 * w[k])
+    wb = brentq(lambda v: g.log_mag_phase(v)[0][0] - level, w[k - 1], w[k],
+                xtol=1e-12 * w[k])
     return float(wb), ""
 
 
 def siso_figures(sys):
-    """Dict of poles, zeros, DC gain, bandwidth, crossovers and margins of SISO ``sys``."""
-    import control
+    """Dict of poles, zeros, DC gain, bandwidth, crossovers and margins of SISO ``sys``,
+    from its minimal pole-zero form (:class:`~.siso.Zpk`: modes the pair cannot move or
+    see are removed first, without expanding polynomials)."""
+    from .siso import margins
 
-    # states that this pair cannot see or move (e.g. an angle behind a speed loop) would
-    # put cancelling pole-zero pairs at the origin: cancel them on the transfer function
-    # (python-control's state-space minreal needs slycot)
-    if sys.nstates:
-        scale = max(1.0, float(np.max(np.abs(sys.A))))
-        tf = control.ss2tf(sys)
-        num = np.atleast_1d(np.squeeze(tf.num[0][0])).astype(float)
-        den = np.atleast_1d(np.squeeze(tf.den[0][0])).astype(float)
-        big = np.max(np.abs(num), initial=0.0)
-        while len(num) > 1 and abs(num[0]) <= 1e-10 * big:   # round-off leading terms
-            num = num[1:]
-        sys = control.tf(num, den).minreal(tol=1e-7 * scale)
-    order = len(np.atleast_1d(np.squeeze(sys.den[0][0]))) - 1 if isinstance(
-        sys, control.TransferFunction) else sys.nstates
-    out = {"poles": control.poles(sys), "zeros": control.zeros(sys), "states": order}
+    g = _zpk(sys)
+    out = {"poles": g.poles, "zeros": g.zeros, "states": len(g.poles),
+           "dc_gain": g.dc_gain()}
     with np.errstate(all="ignore"):
-        try:
-            out["dc_gain"] = float(np.real(control.dcgain(sys)))
-        except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
-            out["dc_gain"] = math.inf
-        bw, note = bandwidth(sys)
+        bw, note = bandwidth(g)
         out["bandwidth"] = bw
         out["bandwidth_note"] = note
-        gm, pm, wcg, wcp = control.margin(sys)
+        gm, pm, wcg, wcp = margins(g)
     out["gain_margin"] = float(gm)
     out["phase_margin"] = float(pm)
     out["phase_crossover"] = float(wcg)    # where the phase is -180 deg
@@ -157,16 +145,17 @@ def loop_notes(sys):
 
 
 def peak_gain(sys, n=800):
-    """``(peak |G(jw)|, w at the peak [rad/s])`` over a grid spanning the poles and zeros."""
-    import control
+    """``(peak |G(jw)|, w at the peak [rad/s])`` over a grid spanning the poles and zeros
+    of the minimal form (:class:`~.siso.Zpk`)."""
+    g = _zpk(sys)
+    marks = [abs(p) for p in list(g.poles) + list(g.zeros) if np.isfinite(p) and abs(p) > 0]
+    lo, hi = min(marks + [1.0]) / 1e3, max(marks + [1.0]) * 1e3
+    w = np.unique(np.concatenate([np.logspace(np.log10(lo), np.log10(hi), n),
+                                  [m for m in marks if lo <= m <= hi]]))
     with np.errstate(all="ignore"):
-        marks = [abs(p) for p in list(control.poles(sys)) + list(control.zeros(sys))
-                 if np.isfinite(p) and abs(p) > 0]
-        lo, hi = min(marks + [1.0]) / 1e3, max(marks + [1.0]) * 1e3
-        w = np.logspace(np.log10(lo), np.log10(hi), n)
-        mag = np.abs(np.asarray(sys(1j * w)).ravel())
-    k = int(np.nanargmax(mag))
-    return float(mag[k]), float(w[k])
+        logm = g.log_mag_phase(w)[0]
+    k = int(np.nanargmax(logm))
+    return float(math.exp(logm[k])), float(w[k])
 
 
 def format_figures(fig, name="", loop=False):
