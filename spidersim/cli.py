@@ -869,12 +869,23 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 _SHOW_WARNING = warnings.showwarning
 
 
+def _check_arguments(argv):
+    """Refuse an argument that is not text: bytes that are not UTF-8 reach Python as lone
+    surrogates (``--set V_max=$'\\xff'``), which no name, value or path can hold."""
+    for a in argv:
+        if isinstance(a, str) and any("\ud800" <= c <= "\udfff" for c in a):
+            shown = a.encode("utf-8", "backslashreplace").decode("utf-8")
+            raise DiagramError(f"argument '{shown}' is not UTF-8 text (a byte that is not "
+                               f"UTF-8 arrives as an escape \\udcXX)")
+
+
 def main(argv=None):
     # plots are files here: a non-interactive backend unless the user chose one
     os.environ.setdefault("MPLBACKEND", "Agg")
     warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
     try:
+        _check_arguments(sys.argv[1:] if argv is None else argv)
         return args.fn(args)
     except SpidersimError as exc:
         print(f"spidersim: error: {exc}", file=sys.stderr)

@@ -392,3 +392,13 @@ def test_run_shorter_than_the_stall_step_is_refused(tmp_path, capsys, monkeypatc
     rc, out, err = _run_guarded(["run", p, "--no-jit", "--no-plots", "--out",
                                  tmp_path / "out", "--t-end", "1e-7"], capsys, monkeypatch)
     assert rc == 0, err
+
+
+def test_argument_that_is_not_utf8_is_refused(capsys):
+    """A byte that is not UTF-8 on the command line arrives as a lone surrogate
+    (``--set V_max=$'\\xff'``): a clear error and status 2, not an internal error."""
+    servo = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                         "diagrams", "servo.yaml")
+    code = main(["check", servo, "--set", "V_max=\udcff"])
+    err = capsys.readouterr().err
+    assert code == 2 and "not UTF-8 text" in err and "V_max=" in err, err

@@ -408,6 +408,18 @@ def _block_class(spec, b, path):
         raise
 
 
+def _beside_file(value, decl, file):
+    """A relative path given to a file parameter (``Arm.model: arms/my_arm.yaml``) in a
+    diagram file names a file beside that diagram file, as subsystem paths do; the
+    parameter's default (``spider``: the data shipped with spidersim), absolute paths and
+    values of diagrams read from text keep their meaning (``--set`` values are paths of the
+    command line: relative to the current folder)."""
+    if (decl is None or not decl.file or not isinstance(value, str) or value == decl.default
+            or os.path.isabs(value) or not os.path.isfile(file or "")):
+        return value
+    return os.path.join(os.path.dirname(os.path.abspath(file)), value)
+
+
 def _block_values(level, b, path, cls, own):
     """The parameter values of primitive block ``b``: the file's entries, then its
     ``--set`` overrides (marked used), evaluated with their declarations.
@@ -426,6 +438,7 @@ def _block_values(level, b, path, cls, own):
                                     b.param_lines.get(pname), f"parameter '{pname}'",
                                     block=path,
                                     record=functools.partial(punits.__setitem__, pname))
+        values[pname] = _beside_file(values[pname], cls.parameters.get(pname), spec.file)
     for pname, (key, v) in own.items():
         decl = cls.parameters.get(pname)
         if decl is None:

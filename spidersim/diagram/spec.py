@@ -118,6 +118,9 @@ def parse_address(text, file, line, what="address"):
     block, port, a, b = m.groups()
     if a is None:
         return Address(block, port)
+    if max(len(a), len(b or "")) > 100:      # int() of more than 4300 digits would fail
+        raise WiringError(f"an index of more than 100 digits in {what} '{text[:60]}...' is "
+                          f"outside any port", file=file, line=line)
     a = int(a)
     if b is None:
         return Address(block, port, a, a + 1, single=True)

@@ -15,16 +15,18 @@ from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
 from fastapi import Depends, FastAPI, Header, HTTPException, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 import spidersim
 from spidersim.errors import SpidersimError
 
 from .commands import prepare
 from .library import BadName, Library, UnknownModel
-from .store import Store, TooManyJobs
+from .store import KeyReused, Store, TooManyJobs
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
 _FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
@@ -94,6 +96,9 @@ Command = Annotated[Union[TableCommand, JointPathCommand, CartesianLineCommand, 
 Value = Union[float, int, bool, str, list, Quantity]
 
 
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
 class RunRequest(BaseModel):
     """A run: model, parameter and initial-state overrides, run length, command."""
     model_config = ConfigDict(extra="forbid")
@@ -104,6 +109,26 @@ class RunRequest(BaseModel):
     log: Optional[list[str]] = Field(None, description="signals to record")
     command: Optional[Command] = None
     plots: bool = Field(True, description="draw the model's plots")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _characters(cls, data):
+        """Refuse texts holding a lone surrogate (JSON ``\\ud800`` escapes): not a
+        character, it cannot be printed, stored or written to a file."""
+        stack = [(data, "body")]
+        while stack:
+            v, where = stack.pop()
+            if isinstance(v, str):
+                if _SURROGATE.search(v):
+                    raise ValueError(f"{where}: a lone surrogate escape (\\ud800-\\udfff) "
+                                     f"is not a character")
+            elif isinstance(v, dict):
+                stack += [(k, f"{where}: a key") for k in v]
+                stack += [(x, f"{where}.{k}" if isinstance(k, str) and not _SURROGATE.search(
+                    k) else where) for k, x in v.items()]
+            elif isinstance(v, list):
+                stack += [(x, f"{where}[{i}]") for i, x in enumerate(v)]
+        return data
 
 
 def current_user(request: Request,
@@ -170,6 +195,14 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                               "from 'spidersim serve --add-user NAME').",
                   lifespan=lifespan)
     app.state.store, app.state.library, app.state.limits = store, library, limits
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError):
+        """FastAPI's 422, written as ASCII JSON: the errors quote the input, and an input
+        holding a lone surrogate (a JSON \\ud800 escape) cannot be encoded as UTF-8 (the
+        default response failed with a 500)."""
+        text = json.dumps({"detail": jsonable_encoder(exc.errors())}, ensure_ascii=True)
+        return Response(text, status_code=422, media_type="application/json")
 
     @app.middleware("http")
     async def body_limit(request: Request, call_next):
@@ -248,6 +281,10 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
             job, created = store.create_job(u[0], m.name, body, t_end, spidersim.__version__,
                                             m.file_hash(), idem_key=idempotency_key,
                                             max_active=limits.max_active)
+        except KeyReused:
+            raise HTTPException(422, "this Idempotency-Key was used for a different request: "
+                                     "a key names one request (use a new key for a new "
+                                     "request)") from None
         except TooManyJobs as exc:
             raise HTTPException(429, f"you have {exc.n} queued or running jobs, the limit is "
                                      f"{limits.max_active}: wait for one to finish",

@@ -134,7 +134,9 @@ class Store:
         """Insert a queued job; return ``(job, created)``.
 
         With ``idem_key`` an earlier job of the same user with the same key is returned
-        instead (``created`` False). With ``max_active`` raise :class:`TooManyJobs` when the
+        instead (``created`` False) when it was the same request; a different request
+        under a key already used raises :class:`KeyReused` (a client's bug: the key names
+        one request). With ``max_active`` raise :class:`TooManyJobs` when the
         user already has that many queued or running jobs.
         """
         c = self._conn()
@@ -144,8 +146,12 @@ class Store:
                 row = c.execute("SELECT * FROM jobs WHERE user_id = ? AND idem_key = ?",
                                 (user_id, idem_key)).fetchone()
                 if row is not None:
+                    job = self._job(row)
+                    if job["model"] != model or job["request"] != json.loads(
+                            json.dumps(request)):
+                        raise KeyReused(idem_key)             # rolled back below
                     c.execute("COMMIT")
-                    return self._job(row), False
+                    return job, False
             if max_active is not None:
                 n = c.execute("SELECT COUNT(*) FROM jobs WHERE user_id = ? AND state IN "
                               "('queued', 'running')", (user_id,)).fetchone()[0]
@@ -247,6 +253,14 @@ class Store:
     def active_count(self, user_id):
         return self._conn().execute("SELECT COUNT(*) FROM jobs WHERE user_id = ? AND state IN "
                                     "('queued', 'running')", (user_id,)).fetchone()[0]
+
+
+class KeyReused(Exception):
+    """An idempotency key already used for a different request of the same user."""
+
+    def __init__(self, key):
+        super().__init__(key)
+        self.key = key
 
 
 class TooManyJobs(Exception):

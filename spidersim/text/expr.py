@@ -60,6 +60,9 @@ def evaluate(text: str, names: dict):
     if len(text) > limits.MAX_EXPR_CHARS:
         raise ExprError(f"expression of {len(text)} characters is longer than the limit of "
                         f"{limits.MAX_EXPR_CHARS}: '{_short(text)}'")
+    # an expression written over several lines (a YAML block scalar) is one line: line
+    # breaks and tabs are spaces, as they would be inside parentheses
+    text = " ".join(text.split())
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:

@@ -15,6 +15,8 @@ import contextlib
 import contextvars
 import os
 
+import re
+
 import yaml
 
 from ..errors import DiagramError
@@ -75,16 +77,24 @@ def _expanded_size(root):
     measure however often they are referenced.
     """
     memo = {}
+    open_ = set()                 # nodes whose children are being measured
     stack = [(root, False)]
     while stack:
         node, done = stack.pop()
         key = id(node)
         if key in memo:
             continue
+        if not done and key in open_:
+            # reached again from inside itself: every later entry on the stack is one of its
+            # descendants (those pushed before it are measured after it is done)
+            raise DiagramError("an alias (*name) refers to a list or mapping that contains "
+                               "it: a recursive structure, which no diagram value can be",
+                               line=node.start_mark.line + 1)
         if isinstance(node, yaml.ScalarNode):
             if len(node.value) > limits.MAX_STRING:
                 raise _Limit(f"a text longer than {limits.MAX_STRING} characters",
                              node.start_mark)
+            _check_scalar(node)
             memo[key] = 1
             continue
         children = ([c for kv in node.value for c in kv]
@@ -93,6 +103,7 @@ def _expanded_size(root):
             raise _Limit(f"a list or mapping with more than {limits.MAX_ITEMS} entries "
                          f"({len(node.value)})", node.start_mark)
         if not done:
+            open_.add(key)
             stack.append((node, True))
             stack.extend((c, False) for c in children if id(c) not in memo)
             continue
@@ -103,7 +114,43 @@ def _expanded_size(root):
                 raise _Limit(f"more than {limits.MAX_NODES} values once aliases are expanded "
                              f"(an alias bomb?)", node.start_mark)
         memo[key] = total
+        open_.discard(key)
     return memo.get(id(root), 0)
+
+
+_INT_TAG = "tag:yaml.org,2002:int"
+_FLOAT_TAG = "tag:yaml.org,2002:float"
+#: digits of the longest integer read (Python refuses to convert more than 4300)
+MAX_INT_DIGITS = 100
+_LEADING_ZERO = re.compile(r"^[-+]?0[0-9_]")
+
+
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
+def _check_scalar(node):
+    """Refuse a lone surrogate (``"\\ud800"`` in a quoted text: not a character, it cannot
+    be printed or written to a file), the YAML 1.1 number forms a reader does not expect
+    (``010``: octal 8, ``1:30``: base 60, 90) and integers too long to convert; each with
+    its line."""
+    text = node.value
+    line = node.start_mark.line + 1
+    m = _SURROGATE.search(text)
+    if m:
+        raise DiagramError(f"a lone surrogate \\u{ord(m.group()):04x} (an escape in a quoted "
+                           f"text) is not a character", line=line)
+    if node.tag not in (_INT_TAG, _FLOAT_TAG) or node.style is not None:
+        return
+    if ":" in text:
+        raise DiagramError(f"'{text}' is a base-60 number in YAML 1.1 (1:30 means 90): write "
+                           f"the number, or quote it if it is a text", line=line)
+    if node.tag == _INT_TAG and _LEADING_ZERO.match(text):
+        raise DiagramError(f"'{text}' has a leading zero, which YAML 1.1 reads as an octal "
+                           f"number ('010' is 8): write it without the zero", line=line)
+    digits = len(text.replace("_", ""))
+    if node.tag == _INT_TAG and digits > MAX_INT_DIGITS:
+        raise DiagramError(f"an integer of {digits} characters: no value of a diagram needs more "
+                           f"than {MAX_INT_DIGITS}", line=line)
 
 
 def _key_not_a_name(key, knode):
@@ -219,8 +266,9 @@ def load_text(text: str, file: str = "<string>"):
     if "\x00" in text:
         raise DiagramError(f"NUL character at offset {text.index(chr(0))}: not a text "
                            f"file", file=file, line=text[:text.index(chr(0))].count("\n") + 1)
-    loader = _Loader(text)  # SafeLoader subclass: plain data only
+    loader = None
     try:
+        loader = _Loader(text)  # SafeLoader subclass: plain data only
         node = loader.get_single_node()
         if node is None:
             return None
@@ -239,11 +287,26 @@ def load_text(text: str, file: str = "<string>"):
         line = mark.line + 1 if mark else None
         msg = " ".join(str(m) for m in (exc.context, exc.problem) if m)
         raise DiagramError(f"YAML syntax error: {msg}", file=file, line=line) from None
+    except yaml.reader.ReaderError as exc:
+        raise DiagramError(_unreadable_character(text, exc), file=file,
+                           line=text[:exc.position].count("\n") + 1) from None
     except yaml.YAMLError as exc:
         raise DiagramError(f"YAML error: {exc}", file=file) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     return data
+
+
+def _unreadable_character(text, exc):
+    """The message for a character YAML does not allow (a control character, a lone
+    surrogate, U+FFFE/U+FFFF), anywhere in the file, comments included."""
+    col = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+    ch = exc.character
+    code = ord(ch) if isinstance(ch, str) else int(ch)
+    return (f"character U+{code:04X} at column {col} is not allowed in a YAML file (control "
+            f"characters other than tab and line ends, lone surrogates and U+FFFE/U+FFFF, "
+            f"in comments too); remove it")
 
 
 def found(v):

@@ -91,3 +91,24 @@ def test_missing_file_and_the_diagram_error_through_the_arm_block(tmp_path):
             spidersim.loads(text)
         for w in words:
             assert w in str(ei.value), str(ei.value)
+
+
+def test_relative_data_file_is_found_beside_the_diagram(tmp_path, monkeypatch):
+    """``model: one_link.yaml`` in a diagram file names the file beside the diagram (as a
+    subsystem path does), whatever the current folder; ``spider`` keeps naming the shipped
+    arm. It was looked up in the current folder: 'arm data file not found'."""
+    import spidersim
+    folder = tmp_path / "models"
+    folder.mkdir()
+    (folder / "one_link.yaml").write_text(
+        "links:\n  - {d: 0, a: 1, alpha: 0, mass: 1, com: [0.5, 0, 0], "
+        "inertia: [0.1, 0.1, 0.1]}\n")
+    diagram = folder / "d.yaml"
+    diagram.write_text("blocks:\n  tau: {type: Constant, value: [0]}\n"
+                       "  arm: {type: Arm, model: one_link.yaml, q0: [0.1]}\n"
+                       "connections: [tau.y -> arm.tau]\n")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    d = spidersim.load(str(diagram))
+    assert d.logged_sizes()["arm.q"] == 1          # the one-link arm, not SPIDER's seven

@@ -105,6 +105,11 @@ def test_oversized_body_is_413(server):
     ({"parameters": {"motor.R": "motor.R.__class__"}}, "is not allowed"),
     ({"parameters": {"e_pos.signs": "+-);import os#"}}, "string of '+-' characters"),
     ({"colour": "red"}, "colour"),
+    # lone surrogates (JSON escapes \ud800-\udfff) anywhere in the body: no character
+    ({"parameters": {"motor.R": "\ud800"}}, "lone surrogate"),
+    ({"parameters": {"\udc00": 1}}, "lone surrogate"),
+    ({"log": ["\ud800"]}, "lone surrogate"),
+    ({"command": {"kind": "named", "name": "\ud800"}}, "lone surrogate"),
     # values with units: checked against the declared or inferred unit
     ({"parameters": {"motor.R": {"value": 1, "unit": "V"}}}, "does not convert"),
     ({"parameters": {"motor.R": {"value": 1, "unit": "parsecs_x"}}}, "unknown unit"),
@@ -116,7 +121,9 @@ def test_oversized_body_is_413(server):
 ])
 def test_validation_errors_are_422_with_the_cli_message(server, body, needle):
     http = server.client(server.alice)
-    r = http.post("/jobs", json=dict(model="servo", **body))
+    # JSON text with \uXXXX escapes (httpx would refuse to encode a lone surrogate)
+    r = http.post("/jobs", content=json.dumps(dict(model="servo", **body)),
+                  headers={"Content-Type": "application/json"})
     assert r.status_code == 422, r.text
     assert needle in json.dumps(r.json()["detail"]), r.json()
 
@@ -291,6 +298,10 @@ def test_idempotency_key_returns_the_first_job(server):
     r2 = http.post("/jobs", json=body, headers={"Idempotency-Key": "k-1"})
     assert r1.status_code == 202 and r2.status_code == 200
     assert r1.json()["id"] == r2.json()["id"]
+    # the same key for another request is the client's bug, not a retry: refused, and the
+    # first job is not handed back as if it were the new one's
+    r3 = http.post("/jobs", json=dict(body, t_end=2 * SHORT), headers={"Idempotency-Key": "k-1"})
+    assert r3.status_code == 422 and "different request" in r3.json()["detail"], r3.text
     wait_state(http, r1.json()["id"])
 
 
