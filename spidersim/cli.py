@@ -140,6 +140,35 @@ def provenance(args, d, sets):
     }
 
 
+def _check_rerun_spec(name, prov, spec):
+    """The fields of a report's ``provenance`` that ``--rerun`` reads have the types a run
+    writes (a hand-edited or foreign report is refused, naming the field)."""
+    def bad(field, expected):
+        raise SpidersimError(f"--rerun {name}: not a spidersim run report: provenance "
+                             f"'{field}' must be {expected}")
+
+    scalar = (str, int, float, bool)
+    if not isinstance(spec, dict):
+        bad("rerun", "a mapping")
+    if not isinstance(spec.get("file"), str):
+        bad("rerun.file", "a path")
+    sets = spec.get("set")
+    if not isinstance(sets, dict) or not all(
+            isinstance(k, str) and isinstance(v, scalar) for k, v in sets.items()):
+        bad("rerun.set", "a mapping of names to values")
+    t_end = spec.get("t_end")
+    if t_end is not None and (isinstance(t_end, bool) or not isinstance(t_end, (int, float))):
+        bad("rerun.t_end", "a number or null")
+    if spec.get("method") is not None and not isinstance(spec.get("method"), str):
+        bad("rerun.method", "a method name or null")
+    if not isinstance(spec.get("jit"), bool):
+        bad("rerun.jit", "true or false")
+    hashes = prov.get("file_sha256", {})
+    if not isinstance(hashes, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in hashes.items()):
+        bad("file_sha256", "a mapping of paths to hashes")
+
+
 def _rerun_args(args):
     """Fill ``args`` from a run's report (``report.json``, or the folder holding it)."""
     import hashlib
@@ -156,6 +185,7 @@ def _rerun_args(args):
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise SpidersimError(f"--rerun {args.rerun}: not a spidersim run report "
                              f"(report.json with its provenance): {exc}") from None
+    _check_rerun_spec(args.rerun, prov, spec)
     if args.file is not None or args.set or args.t_end is not None or args.method:
         raise SpidersimError("--rerun repeats a run exactly: give no FILE, --set, --t-end "
                              "or --method with it")

@@ -143,6 +143,9 @@ def _check_plot_numbers(p, k, file, line):
             raise DiagramError(f"plots[{k}]: '{key}' must be a finite number of seconds"
                                f"{' (Hz)' if key == 'f_max' else ''}, got {v!r}",
                                file=file, line=_key_line(p, key, line))
+    if "t_min" in p and "t_max" in p and not p["t_min"] < p["t_max"]:
+        raise DiagramError(f"plots[{k}]: 't_min' ({p['t_min']!r} s) must be before 't_max' "
+                           f"({p['t_max']!r} s)", file=file, line=_key_line(p, "t_max", line))
     _check_peaks(p, k, file, line)
 
 
@@ -161,6 +164,27 @@ def _check_plot_texts(p, k, file, line):
         if key in p and (isinstance(p[key], bool) or not isinstance(p[key], (str, int, float))):
             raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
                                f"{_kind_of(p[key])}", file=file, line=_key_line(p, key, line))
+        problem = _math_text_problem(str(p.get(key, "")))
+        if problem:
+            raise DiagramError(f"plots[{k}]: '{key}' holds math text ($...$) that matplotlib "
+                               f"cannot draw: {problem}; write a literal dollar as \\$",
+                               file=file, line=_key_line(p, key, line))
+
+
+def _math_text_problem(text):
+    """What matplotlib's math-text parser says about ``text`` (None when it draws it, or
+    when it is not math text: no pair of unescaped ``$``). Checked before the run, so that a
+    title cannot fail the plots after the data is written."""
+    if "$" not in text:
+        return None
+    from matplotlib import cbook, mathtext
+    if not cbook.is_math_text(text):
+        return None
+    try:
+        mathtext.MathTextParser("path").parse(text)
+    except (ValueError, RuntimeError) as exc:
+        return " ".join(str(exc).split())[:200] or type(exc).__name__
+    return None
 
 
 def _logged_size(signals, name):

@@ -39,6 +39,10 @@ def test_keys_and_kind_are_checked_before_values():
     ({"peaks": 2.0}, "'peaks' must be an integer 0..20"),
     ({"title": [1]}, "'title' must be a text, got a list"),
     ({"ylabel": {}}, "'ylabel' must be a text, got a mapping"),
+    ({"t_min": 2, "t_max": 1}, "'t_min' (2 s) must be before 't_max' (1 s)"),
+    # math text matplotlib cannot draw failed the plots after the data was written
+    ({"title": "$\\sqrt{$"}, "'title' holds math text ($...$) that matplotlib cannot draw"),
+    ({"ylabel": "$\\frac{1}{0}$ $$"}, "'ylabel' holds math text"),
 ])
 def test_plot_values(entry, words):
     """Each optional value has its type and range: booleans are not numbers, infinity is
@@ -52,6 +56,9 @@ def test_plot_values_that_pass():
     """Numbers (ints too) and texts within range are accepted silently."""
     P._check_plot_values({"t_min": 0, "t_max": 1.5, "f_max": 100, "peaks": 0,
                           "title": 3, "ylabel": "w"}, 0, None, None)
+    # math text matplotlib draws, and a lone dollar (not math text) are fine
+    P._check_plot_values({"title": "speed $\\omega_m$", "ylabel": "cost in $"}, 0, None,
+                         None)
 
 
 def test_signal_index_checked_only_when_sizes_are_known():

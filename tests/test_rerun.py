@@ -4,6 +4,7 @@ import json
 import os
 
 import numpy as np
+import pytest
 
 from spidersim.cli import main
 from spidersim.solver.result import Result
@@ -52,6 +53,27 @@ def test_rerun_of_something_else_is_a_clear_error(tmp_path, capsys):
     (tmp_path / "report.json").write_text("{}")
     assert main(["run", "--rerun", str(tmp_path)]) == 2
     assert "not a spidersim run report" in capsys.readouterr().err
+
+
+GOOD_RERUN = {"file": "servo.yaml", "set": {}, "t_end": None, "method": None, "jit": True}
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("set", [1, 2], "'rerun.set' must be a mapping of names to values"),
+    ("set", {"V_max": {"a": 1}}, "'rerun.set' must be a mapping"),
+    ("method", ["DP54"], "'rerun.method' must be a method name or null"),
+    ("jit", "no", "'rerun.jit' must be true or false"),
+    ("t_end", True, "'rerun.t_end' must be a number or null"),
+    ("file", 3, "'rerun.file' must be a path"),
+])
+def test_rerun_of_an_edited_report_names_the_field(tmp_path, capsys, field, value, words):
+    """A hand-edited report whose fields have the wrong types is refused, naming the field
+    (a list under 'method' was an internal error; "jit": "no" ran with the JIT on)."""
+    spec = dict(GOOD_RERUN, **{field: value})
+    (tmp_path / "report.json").write_text(json.dumps({"provenance": {"rerun": spec}}))
+    assert main(["run", "--rerun", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "not a spidersim run report" in err and words in err, err
 
 
 def test_version(capsys):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import re
 import sys
 import time
 from functools import lru_cache
@@ -87,6 +88,10 @@ COUNTS = {"written": 0, "imported": 0}
 
 
 PREFIX = "spidersim_gen_"
+#: the files of a cache entry: the module and its hash (``spidersim_gen_<20 hex>.py``,
+#: ``.sha256``) in the folder, numba's index and machine code in ``__pycache__``
+#: (``spidersim_gen_<key>.<function>-<line>.py311.nbi``, ``...nbc``, Python's ``.pyc``)
+_ENTRY_FILE = re.compile(r"^spidersim_gen_[0-9a-f]{20}(\.py|\.sha256|[.-].*\.(nbi|nbc|pyc))$")
 
 
 def refresh_kernel_caches(root=None) -> bool:
@@ -288,15 +293,16 @@ def info() -> dict:
 
 
 def clear() -> int:
-    """Remove every cache file spidersim wrote (names starting ``spidersim_gen_``) and
-    nothing else; return how many were removed."""
+    """Remove every cache file spidersim wrote (:data:`_ENTRY_FILE`: a file merely named
+    ``spidersim_gen_...`` by someone else stays) and nothing else; return how many were
+    removed."""
     folder = configured_dir()
     n = 0
     for d in (folder, os.path.join(folder, "__pycache__")):
         if not os.path.isdir(d):
             continue
         for f in os.listdir(d):
-            if f.startswith(PREFIX):
+            if _ENTRY_FILE.match(f) and os.path.isfile(os.path.join(d, f)):
                 try:
                     os.remove(os.path.join(d, f))
                     n += 1

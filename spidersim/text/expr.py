@@ -72,9 +72,11 @@ def evaluate(text: str, names: dict):
                         f"{limits.MAX_EXPR_DEPTH} levels): '{_short(text)}'") from None
     if _depth(tree) > limits.MAX_EXPR_DEPTH:
         raise ExprError(f"expression nested deeper than the limit of {limits.MAX_EXPR_DEPTH} "
-                        f"levels: '{_short(text)}'")
+                        f"levels (a sum or product of n terms is n levels deep): "
+                        f"'{_short(text)}'")
     try:
-        value = _eval(tree.body, names, text)
+        with np.errstate(all="ignore"):     # inf/nan are reported by the parameter checks
+            value = _eval(tree.body, names, text)
     except ExprError:
         raise
     except RecursionError:

@@ -332,3 +332,22 @@ def test_kernel_caches_are_dropped_when_a_source_changes(tmp_path):
     fill()                                   # same sources: nothing is dropped
     assert refresh_kernel_caches(str(root)) is False
     assert len(list(cache.glob("*.nb*"))) == 2
+
+
+def test_clear_removes_only_cache_entries(tmp_path, monkeypatch):
+    """``cache clear`` removes the files of cache entries (module, hash, numba's files) and
+    leaves a file that merely starts with the same prefix (it deleted
+    ``spidersim_gen_notmine.txt``)."""
+    from spidersim.solver import compiled
+    monkeypatch.setenv("SPIDERSIM_CACHE", str(tmp_path))
+    key = "0123456789abcdef0123"
+    (tmp_path / "__pycache__").mkdir()
+    ours = [tmp_path / f"spidersim_gen_{key}.py", tmp_path / f"spidersim_gen_{key}.sha256",
+            tmp_path / "__pycache__" / f"spidersim_gen_{key}.outputs-45.py311.nbi",
+            tmp_path / "__pycache__" / f"spidersim_gen_{key}.outputs-45.py311.1.nbc"]
+    theirs = [tmp_path / "spidersim_gen_notmine.txt", tmp_path / f"spidersim_gen_{key}.py.bak",
+              tmp_path / "notes.txt"]
+    for f in ours + theirs:
+        f.write_text("x")
+    assert compiled.clear() == len(ours)
+    assert not any(f.exists() for f in ours) and all(f.exists() for f in theirs)
