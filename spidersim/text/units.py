@@ -310,8 +310,8 @@ def same(a: pint.Unit, b: pint.Unit) -> bool:
 
     The unit checks of connections and block rules use it: ``rad/s`` into ``Hz`` is a
     mismatch (factor 1/(2 pi)), ``Hz`` into ``1/s`` and ``rad/s`` into ``1/s`` are not (SI).
-    The relation is not transitive through ``1/s`` (``Hz`` ~ ``1/s`` ~ ``rad/s``): a class of
-    connected ports bound to ``1/s`` accepts both."""
+    The relation is not transitive through ``1/s`` (``Hz`` ~ ``1/s`` ~ ``rad/s``): unit
+    inference compares a new unit with every unit bound to a class of ports."""
     try:
         return math.isclose(factor(a, b), 1.0, rel_tol=1e-12)
     except UnitError:

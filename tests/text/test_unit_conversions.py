@@ -6,6 +6,7 @@ with factor 1), temperatures with an offset (20 degC = 293.15 K, not 20 x 274.15
 logarithmic units and numbers inside a unit text refused (pint reads "1e-3 m" as
 1/e**3 m, e the elementary charge). Through the loader, errors carry file:line.
 """
+import itertools
 import math
 
 import numpy as np
@@ -118,6 +119,30 @@ def test_a_signal_in_rad_per_s_against_hz_is_a_unit_mismatch():
         spidersim.loads(PORTS.format(a="rad/s", b="Hz"))
     spidersim.loads(PORTS.format(a="Hz", b="1/s"))
     spidersim.loads(PORTS.format(a="rad/s", b="1/s"))
+
+
+THREE = """
+blocks:
+  c: {{type: Constant, value: 1}}
+  a: {{type: UnitCast, unit: "{}"}}
+  b: {{type: UnitCast, unit: "{}"}}
+  e: {{type: UnitCast, unit: "{}"}}
+  s: {{type: Sum, signs: "+++"}}
+connections:
+  - c.y -> a.u, b.u, e.u
+  - a.y -> s.u1
+  - b.y -> s.u2
+  - e.y -> s.u3
+"""
+
+
+@pytest.mark.parametrize("order", list(itertools.permutations(["1/s", "Hz", "rad/s"])))
+def test_hz_and_rad_per_s_meeting_through_one_per_second_are_refused_in_any_order(order):
+    """'Same unit' is not transitive (Hz ~ 1/s ~ rad/s): a Sum of the three is refused
+    whatever the order of its inputs (comparing with the class's first unit only accepted
+    two of the six orders)."""
+    with pytest.raises(UnitMismatchError, match=r"rad/s.*Hz|Hz.*rad/s"):
+        spidersim.loads(THREE.format(*order))
 
 
 # ---------------------------------------------------------------- offsets
