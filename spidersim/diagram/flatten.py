@@ -118,6 +118,11 @@ def _quantity(value, scope, decl, file, line, what, block, record):
         raise ParameterError(f"{what}: a value with a unit is written {{value: 2.5, unit: "
                              f"N.m}}; got the keys {', '.join(map(str, value))}", file=file,
                              line=line, block=block)
+    if isinstance(value["value"], dict):
+        # {value: {value: 1, unit: mm}, unit: V/A} read 1 mm as 0.001 V/A
+        raise ParameterError(f"{what}: the value of a value with a unit is a number, a list "
+                             f"of numbers or an expression, not another value with a unit",
+                             file=file, line=line, block=block)
     x = _eval_value(value["value"], scope, None, file, line, what, block)
     try:
         ab = _unit_factor(value["unit"], decl, record)

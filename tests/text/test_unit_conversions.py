@@ -243,3 +243,13 @@ def test_overrides_with_units_convert_the_same_way():
     assert d.blocks["s"].params["f"] == pytest.approx(2.0, rel=1e-14)
     with pytest.raises(ParameterError, match="a number"):
         spidersim.loads(text, set={"s.f": {"value": 1, "unit": "1e3 Hz"}})
+
+
+def test_a_value_with_a_unit_inside_another_is_refused():
+    """{value: {value: 1, unit: mm}, unit: V/A} gave a gain of 0.001 V/A (the inner mm
+    converted to m, the outer unit then kept): refused at the parameter's line."""
+    with pytest.raises(ParameterError) as e:
+        spidersim.loads("blocks:\n  g: {type: Gain, k: {value: {value: 1, unit: mm}, "
+                        "unit: V/A}}\n  c: {type: Constant, value: 1}\n"
+                        "connections:\n  - c.y -> g.u\n")
+    assert ":2:" in str(e.value) and "not another value with a unit" in str(e.value)
