@@ -84,7 +84,9 @@ class Flat:
 
 
 def _unit_factor(unit, decl, record):
-    """Factor converting a value given in ``unit`` to the unit of declaration ``decl``.
+    """``(a, b)`` converting a value given in ``unit`` to the unit of declaration ``decl``:
+    ``value = a * given + b`` (``b`` is 0 but for a temperature on a scale with an offset,
+    ``degC`` -> ``K``; see :func:`spidersim.text.units.affine`).
 
     Without a declaration (a diagram or subsystem parameter) the value goes to coherent SI.
     For a parameter whose unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) there is
@@ -93,18 +95,20 @@ def _unit_factor(unit, decl, record):
     Raises
     ------
     UnitError
-        An unknown or incompatible unit, or a unit on an int, bool or str parameter.
+        An unknown or incompatible unit, a unit on an int, bool or str parameter, or a
+        scale with an offset on an inherited unit (it could not be multiplied).
     """
     given = U.parse(unit)
     if decl is None:
-        return U.factor(given, U.base(given))
+        return U.affine(given, U.base(given))
     if decl.kind != "real":
         raise U.UnitError(f"a {decl.kind} parameter takes no unit")
     if callable(decl.unit) or decl.unit == U.ANY or "@" in decl.unit:
+        U.check_no_offset(given, "a parameter that inherits its unit (kept, not converted)")
         if record is not None:
             record(unit)
         return None
-    return U.factor(given, U.parse(decl.unit))
+    return U.affine(given, U.parse(decl.unit))
 
 
 def _quantity(value, scope, decl, file, line, what, block, record):
@@ -114,20 +118,26 @@ def _quantity(value, scope, decl, file, line, what, block, record):
         raise ParameterError(f"{what}: a value with a unit is written {{value: 2.5, unit: "
                              f"N.m}}; got the keys {', '.join(map(str, value))}", file=file,
                              line=line, block=block)
+    if isinstance(value["value"], dict):
+        # {value: {value: 1, unit: mm}, unit: V/A} read 1 mm as 0.001 V/A
+        raise ParameterError(f"{what}: the value of a value with a unit is a number, a list "
+                             f"of numbers or an expression, not another value with a unit",
+                             file=file, line=line, block=block)
     x = _eval_value(value["value"], scope, None, file, line, what, block)
     try:
-        f = _unit_factor(value["unit"], decl, record)
+        ab = _unit_factor(value["unit"], decl, record)
     except U.UnitError as exc:
         want = f" (declared [{decl.unit}])" if decl is not None and isinstance(
             decl.unit, str) else ""
         raise ParameterError(f"{what}{want}: {exc}", file=file, line=line,
                              block=block) from None
-    if f is None or f == 1.0:
+    if ab is None or ab == (1.0, 0.0):
         return x
     if isinstance(x, bool) or not isinstance(x, (int, float, list)):
         raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
                              f"numbers", file=file, line=line, block=block)
-    return (np.asarray(x, dtype=float) * f).tolist()
+    a, b = ab
+    return (np.asarray(x, dtype=float) * a + b).tolist()
 
 
 def _check_rectangular(values):

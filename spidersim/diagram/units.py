@@ -30,11 +30,17 @@ class UnitMismatchError(DiagramError):
 
 
 class _Classes:
-    """Union-find over variables; each class holds a unit, its text and where it came from."""
+    """Union-find over variables; each class holds a unit, its text and where it came from.
+
+    A class also keeps every distinct unit bound to it (``bound``): "the same unit" (factor
+    1) is not transitive (``Hz`` is ``1/s`` and ``rad/s`` is ``1/s``, but ``rad/s`` is not
+    ``Hz``), so a new unit is compared with each of them, not with the first alone (else a
+    class would accept ``Hz`` and ``rad/s`` or not depending on the order of binding)."""
 
     def __init__(self):
         self.parent = {}
         self.unit = {}       # root -> (pint unit, text, origin)
+        self.bound = {}      # root -> [(pint unit, text, origin)], distinct units
 
     def add(self, v):
         self.parent.setdefault(v, v)
@@ -53,24 +59,35 @@ class _Classes:
     def bind(self, v, unit, text, origin):
         """Bind ``v``'s class; return the conflicting binding or None."""
         r = self.find(v)
-        have = self.unit.get(r)
-        if have is None:
+        have = self.bound.setdefault(r, [])
+        for h in have:
+            if not U.same(h[0], unit):
+                return h
+        if r not in self.unit:
             self.unit[r] = (unit, text, origin)
-            return None
-        return None if U.same(have[0], unit) else have
+        if not any(h[0] == unit for h in have):
+            have.append((unit, text, origin))
+        return None
 
     def union(self, a, b):
         """Join the classes; return (binding of a, binding of b) when they conflict."""
         ra, rb = self.find(a), self.find(b)
         if ra == rb:
             return None
+        ba, bb = self.bound.get(ra, []), self.bound.get(rb, [])
+        for x in ba:
+            for y in bb:
+                if not U.same(x[0], y[0]):
+                    return x, y
         ua, ub = self.unit.get(ra), self.unit.get(rb)
-        if ua is not None and ub is not None and not U.same(ua[0], ub[0]):
-            return ua, ub
         self.parent[rb] = ra
         if ua is None and ub is not None:
             self.unit[ra] = ub
         self.unit.pop(rb, None)
+        merged = self.bound.setdefault(ra, [])
+        for y in self.bound.pop(rb, []):
+            if not any(x[0] == y[0] for x in merged):
+                merged.append(y)
         return None
 
 

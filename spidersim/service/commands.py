@@ -242,8 +242,10 @@ def _to_unit(values, given, target, what, spec):
     try:
         g = U.parse(given)
         if target in (None, UNKNOWN, U.ANY) or "@" in target:
+            U.check_no_offset(g, "a signal whose unit the model does not fix")
             return values, str(given)
-        return values * U.factor(g, U.parse(target)), None
+        a, b = U.affine(g, U.parse(target))
+        return values * a + b, None
     except U.UnitError as exc:
         _fail(f"command.unit of {what}: {exc}", spec)
 

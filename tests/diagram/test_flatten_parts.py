@@ -130,18 +130,25 @@ def test_exposed_inputs_record_their_targets():
 
 def test_unit_factor_to_declared_unit_or_si():
     """mOhm -> Ohm is 1e-3; rpm -> rad/s is 2 pi/60; without a declaration a value goes to
-    coherent SI (deg -> rad: pi/180); an inherited unit converts nothing and is recorded;
-    an int parameter takes no unit."""
+    coherent SI (deg -> rad: pi/180; degC -> K: x + 273.15, the one case with an offset);
+    the result is (a, b) of value = a given + b; an inherited unit converts nothing and is
+    recorded (but a scale with an offset is refused there); an int parameter takes no unit."""
     import math
 
     from spidersim.blocks.base import Param
     from spidersim.text.units import UnitError
-    assert F._unit_factor("mOhm", Param(1.0, "Ohm"), None) == pytest.approx(1e-3, rel=1e-15)
-    assert F._unit_factor("rpm", Param(1.0, "rad/s"), None) == pytest.approx(
-        2 * math.pi / 60, rel=1e-15)
-    assert F._unit_factor("deg", None, None) == pytest.approx(math.pi / 180, rel=1e-15)
+    a, b = F._unit_factor("mOhm", Param(1.0, "Ohm"), None)
+    assert a == pytest.approx(1e-3, rel=1e-15) and b == 0.0
+    a, b = F._unit_factor("rpm", Param(1.0, "rad/s"), None)
+    assert a == pytest.approx(2 * math.pi / 60, rel=1e-15) and b == 0.0
+    a, b = F._unit_factor("deg", None, None)
+    assert a == pytest.approx(math.pi / 180, rel=1e-15) and b == 0.0
+    assert F._unit_factor("degC", None, None) == pytest.approx((1.0, 273.15), rel=1e-15)
     seen = []
     assert F._unit_factor("N.m", Param(1.0, "*"), seen.append) is None and seen == ["N.m"]
+    with pytest.raises(UnitError, match="offset"):
+        F._unit_factor("degC", Param(1.0, "*"), seen.append)
+    assert seen == ["N.m"]
     with pytest.raises(UnitError, match="a int parameter takes no unit"):
         F._unit_factor("m", Param(1, kind="int"), None)
     with pytest.raises(UnitError):

@@ -113,6 +113,9 @@ def test_oversized_body_is_413(server):
     # values with units: checked against the declared or inferred unit
     ({"parameters": {"motor.R": {"value": 1, "unit": "V"}}}, "does not convert"),
     ({"parameters": {"motor.R": {"value": 1, "unit": "parsecs_x"}}}, "unknown unit"),
+    # a number in a unit (pint read '1e-3 V' as V/e**3: V_max ran at 5 V), a level
+    ({"parameters": {"V_max": {"value": 20, "unit": "1e-3 V"}}}, "a number may only be"),
+    ({"parameters": {"V_max": {"value": 20, "unit": "dB"}}}, "logarithmic unit"),
     ({"initial": {"motor.w": {"value": 1, "unit": "m"}}}, "does not convert"),
     ({"command": {"kind": "table", "time": [0, 1], "value": [0, 1], "unit": "A"}},
      "does not convert"),

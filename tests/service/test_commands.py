@@ -196,3 +196,30 @@ def test_a_request_cannot_make_the_server_read_its_files(tmp_path):
         assert "TOPSECRET" not in msg and "not found" not in msg
     d, _ = prepare(outer, {"parameters": {"s.arm.model": str(models / "my_arm.yaml")}})
     assert d.blocks["s.arm"].params["model"].endswith("my_arm.yaml")
+
+
+def test_values_with_units_that_are_not_units_are_refused(lib):
+    """A job's parameter in '1e-3 V' ran with V_max = 5 V (pint read 1/e**3 V, e the
+    elementary charge): now a ParameterError (422) naming the parameter; 'mV' gives the
+    hand value 20 mV = 0.02 V; dB and a rad/s speed given for a Hz parameter alike."""
+    servo = lib.get("servo")
+    with pytest.raises(spidersim.ParameterError, match="V_max.*a number may only be"):
+        prepare(servo, {"parameters": {"V_max": {"value": 20, "unit": "1e-3 V"}}})
+    with pytest.raises(spidersim.ParameterError, match="logarithmic"):
+        prepare(servo, {"parameters": {"V_max": {"value": 20, "unit": "dB"}}})
+    d, _ = prepare(servo, {"parameters": {"V_max": {"value": 20, "unit": "mV"}}})
+    assert d.blocks["sat"].params["upper"] == pytest.approx(0.02, rel=1e-14)
+    d, _ = prepare(servo, {"initial": {"motor.w": {"value": 0.5, "unit": "Hz"}}})
+    assert d.blocks["motor"].params["w0"] == pytest.approx(np.pi, rel=1e-14)   # 0.5 rev/s
+
+
+def test_command_values_convert_temperatures_with_their_offset():
+    """_to_unit: a value in degC for a target in K adds 273.15; for a target the model does
+    not fix (the unit would be kept) an offset is refused; Hz -> rad/s is 2 pi."""
+    from spidersim.service.commands import _to_unit
+    got, unit = _to_unit(np.array([20.0, -273.15]), "degC", "K", "x", None)
+    assert unit is None and got == pytest.approx([293.15, 0.0], abs=1e-12)
+    got, _ = _to_unit(np.array([1.0]), "Hz", "rad/s", "x", None)
+    assert got == pytest.approx([2 * np.pi], rel=1e-14)
+    with pytest.raises(spidersim.ParameterError, match="offset"):
+        _to_unit(np.array([20.0]), "degC", "?", "x", None)
