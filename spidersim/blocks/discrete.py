@@ -139,7 +139,15 @@ class DiscretePI(_Sampled):
 
 class DiscretePID(_Sampled):
     """Sampled PID: ``y_k = sat(kp e_k + I_k + kd (e_k - e_k-1) / Ts)``, integral as in
-    DiscretePI (clamping)."""
+    DiscretePI (clamping).
+
+    The first sample (``k = 0``) has no derivative term: the error before the start is
+    taken equal to the first one (``e_-1 = e_0``), so that a controller switched on with an
+    error does not kick by ``kd e_0 / Ts``. From zero initial conditions instead
+    (``e_-1 = 0``, the z-transform ``C(z) = kp + ki Ts / (z - 1) + kd (z - 1) / (Ts z)``
+    applied to a step), the first output would be larger by ``kd e_0 / Ts``; every later
+    sample is the same.
+    """
 
     category = "discrete"
     parameters = dict({"kp": Param(1.0, "@y/@e", "proportional gain"),

@@ -137,7 +137,8 @@ def _quantity(value, scope, decl, file, line, what, block, record):
         raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
                              f"numbers", file=file, line=line, block=block)
     a, b = ab
-    return (np.asarray(x, dtype=float) * a + b).tolist()
+    with np.errstate(all="ignore"):        # an overflow is inf: the parameter checks say so
+        return (np.asarray(x, dtype=float) * a + b).tolist()
 
 
 def _check_rectangular(values):

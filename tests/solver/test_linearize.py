@@ -567,4 +567,5 @@ def test_brushless_current_loop_bandwidth_against_the_hand_formula():
     d = spidersim.loads(text)
     fig = siso_figures(d.linearize(["icmd2.y"], ["mot.i_b"], jit=False))
     assert fig["dc_gain"] == pytest.approx(1.0, rel=1e-6)
-    assert fig["bandwidth"] / (2 * math.pi) == pytest.approx(2000.0, rel=1e-5)
+    # the finite rotor inertia (1e6 kg.m2) leaves a back-EMF effect of a few 1e-5
+    assert fig["bandwidth"] / (2 * math.pi) == pytest.approx(2000.0, rel=1e-4)
