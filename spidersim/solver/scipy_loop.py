@@ -75,8 +75,8 @@ class Recorder:
             if rows is None:
                 raise RecordBudgetFull(record_budget.budget_message(
                     self.n, self.buf.shape[1], float(self.tbuf[self.n - 1])))
-            self.buf = np.concatenate((self.buf, np.zeros((rows - self.n, self.buf.shape[1]))))
-            self.tbuf = np.concatenate((self.tbuf, np.zeros(rows - self.n)))
+            record_budget.resize_rows(self.buf, rows)     # in place: no transient copy
+            record_budget.resize_rows(self.tbuf, rows)
         if g is None:
             ok = self.system.record_row(t, x, self.buf, self.n)
         else:
@@ -91,9 +91,10 @@ class Recorder:
 
     def result(self, events, stats, status="ok", message=""):
         s = self.system
-        t, buf = self.t, self.buf[:self.n]
         if self.n < 0.9 * len(self.tbuf):         # trim a buffer much larger than its rows
-            t, buf = t.copy(), buf.copy()
+            record_budget.resize_rows(self.tbuf, self.n)      # in place, no copy
+            record_budget.resize_rows(self.buf, self.n)
+        t, buf = self.t, self.buf[:self.n]
         return Result(t, buf, s.record_slices, dict(s.units), events, stats, status,
                       message)
 
