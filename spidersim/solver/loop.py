@@ -355,13 +355,16 @@ def integrate_dp54(system, entry, t_end, t0=0.0, rtol=1e-6, atol=1e-8, max_step=
         if code == ROWS_FULL:
             if not run.grow_rows():
                 st.update(run.stats())
-                msg = record_budget.budget_message(int(run.ist[I_ROWS]), run.buf.shape[1], run.t)
+                msg = record_budget.budget_message(
+                    int(run.ist[I_ROWS]), run.buf.shape[1], run.t,
+                    other_bytes=run.ev_t.nbytes + run.ev_i.nbytes)
                 raise IntegrationError(msg, partial=run.result(st, "failed", msg))
         elif code == EVENTS_FULL:
             if not run.grow_events():
                 st.update(run.stats())
-                msg = record_budget.budget_message(int(run.ist[I_EVENTS]), EVENT_VALUES,
-                                                   run.t, what="event log")
+                msg = record_budget.budget_message(
+                    int(run.ist[I_EVENTS]), EVENT_VALUES, run.t, what="event log",
+                    other_bytes=run.tbuf.nbytes + run.buf.nbytes)
                 raise IntegrationError(msg, partial=run.result(st, "failed", msg))
         elif code == PAUSE or code == DONE:
             if progress is not None:

@@ -21,7 +21,7 @@ the C library moves by remapping pages, so a doubling never holds the old and th
 buffer at once, which made the peak 1.5 times the budget), the result keeps views of the
 buffers and of the compiled loop's event log (:class:`~spidersim.solver.result.EventLog`:
 no Python object per event), and ``Result.save`` streams what it writes. Before these, a
-run stopped at a 0.3 GB budget peaked at 1.67 GB of resident memory (3.45 million sampler
+run stopped at a 0.3 GB budget peaked at 1.78 GB of resident memory (3.45 million sampler
 events turned into Python tuples and twice into JSON text, 4 bytes a character in the
 NPZ).
 
@@ -147,16 +147,19 @@ def events_fit(n_events: int, rows_bytes: float) -> bool:
 
 
 def budget_message(rows: int, record_size: int, t: float, what="recorded data",
-                   entry_bytes=None) -> str:
+                   entry_bytes=None, other_bytes=0.0) -> str:
     """The error of a run stopped at the budget, at time ``t`` with ``rows`` rows (of the
     recorded data, or of the event log; ``entry_bytes``: bytes of one, when they are not
-    ``record_size + 1`` floats)."""
+    ``record_size + 1`` floats; ``other_bytes``: what the other buffer holds, said when
+    not 0, so that the message adds up to the budget)."""
     size = rows * (entry_bytes or row_bytes(record_size))
+    other = "event log" if what != "event log" else "rows"
+    beside = f" beside {_gb(other_bytes)} of {other}" if other_bytes else ""
     advice = ("shorten t_end or sample less often (every event is logged)"
               if what == "event log" else
               "set simulation.output_interval to record on a grid instead of every step, "
               "or shorten t_end")
     return (f"the {what} reached the memory budget at t = {t:.9g} s: {rows} entries "
-            f"({_gb(size)}; the rows and the event log share the budget of "
+            f"({_gb(size)}{beside}; the rows and the event log share the budget of "
             f"{_gb(budget_bytes())}); the rows so far are kept. To go on: {advice}, or "
             f"set {ENV}")

@@ -253,7 +253,7 @@ class EventLog(collections.abc.Sequence):
 
     The compiled loop logs an event as 4 numbers (32 bytes, counted in the recording
     budget); as Python tuples the same entry took about 150 bytes more, so a sampled block
-    at 10 MHz stopped at a 0.3 GB budget held 1.67 GB. This sequence keeps the arrays and
+    at 10 MHz stopped at a 0.3 GB budget peaked at 1.78 GB. This sequence keeps the arrays and
     makes a tuple only when an entry is read: ``log[k]``, ``log[a:b]`` (a list), iteration
     (in blocks of :data:`EVENT_BLOCK`), ``len``, ``==`` with any sequence of triples.
 

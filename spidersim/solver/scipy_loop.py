@@ -74,7 +74,8 @@ class Recorder:
             rows = record_budget.grown_rows(self.n, self.buf.shape[1], self.other_bytes)
             if rows is None:
                 raise RecordBudgetFull(record_budget.budget_message(
-                    self.n, self.buf.shape[1], float(self.tbuf[self.n - 1])))
+                    self.n, self.buf.shape[1], float(self.tbuf[self.n - 1]),
+                    other_bytes=self.other_bytes))
             record_budget.resize_rows(self.buf, rows)     # in place: no transient copy
             record_budget.resize_rows(self.tbuf, rows)
         if g is None:
@@ -169,7 +170,8 @@ class SciPyLoop:
             if not record_budget.events_fit(n + 1024, rec.buf.nbytes + rec.tbuf.nbytes):
                 raise RecordBudgetFull(record_budget.budget_message(
                     len(self.events), 3, entries[0][0], what="event log",
-                    entry_bytes=record_budget.PY_EVENT_BYTES))
+                    entry_bytes=record_budget.PY_EVENT_BYTES,
+                    other_bytes=rec.buf.nbytes + rec.tbuf.nbytes))
             rec.other_bytes = (n + 1024) * record_budget.PY_EVENT_BYTES
             self._next_budget_check = n + 1024
         self.events.extend(entries)

@@ -1,7 +1,7 @@
 """The recording budget bounds the memory a run really takes, not only its buffers.
 
 A Sine into a ZeroOrderHold sampled every 0.1 us stopped at a 0.3 GB budget (exit 2, its
-data kept) but its resident memory peaked at 1.67 GB: the 3.45 million sampler events were
+data kept) but its resident memory peaked at 1.78 GB: the 3.45 million sampler events were
 turned into Python tuples, then twice into JSON text (once stored in the NPZ as a NumPy
 string, 4 bytes a character), and doubling a buffer held the old and the new one at once.
 These tests run a sampled block into small budgets in a fresh process and measure the peak
