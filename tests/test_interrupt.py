@@ -80,12 +80,12 @@ def test_full_disk_leaves_no_truncated_file(tmp_path, monkeypatch):
     r = d.simulate(jit=False)
     r.save(tmp_path)
     before = (tmp_path / "result.csv").read_bytes()
-    real_savez = np.savez
+    real_write = result_mod.Result._write_npz       # the NPZ's writer (streams its entries)
 
-    def full_disk(fh, **arrays):
-        real_savez(fh, **arrays)
+    def full_disk(self, fh, arrays):
+        real_write(self, fh, arrays)
         raise OSError(errno.ENOSPC, "No space left on device")
-    monkeypatch.setattr(result_mod.np, "savez", full_disk)
+    monkeypatch.setattr(result_mod.Result, "_write_npz", full_disk)
     with pytest.raises(OSError, match="result.npz.*No space left"):
         r.save(tmp_path)
     assert sorted(os.listdir(tmp_path)) == ["report.json", "report.txt", "result.csv",
@@ -151,13 +151,13 @@ def test_second_signal_while_writing_stops_at_once(tmp_path, monkeypatch, capsys
     file being written is absent (its temporary removed), never truncated."""
     from spidersim import cli
     from spidersim.solver import result as result_mod
-    real_savez = np.savez
+    real_write = result_mod.Result._write_npz       # the NPZ's writer (streams its entries)
 
-    def savez_interrupted(fh, **arrays):
-        real_savez(fh, **arrays)
+    def write_interrupted(self, fh, arrays):
+        real_write(self, fh, arrays)
         os.kill(os.getpid(), signal.SIGINT)        # the first: finish writing ...
         os.kill(os.getpid(), signal.SIGINT)        # ... the second: stop now
-    monkeypatch.setattr(result_mod.np, "savez", savez_interrupted)
+    monkeypatch.setattr(result_mod.Result, "_write_npz", write_interrupted)
     out = tmp_path / "out"
     code = cli.main(["run", str(_slow_file(tmp_path)), "--no-jit", "--out", str(out)])
     err = capsys.readouterr().err

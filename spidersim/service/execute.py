@@ -12,13 +12,13 @@ Files of a job (the job folder under ``--data``, or returned as bytes from a Das
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
 import time
 
 from spidersim.errors import IntegrationError
+from spidersim.solver.result import write_meta_json
 
 from .commands import prepare
 from .library import Model
@@ -28,9 +28,10 @@ PROGRESS_EVERY = 0.25
 
 
 def _meta(r, status, message):
+    """meta.json without its events (written in blocks by ``write_meta_json``: a list of
+    millions of events as Python lists took ten times the memory the budget counts)."""
     return {"status": status, "message": message, "units": dict(r.units),
             "sizes": {n: (1 if r[n].ndim == 1 else int(r[n].shape[1])) for n in r.names},
-            "events": [[float(t), str(b), str(e)] for t, b, e in r.events],
             "stats": {k: (v if isinstance(v, (int, float, str, bool)) or v is None
                           else str(v)) for k, v in r.stats.items()}}
 
@@ -76,7 +77,7 @@ def run_job(task, report=None, out=None):
                 plot_error = f"plots not drawn: {model.public_message(exc)}"
         meta["plot_error"] = plot_error
         with open(os.path.join(folder, "meta.json"), "w") as fh:
-            json.dump(meta, fh, default=float)
+            write_meta_json(fh, meta, r.events)
         res = {"status": status, "message": message, "plot_error": plot_error,
                "t_reached": float(r.t[-1]) if len(r.t) else 0.0, "wall_time": wall,
                "t_end": t_end}

@@ -74,9 +74,10 @@ class Recorder:
             rows = record_budget.grown_rows(self.n, self.buf.shape[1], self.other_bytes)
             if rows is None:
                 raise RecordBudgetFull(record_budget.budget_message(
-                    self.n, self.buf.shape[1], float(self.tbuf[self.n - 1])))
-            self.buf = np.concatenate((self.buf, np.zeros((rows - self.n, self.buf.shape[1]))))
-            self.tbuf = np.concatenate((self.tbuf, np.zeros(rows - self.n)))
+                    self.n, self.buf.shape[1], float(self.tbuf[self.n - 1]),
+                    other_bytes=self.other_bytes))
+            record_budget.resize_rows(self.buf, rows)     # in place: no transient copy
+            record_budget.resize_rows(self.tbuf, rows)
         if g is None:
             ok = self.system.record_row(t, x, self.buf, self.n)
         else:
@@ -91,9 +92,10 @@ class Recorder:
 
     def result(self, events, stats, status="ok", message=""):
         s = self.system
-        t, buf = self.t, self.buf[:self.n]
         if self.n < 0.9 * len(self.tbuf):         # trim a buffer much larger than its rows
-            t, buf = t.copy(), buf.copy()
+            record_budget.resize_rows(self.tbuf, self.n)      # in place, no copy
+            record_budget.resize_rows(self.buf, self.n)
+        t, buf = self.t, self.buf[:self.n]
         return Result(t, buf, s.record_slices, dict(s.units), events, stats, status,
                       message)
 
@@ -168,7 +170,8 @@ class SciPyLoop:
             if not record_budget.events_fit(n + 1024, rec.buf.nbytes + rec.tbuf.nbytes):
                 raise RecordBudgetFull(record_budget.budget_message(
                     len(self.events), 3, entries[0][0], what="event log",
-                    entry_bytes=record_budget.PY_EVENT_BYTES))
+                    entry_bytes=record_budget.PY_EVENT_BYTES,
+                    other_bytes=rec.buf.nbytes + rec.tbuf.nbytes))
             rec.other_bytes = (n + 1024) * record_budget.PY_EVENT_BYTES
             self._next_budget_check = n + 1024
         self.events.extend(entries)

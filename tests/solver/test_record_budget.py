@@ -141,7 +141,7 @@ def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
 
 
 def test_scipy_loop_event_log_stops_at_the_budget(monkeypatch):
-    """The SciPy steppers' event log (a Python list, about 700 bytes an event, checked
+    """The SciPy steppers' event log (a Python list, counted at 800 bytes an event, checked
     every 1024 events) shares the budget with the rows: at 2 MB and 1010 grid rows it holds
     2048 events of a sampled block every 0.1 ms (the check for the block of 1024 events after the
     2048th fails), then the run stops with them, each at k * 0.1 ms (LSODA: about 60 us an event,
