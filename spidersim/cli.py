@@ -802,9 +802,9 @@ def build_parser():
     sw.add_argument("file")
     sw.add_argument("--vary", action="append", metavar="PATH=V1,V2,...", required=True,
                     help="parameter and its values (repeat for a grid; first slowest)")
-    sw.add_argument("--workers", type=count(0), default=None,
-                    help="local Dask worker processes (default: CPUs, at most 4; "
-                         "0: serial in this process)")
+    sw.add_argument("--workers", type=count(0, 256), default=None,
+                    help="local Dask worker processes, at most 256 (default: CPUs, at most "
+                         "4; 0: serial in this process)")
     sw.add_argument("--scheduler", metavar="ADDRESS",
                     help="use a running Dask scheduler (tcp://host:8786) instead")
     sw.add_argument("--set", action="append", metavar="PATH=VALUE",
@@ -821,7 +821,8 @@ def build_parser():
                     help="folder (or file) of models (repeatable; default: shipped models)")
     sv.add_argument("--data", help="database and results (default ~/.spidersim/service)")
     sw_ = sv.add_mutually_exclusive_group()
-    sw_.add_argument("--workers", type=count(1), default=None, help="worker processes (default 2)")
+    sw_.add_argument("--workers", type=count(1, 256), default=None,
+                     help="worker processes, at most 256 (default 2)")
     sw_.add_argument("--scheduler", metavar="ADDRESS", help="run jobs on this Dask scheduler")
     sv.add_argument("--add-user", metavar="NAME", help="create a user / new token and exit")
     sv.add_argument("--max-t-end", type=positive_float, default=60.0,

@@ -329,7 +329,8 @@ def _load_subsystem(level, b, path, sub_specs):
                            file=spec.file, line=b.line, block=path)
     if sub_file not in sub_specs:
         if not os.path.isfile(sub_file):
-            raise DiagramError(f"subsystem file for type '{b.type}' not found: {sub_file}",
+            what = "is a folder, not a file" if os.path.isdir(sub_file) else "not found"
+            raise DiagramError(f"subsystem file for type '{b.type}' {what}: {sub_file}",
                                file=spec.file, line=spec.subsystem_lines.get(b.type),
                                block=path)
         try:

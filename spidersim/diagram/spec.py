@@ -141,7 +141,8 @@ def _section(data, key, kind, file):
 def parse_file(path: str) -> DiagramSpec:
     """Read and check one diagram file (no subsystems opened yet)."""
     if not os.path.isfile(path):
-        raise DiagramError(f"diagram file not found: {path}")
+        raise DiagramError(f"diagram file {'is a folder' if os.path.isdir(path) else 'not found'}"
+                           f": {path}")
     return _parse_data(read_file(path), path)
 
 
