@@ -77,9 +77,10 @@ def bandwidth(sys, w_max=None):
     if g0 == 0.0:
         return None, "undefined: zero DC gain"
     level = math.log(g0 / math.sqrt(2.0))
-    scale = max([abs(p) for p in g.poles if abs(p) > 0] + [1.0])
-    w_max = w_max or 1e4 * scale
-    w = np.logspace(np.log10(scale) - 6, np.log10(w_max), 4000)
+    mags = [abs(r) for r in list(g.poles) + list(g.zeros) if abs(r) > 0] or [1.0]
+    w_max = w_max or 1e4 * max(mags)
+    # from well below the slowest root (a pole at 0.05 rad/s beside one at 1e5 rad/s)
+    w = np.logspace(np.log10(min(mags)) - 4, np.log10(w_max), 4000)
     m = g.log_mag_phase(w)[0]
     below = np.flatnonzero(m < level)
     if not len(below):

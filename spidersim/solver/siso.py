@@ -33,16 +33,20 @@ import numpy as np
 
 #: relative part of the distance within which a zero cancels a pole
 CANCEL_REL = 1e-6
-#: a pole whose magnitude is below this fraction of the largest is a free integrator
-#: (a pole at the origin comes out of the eigenvalue solver as round-off)
-ORIGIN_REL = 1e-6
+
+
+def origin_tolerance(scale):
+    """Magnitude below which a pole or zero is at the origin: twice ``sqrt(eps scale)``,
+    how far a double eigenvalue at the origin (a rigid-body mode: an angle and its speed)
+    moves under round-off in a matrix of size ``scale``. Absolute: a slow pole (0.05 rad/s
+    beside a current loop at 1e5 rad/s) is a pole, not an integrator."""
+    return 2.0 * math.sqrt(np.finfo(float).eps * scale)
 
 
 def cancel_tolerance(p, z, scale):
     """``|p - z|`` below which zero ``z`` cancels pole ``p``: ``CANCEL_REL max(|p|, |z|)``
-    plus ten times ``sqrt(eps scale)``, the accuracy of a double eigenvalue of a matrix of
-    size ``scale`` (a rigid-body mode: an angle and its speed at the origin)."""
-    return CANCEL_REL * max(abs(p), abs(z)) + 10.0 * math.sqrt(np.finfo(float).eps * scale)
+    plus :func:`origin_tolerance` (two roots at the origin to round-off)."""
+    return CANCEL_REL * max(abs(p), abs(z)) + origin_tolerance(scale)
 
 
 def structural_part(A, B, C):
@@ -119,6 +123,27 @@ def _fit_frequency(eigs, zeros):
     return w
 
 
+def _dc_from_ss(A, B, C, D):
+    """``D - C A^-1 B`` when ``A`` is well conditioned (no mode near the origin), else
+    None."""
+    if len(A) == 0:
+        return float(D[0, 0])
+    if np.linalg.cond(A) > 1e10:
+        return None
+    return float(D[0, 0] - C[0] @ np.linalg.solve(A, B[:, 0]))
+
+
+def _angles(s, roots):
+    """``arg(s - r)`` for ``s = jw`` (a column) and each root, continuous in ``w``: a
+    right-half-plane root's factor passes the negative real axis at ``w = Im r``, where
+    ``np.angle`` jumps by 2 pi; written as ``pi + arg(r - s)`` there it does not."""
+    w = s.imag
+    re, im = roots.real[None, :], roots.imag[None, :]
+    left = np.arctan2(w - im, -re)
+    right = math.pi + np.arctan2(im - w, re)
+    return np.where(re > 0, right, left)
+
+
 @dataclass(frozen=True)
 class Zpk:
     """``G(s) = k prod(s - zeros) / prod(s - poles)``, minimal (see the module docstring)."""
@@ -126,6 +151,7 @@ class Zpk:
     poles: np.ndarray
     k: float
     scale: float
+    dc: float | None = None      # G(0) from the state space when A is well conditioned
 
     @classmethod
     def from_ss(cls, sys):
@@ -138,6 +164,13 @@ class Zpk:
         scale = max(1.0, float(np.max(np.abs(A))))
         keep = structural_part(A, B, C)
         A, B, C = A[np.ix_(keep, keep)], B[keep, :], C[:, keep]
+        if len(keep):
+            # diagonal similarity: the companion form of a transfer function has entries of
+            # 1 beside 1e7; balanced, the eigenvalue and pencil problems lose far less
+            from scipy.linalg import matrix_balance
+            A, T = matrix_balance(A, permute=False)
+            t = np.diag(T)
+            B, C = B / t[:, None], C * t[None, :]
         eigs = np.linalg.eigvals(A) if len(keep) else np.zeros(0, complex)
         zeros = (pencil_zeros(A, B, C, D, 1e10 * scale) if len(keep)
                  else np.zeros(0, complex))
@@ -146,20 +179,22 @@ class Zpk:
         s0 = 1j * w0
         g0 = _response(A, B, C, D, s0)
         k = g0 * np.prod(s0 - poles) / np.prod(s0 - zeros)
-        return cls(zeros, poles, float(k.real), scale)
+        return cls(zeros, poles, float(k.real), scale, _dc_from_ss(A, B, C, D))
 
     def has_integrator(self):
-        """Whether a pole sits at the origin (to round-off)."""
-        top = max([abs(p) for p in self.poles] + [1.0])
-        return bool(np.any(np.abs(self.poles) < ORIGIN_REL * top))
+        """Whether a pole sits at the origin (to round-off, :func:`origin_tolerance`)."""
+        return bool(np.any(np.abs(self.poles) < origin_tolerance(self.scale)))
 
     def dc_gain(self):
-        """``G(0)``: inf with a free integrator, 0 with a zero at the origin."""
+        """``G(0)``: inf with a free integrator, 0 with a zero at the origin; else
+        ``D - C A^-1 B`` of the reduced state space when ``A`` is well conditioned (it does
+        not depend on how accurately the zeros came out), else from the factors."""
         if self.has_integrator():
             return math.inf
-        top = max([abs(p) for p in self.poles] + [1.0])
-        if self.k == 0.0 or np.any(np.abs(self.zeros) < ORIGIN_REL * top):
+        if self.k == 0.0 or np.any(np.abs(self.zeros) < origin_tolerance(self.scale)):
             return 0.0
+        if self.dc is not None:
+            return self.dc
         return float((self.k * np.prod(-self.zeros) / np.prod(-self.poles)).real)
 
     def log_mag_phase(self, w):
@@ -170,8 +205,8 @@ class Zpk:
         with np.errstate(divide="ignore"):
             logm = (math.log(abs(self.k)) if self.k != 0 else -math.inf) + (
                 np.sum(np.log(np.abs(fz)), axis=1) - np.sum(np.log(np.abs(fp)), axis=1))
-        phase = (math.pi if self.k < 0 else 0.0) + (np.sum(np.angle(fz), axis=1)
-                                                    - np.sum(np.angle(fp), axis=1))
+        phase = (math.pi if self.k < 0 else 0.0) + (np.sum(_angles(s, self.zeros), axis=1)
+                                                    - np.sum(_angles(s, self.poles), axis=1))
         return logm, phase
 
     def magnitude(self, w):
@@ -185,6 +220,11 @@ class Zpk:
         that width)."""
         roots = [r for r in list(self.poles) + list(self.zeros) if abs(r) > 0]
         mags = [abs(r) for r in roots] or [1.0]
+        # where |k| / w^r = 1 (r the relative degree): a gain crossover far beyond the
+        # roots (a loop gain of 1e5 on an integrator crosses at 1e5 rad/s)
+        r = len(self.poles) - len(self.zeros)
+        if r > 0 and self.k != 0:
+            mags.append(abs(self.k) ** (1.0 / r))
         lo, hi = min(mags) / 10 ** decades, max(mags) * 10 ** decades
         pts = [np.logspace(math.log10(lo), math.log10(hi), n)]
         for r in roots:
@@ -200,11 +240,11 @@ def _roots_of(f, w, values, target):
     ``w`` (``values = f(w)``), refined by Brent's method."""
     from scipy.optimize import brentq
     d = values - target
+    d[np.abs(d) < 1e-9] = 0.0       # on the target to round-off (1/s^2: -180 deg at all w)
     out = []
     for i in np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) < 0):
         out.append(float(brentq(lambda v: f(v) - target, w[i], w[i + 1],
                                 xtol=1e-14 * w[i + 1], rtol=4 * np.finfo(float).eps)))
-    out += [float(v) for v in w[d == 0.0]]
     return sorted(out)
 
 
@@ -222,9 +262,12 @@ def margins(zpk):
         wpc += _roots_of(lambda v: (zpk.log_mag_phase(v)[1][0] + math.pi) / (2 * math.pi),
                          w, turns, float(m))
     wgc = _roots_of(lambda v: zpk.log_mag_phase(v)[0][0], w, logm, 0.0)
+    gains = [(v, math.exp(-zpk.log_mag_phase(v)[0][0])) for v in wpc]
+    dc = zpk.dc_gain()
+    if len(zpk.poles) and np.isfinite(dc) and dc < 0:
+        gains.append((0.0, 1.0 / abs(dc)))       # -180 deg at w = 0
     gm, w_gm = math.inf, math.nan
-    for v in wpc:
-        g = math.exp(-zpk.log_mag_phase(v)[0][0])
+    for v, g in gains:
         if abs(math.log(g)) < abs(math.log(gm)) or math.isinf(gm):
             gm, w_gm = g, v
     pm, w_pm = math.inf, math.nan

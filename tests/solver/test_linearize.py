@@ -569,3 +569,57 @@ def test_brushless_current_loop_bandwidth_against_the_hand_formula():
     assert fig["dc_gain"] == pytest.approx(1.0, rel=1e-6)
     # the finite rotor inertia (1e6 kg.m2) leaves a back-EMF effect of a few 1e-5
     assert fig["bandwidth"] / (2 * math.pi) == pytest.approx(2000.0, rel=1e-4)
+
+
+@pytest.mark.parametrize("num, den", [
+    ([1.0], [1.0, -2.0, 101.0]),            # unstable pair 1 +- 10j: no crossing at 10 rad/s
+    ([-2.0], [1.0, 1.0]),                   # negative DC gain: -180 deg at w = 0, gm 0.5
+    ([1e5], [1.0, 0.0]),                    # integrator, gain 1e5: crossover at 1e5 rad/s
+    ([1e10], [1.0, 1.0, 0.0]),              # crossover near 1e5 rad/s, far beyond the pole
+    ([1.0, -1.0], [-1.0, -2.0, -1.0]),      # non-minimum-phase zero: gm 2 at sqrt(3)
+    ([1.0], [1.0, 0.0, 0.0]),               # double integrator: -180 deg at every w
+], ids=["unstable_pair", "negative_dc", "fast_integrator", "far_crossover", "nmp_zero",
+        "double_integrator"])
+def test_loop_margins_agree_with_python_control(num, den):
+    """Gain and phase margins and their frequencies equal ``control.margin`` on well
+    conditioned loops (each case a defect of the first pole-zero version, found by review:
+    the phase of a right-half-plane pair wrapped, w = 0 was not a crossover, the search
+    ended 1e4 times above the largest root, round-off around -180 deg made crossings)."""
+    sys = spidersim.loads(_tf_diagram(num, den)).linearize(["u.y"], ["g.y"], jit=False)
+    fig = siso_figures(sys)
+    gm, pm, wcg, wcp = (float(v) for v in control.margin(control.tf(num, den)))
+    for got, ref in ((fig["gain_margin"], gm), (fig["phase_margin"], pm),
+                     (fig["phase_crossover"], wcg), (fig["gain_crossover"], wcp)):
+        if math.isnan(ref) or math.isinf(ref):
+            assert got == ref or (math.isnan(ref) and math.isnan(got)), (got, ref, fig)
+        else:
+            assert got == pytest.approx(ref, rel=1e-7, abs=1e-9), (got, ref, fig)
+
+
+def test_slow_pole_beside_fast_pole_is_not_an_integrator():
+    """1 / ((s + 0.05)(s / 1e5 + 1)): DC gain 20, bandwidth about 0.05 rad/s (a pole
+    0.05 rad/s was taken for an integrator when 'at the origin' was relative to the
+    fastest pole); (s + 0.05) / ((s + 1)(s / 1e5 + 1)): DC gain 0.05, not 0."""
+    den = np.polymul([1.0, 0.05], [1e-5, 1.0])
+    fig = siso_figures(spidersim.loads(_tf_diagram([1.0], den.tolist())).linearize(
+        ["u.y"], ["g.y"], jit=False))
+    assert fig["dc_gain"] == pytest.approx(20.0, rel=1e-9)
+    assert fig["bandwidth"] == pytest.approx(0.05, rel=1e-3)
+    den2 = np.polymul([1.0, 1.0], [1e-5, 1.0])
+    fig2 = siso_figures(spidersim.loads(_tf_diagram([1.0, 0.05], den2.tolist())).linearize(
+        ["u.y"], ["g.y"], jit=False))
+    assert fig2["dc_gain"] == pytest.approx(0.05, rel=1e-9)
+
+
+def test_feedthrough_with_large_coefficients_keeps_its_zeros():
+    """A proper 4th-order transfer function (relative degree 0) with a denominator constant
+    of 2.7e7 (the companion form's largest entry): its four zeros and DC gain num(0)/den(0)
+    (the unbalanced pencil gave -6.77 and -3.52 for -6.58 and -3.84, DC gain 6 % off)."""
+    zeros = np.array([-3.8417, -6.5797, -28.8804, -73.9246])
+    num = (39.6 * np.poly(zeros)).tolist()
+    den = [1.0, 74.2566, 12618.38366, 292027.514199, 26647825.4991]
+    fig = siso_figures(spidersim.loads(_tf_diagram(num, den)).linearize(
+        ["u.y"], ["g.y"], jit=False))
+    assert fig["dc_gain"] == pytest.approx(num[-1] / den[-1], rel=1e-9)
+    # the pencil of a companion form stays ill-conditioned: about 2e-6 here
+    assert np.sort(fig["zeros"].real) == pytest.approx(np.sort(zeros), rel=1e-5)
