@@ -41,7 +41,8 @@ class HybridForceController(Block):
         "model": Param("spider", kind="str", file=True, doc="arm data ('spider' or a path)"),
         "q0": Param(0.0, "rad", "pose whose flange orientation is held", shape=_N),
         "selection": Param([1.0, 1.0, 0.0, 1.0, 1.0, 1.0], "1",
-                           "1: position-controlled, 0: force-controlled (x y z, rx ry rz)",
+                           "1: position-controlled, 0: force-controlled (x y z; the "
+                           "rotations rx ry rz are position-controlled: 1)",
                            shape=6),
         "Kp": Param(400.0, "1/s2", "position stiffness per unit task inertia", shape=6,
                     ge=0.0),
@@ -78,6 +79,12 @@ class HybridForceController(Block):
         if not np.all((s == 0.0) | (s == 1.0)):
             raise ValueError(f"selection must hold 0 (force) or 1 (position) per task "
                              f"direction, got {s.tolist()}")
+        if not np.all(s[3:] == 1.0):
+            # F_ref, F_meas and the force integral are forces (3 entries): a rotation
+            # marked 0 would be neither position- nor moment-controlled, silently
+            raise ValueError(f"selection: the rotations (entries 4-6: rx ry rz) must be 1 "
+                             f"(position-controlled); this controller regulates forces "
+                             f"along x y z only, not moments; got {s.tolist()}")
 
     @classmethod
     def derive(cls, params):

@@ -122,7 +122,11 @@ class WrenchSensor(Block):
 
         u = -w_ext                      (w_ext: the environment's wrench on the flange)
         u_s = R^T u  (frame 'flange'),  u_s = u  (frame 'base')
-        dF/dt = 2 pi f_c (u_s - F)
+        dF/dt = 2 pi f_c (u_s + bias - F)
+
+    The ``bias`` (an offset of the sensor's electronics) goes through the low-pass with the
+    wrench: the reading starts at ``F(0) = 0`` and reaches the bias with the filter's time
+    constant ``1 / (2 pi f_c)``.
 
     Force [N] first, then moment [N.m] about the flange origin. The output is a state:
     no direct feedthrough, so a force loop through the sensor has no algebraic loop.
@@ -132,7 +136,8 @@ class WrenchSensor(Block):
     parameters = {"f_c": Param(100.0, "Hz", "bandwidth (first-order low-pass)", gt=0.0),
                   "frame": Param("base", kind="str", choices=("base", "flange"),
                                  doc="axes of the reading: base frame or flange frame"),
-                  "bias": Param(0.0, "*", "offset added to the reading (N, N.m)", shape=6)}
+                  "bias": Param(0.0, "*", "offset added to the wrench before the low-pass "
+                                "(N, N.m)", shape=6)}
     inputs = {"wrench": Port("*", size=6, doc="environment's wrench on the flange (Arm.f_ext)"),
               "rot": Port("1", size=9, optional=lambda p: p["frame"] == "base",
                           doc="flange rotation, row-major (needed for frame 'flange')")}

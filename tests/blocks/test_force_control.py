@@ -110,6 +110,14 @@ def test_selection_must_be_zero_or_one():
         _probe(selection=[1, 1, 0.5, 1, 1, 1])
 
 
+def test_selection_of_a_rotation_must_be_position():
+    """The force law regulates forces along x y z only (F_ref, F_meas: 3 entries used): a
+    rotation marked 0 was neither position- nor moment-controlled, without a word."""
+    from spidersim.errors import ParameterError
+    with pytest.raises(ParameterError, match=r"rotations \(entries 4-6: rx ry rz\) must be 1"):
+        _probe(selection=[1, 1, 1, 1, 1, 0])
+
+
 @pytest.mark.parametrize("frame", ["base", "flange"])
 def test_wrench_sensor_reads_the_wrench_on_the_environment(frame, chain):
     """Steady state of the first-order sensor: -w_ext in base axes, R^T (-w_ext) in flange
