@@ -202,7 +202,8 @@ class RigidContact(_Plane):
         **_Plane.plane,
         "zeta": Param(1.0, "1", "Baumgarte damping ratio", gt=0.0),
         "omega": Param(100.0, "rad/s", "Baumgarte natural frequency", gt=0.0),
-        "engaged": Param(False, kind="bool", doc="in contact from the start"),
+        "engaged": Param(False, kind="bool", doc="in contact from the start (the point "
+                         "must be on the plane at t = 0: not checked)"),
         "lam0": Param(0.0, "N", "initial guess of the constraint force"),
     }
     inputs = {"pos": Port("m", size=3, doc="position of the contact point (base frame)"),
@@ -378,7 +379,8 @@ class RigidContact6(Block):
         "zeta": Param(1.0, "1", "Baumgarte damping ratio", gt=0.0),
         "omega": Param(100.0, "rad/s", "Baumgarte natural frequency", gt=0.0),
         "engaged": Param(False, kind="bool", doc="every selected direction engaged from "
-                                                 "the start (the flange on the frame)"),
+                                                 "the start (the flange must be on the "
+                                                 "frame at t = 0: not checked)"),
         "lam0": Param(0.0, "*", "initial guess of the multipliers (1 or 6 values)",
                       shape="*"),
     }
