@@ -517,6 +517,16 @@ def _check_analysis(d, t_end):
                                f"mapping or a time in [0, t_end] (0 or at least 1e-07 "
                                f"s), got {at!r}", file=d.file,
                                line=lines(name))
+        if isinstance(at, dict):
+            from .diagram.analysis import AnalysisError, trim_request
+            try:
+                trim_request(at)
+            except AnalysisError as exc:
+                raise DiagramError(f"analysis '{name}': {exc}", file=d.file,
+                                   line=lines(name)) from None
+        if loop is not None and (inputs or outputs):
+            raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
+                               f"'outputs', not both", file=d.file, line=lines(name))
 
 
 def validate_run(d, t_end=None, method=None):
@@ -593,6 +603,7 @@ def cmd_linearize(args):
 
     d = load(args.file, set=_parse_sets(args.set))
     jit = not args.no_jit
+    _check_linearize_options(args)
     if args.name is None and not (args.input or args.loop):
         if not d.spec.analysis:
             raise SpidersimError("the file has no 'analysis' section: give --input/--output "
@@ -623,6 +634,21 @@ def cmd_linearize(args):
                                    f"0 or at least 1e-07 s, got {args.at}", file=d.file)
         _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, outs[name])
     return 0
+
+
+def _check_linearize_options(args):
+    """An analysis NAME, ``--loop`` and ``--input``/``--output`` choose what to linearize:
+    one of them, never two (the others were dropped without a word); ``--output`` and
+    ``--open`` need ``--input``."""
+    given = [what for what, on in (("an analysis name", args.name is not None),
+                                   ("--loop", bool(args.loop)),
+                                   ("--input/--output", bool(args.input or args.output)))
+             if on]
+    if len(given) > 1:
+        raise SpidersimError(f"linearize: give {' or '.join(given)}, not both (they choose "
+                             f"different linearizations)")
+    if (args.output or args.open) and not args.input and not args.loop:
+        raise SpidersimError("linearize: --output and --open need at least one --input")
 
 
 def _linearize_out(d, args, name):

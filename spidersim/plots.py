@@ -143,6 +143,9 @@ def _check_plot_numbers(p, k, file, line):
             raise DiagramError(f"plots[{k}]: '{key}' must be a finite number of seconds"
                                f"{' (Hz)' if key == 'f_max' else ''}, got {v!r}",
                                file=file, line=_key_line(p, key, line))
+    if "f_max" in p and not p["f_max"] > 0:
+        raise DiagramError(f"plots[{k}]: 'f_max' must be a frequency > 0 Hz, got "
+                           f"{p['f_max']!r}", file=file, line=_key_line(p, "f_max", line))
     if "t_min" in p and "t_max" in p and not p["t_min"] < p["t_max"]:
         raise DiagramError(f"plots[{k}]: 't_min' ({p['t_min']!r} s) must be before 't_max' "
                            f"({p['t_max']!r} s)", file=file, line=_key_line(p, "t_max", line))

@@ -84,3 +84,54 @@ def test_at_outside_the_run_is_refused(capsys, at):
                         "--no-jit")
     assert rc == 2 and "--at: the operating point's time must be in [0, t_end] = [0, 1] s" \
         in err and "Traceback" not in err
+
+
+def _servo_with_analysis(tmp_path, entry):
+    """servo.yaml with its analysis section replaced by one entry ``x``."""
+    text = open(SERVO).read().split("\nanalysis:")[0]
+    path = tmp_path / "servo_x.yaml"
+    path.write_text(text + "\nanalysis:\n  x: " + entry + "\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("entry, words", [
+    ("{loop: pos_ctrl.y, at: {trim: {targets: {motor.w: 1e9}, derivatives: 7}}}",
+     "'derivatives' ('all' or a list) must be a list"),
+    ("{loop: pos_ctrl.y, at: {trim: {targetz: {motor.w: 1}}}}", "unknown key 'targetz'"),
+    ("{loop: pos_ctrl.y, at: {trim: {targets: {motor.w: .nan}}}}",
+     "target 'motor.w' must be a finite number"),
+    ("{loop: pos_ctrl.y, at: {trim: {free_inputs: sat.y}}}",
+     "'free_inputs' must be a list"),
+    ("{loop: pos_ctrl.y, inputs: [pos_ctrl.y], outputs: [motor.w]}",
+     "give either 'loop' or 'inputs' and 'outputs', not both"),
+])
+def test_check_refuses_bad_trim_and_analysis_entries(tmp_path, capsys, entry, words):
+    """``check`` refuses what ``linearize`` would fail on, with the entry's line: a trim
+    mapping's keys and values (each of these was an internal error, or was accepted by
+    check), and an entry with both a loop and inputs/outputs (the latter were dropped)."""
+    path = _servo_with_analysis(tmp_path, entry)
+    assert main(["check", path]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "servo_x.yaml:" in err, err
+
+
+def test_trim_target_written_as_text_is_a_number(tmp_path, capsys):
+    """``motor.w: 1e9`` (text to YAML 1.1) is a number here as everywhere else: an
+    unreachable target is a clear 'trim did not converge', not an internal error."""
+    path = _servo_with_analysis(tmp_path, "{loop: pos_ctrl.y, at: {trim: {targets: "
+                                           "{motor.w: 1e9}}}}")
+    assert main(["linearize", path, "x", "--no-jit", "--out", str(tmp_path / "o")]) == 2
+    assert "trim did not converge" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["current_loop", "--loop", "pos_ctrl.y"], "give an analysis name or --loop, not both"),
+    (["--loop", "motor.w", "--input", "pos_ctrl.y", "--output", "motor.w"],
+     "give --loop or --input/--output, not both"),
+    (["--output", "motor.w"], "--output and --open need at least one --input"),
+])
+def test_conflicting_linearize_options_are_refused(tmp_path, capsys, argv, words):
+    """Options that choose different linearizations are refused (the later ones were
+    dropped without a word)."""
+    assert main(["linearize", SERVO] + argv + ["--out", str(tmp_path / "o")]) == 2
+    assert words in capsys.readouterr().err

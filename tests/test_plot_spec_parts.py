@@ -40,6 +40,8 @@ def test_keys_and_kind_are_checked_before_values():
     ({"title": [1]}, "'title' must be a text, got a list"),
     ({"ylabel": {}}, "'ylabel' must be a text, got a mapping"),
     ({"t_min": 2, "t_max": 1}, "'t_min' (2 s) must be before 't_max' (1 s)"),
+    ({"f_max": 0}, "'f_max' must be a frequency > 0 Hz, got 0"),
+    ({"f_max": -5}, "'f_max' must be a frequency > 0 Hz"),
     # math text matplotlib cannot draw failed the plots after the data was written
     ({"title": "$\\sqrt{$"}, "'title' holds math text ($...$) that matplotlib cannot draw"),
     ({"ylabel": "$\\frac{1}{0}$ $$"}, "'ylabel' holds math text"),

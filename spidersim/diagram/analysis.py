@@ -25,6 +25,8 @@ import difflib
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import math
+
 import numpy as np
 
 from ..blocks.base import REGISTRY
@@ -275,12 +277,78 @@ def _instance(path, type_name, params, file):
     return Instance(path, cls, cls.validate_params(params), file, 0, {})
 
 
+#: the keys of a ``{trim: {...}}`` operating point (the arguments of :func:`trim`)
+TRIM_KEYS = ("targets", "derivatives", "free_inputs", "x0", "t", "tol")
+
+
+def _number(v, what):
+    """A finite float from a YAML value (a number, or a text such as ``1e9``, which YAML
+    1.1 reads as text, evaluated as an expression as everywhere in a diagram)."""
+    from ..text.expr import ExprError, evaluate
+    if isinstance(v, str):
+        try:
+            v = evaluate(v, {})
+        except ExprError as exc:
+            raise AnalysisError(f"{what}: {exc}") from None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise AnalysisError(f"{what} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _names(v, what):
+    if not isinstance(v, list) or not all(isinstance(n, str) for n in v):
+        raise AnalysisError(f"{what} must be a list of signal or state names, got {v!r}")
+    return list(v)
+
+
+def trim_request(at):
+    """The keyword arguments of :func:`trim` from an operating point ``{trim: {...}}``,
+    checked: known keys, ``targets`` a mapping of signal names to finite numbers (or lists
+    of them), ``derivatives`` ``"all"`` or a list of state names, ``free_inputs`` a list of
+    signal names, ``x0`` a list of numbers, ``t`` a time, ``tol`` > 0. An
+    :class:`AnalysisError` names what is wrong."""
+    if not isinstance(at, dict) or set(at) != {"trim"}:
+        raise AnalysisError(f"an operating point mapping is {{trim: {{targets: ..., "
+                            f"free_inputs: [...], derivatives: [...]}}}}, got {at!r}")
+    spec = at["trim"] if at["trim"] is not None else {}
+    if not isinstance(spec, dict):
+        raise AnalysisError(f"'trim' must be a mapping of {', '.join(TRIM_KEYS)}, got "
+                            f"{spec!r}")
+    unknown = [k for k in spec if k not in TRIM_KEYS]
+    if unknown:
+        raise AnalysisError(f"trim: unknown key '{unknown[0]}' (keys: {', '.join(TRIM_KEYS)})")
+    kw = {}
+    targets = spec.get("targets") or {}
+    if not isinstance(targets, dict):
+        raise AnalysisError(f"trim: 'targets' must be a mapping of signals to values, got "
+                            f"{targets!r}")
+    kw["targets"] = {str(k): ([_number(x, f"trim: target '{k}'") for x in v]
+                              if isinstance(v, list) else _number(v, f"trim: target '{k}'"))
+                     for k, v in targets.items()}
+    der = spec.get("derivatives", "all")
+    kw["derivatives"] = der if der == "all" else _names(der, "trim: 'derivatives' ('all' or "
+                                                             "a list)")
+    kw["free_inputs"] = _names(spec.get("free_inputs") or [], "trim: 'free_inputs'")
+    if spec.get("x0") is not None:
+        x0 = spec["x0"]
+        if not isinstance(x0, list):
+            raise AnalysisError(f"trim: 'x0' must be a list of numbers, got {x0!r}")
+        kw["x0"] = [_number(v, "trim: an entry of 'x0'") for v in x0]
+    if "t" in spec:
+        kw["t"] = _number(spec["t"], "trim: 't'")
+    if "tol" in spec:
+        kw["tol"] = _number(spec["tol"], "trim: 'tol'")
+        if kw["tol"] <= 0:
+            raise AnalysisError(f"trim: 'tol' must be > 0, got {kw['tol']:g}")
+    return kw
+
+
 def operating_point(d, at, jit=True):
     """Resolve ``at`` into an :class:`OperatingPoint` of diagram ``d``."""
     if isinstance(at, OperatingPoint):
         return at
-    if isinstance(at, dict) and "trim" in at:
-        return trim(d, jit=jit, **(at["trim"] or {}))
+    if isinstance(at, dict):
+        return trim(d, jit=jit, **trim_request(at))
     if at is None or at == "initial":
         system = d.compile(jit)
         x = system.x0.copy()
