@@ -543,6 +543,29 @@ def validate_run(d, t_end=None, method=None):
                      lines=getattr(raw, "lines", None))
     parse_metrics(d)
     _check_analysis(d, t_end)
+    _check_windows(d, raw)
+
+
+def _check_windows(d, raw_plots):
+    """A plot's ``t_min`` and the microgravity ``window`` start before the file's own
+    ``t_end`` (a spectrum window after it was drawn from the whole record under a title
+    naming the window; a microgravity window after it gave no verdict, with exit status 0).
+    A shorter ``--t-end`` is a deliberate short run: it keeps its note at the end."""
+    t_end = d.simulation["t_end"]
+    lines = getattr(raw_plots, "lines", None) or []
+    for k, p in enumerate(d.spec.plots):
+        if isinstance(p.get("t_min"), (int, float)) and p["t_min"] >= t_end:
+            raise DiagramError(f"plots[{k}]: 't_min' ({p['t_min']:g} s) is not before the end "
+                               f"of the run (simulation.t_end = {t_end:g} s)", file=d.file,
+                               line=lines[k] if k < len(lines) else None)
+    mg = d.microgravity
+    if mg and mg.get("window") is not None and mg["window"][0] >= t_end:
+        raise DiagramError(f"microgravity: the window starts at {mg['window'][0]:g} s, not "
+                           f"before the end of the run (simulation.t_end = {t_end:g} s): no "
+                           f"verdict "
+                           f"could be given", file=d.file,
+                           line=getattr(d.spec.data, "line_of", lambda k: None)(
+                               "microgravity"))
 
 
 def cmd_check(args):
