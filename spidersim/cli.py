@@ -952,8 +952,9 @@ _SHOW_WARNING = warnings.showwarning
 def _check_arguments(argv):
     """Refuse an argument that is not text: bytes that are not UTF-8 reach Python as lone
     surrogates (``--set V_max=$'\\xff'``), which no name, value or path can hold."""
+    from .text.yamlio import lone_surrogate
     for a in argv:
-        if isinstance(a, str) and any("\ud800" <= c <= "\udfff" for c in a):
+        if isinstance(a, str) and lone_surrogate(a):
             shown = a.encode("utf-8", "backslashreplace").decode("utf-8")
             raise DiagramError(f"argument '{shown}' is not UTF-8 text (a byte that is not "
                                f"UTF-8 arrives as an escape \\udcXX)")

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 import spidersim
 from spidersim.errors import SpidersimError
+from spidersim.text.yamlio import lone_surrogate
 
 from .commands import prepare
 from .library import BadName, Library, UnknownModel
@@ -96,9 +97,6 @@ Command = Annotated[Union[TableCommand, JointPathCommand, CartesianLineCommand, 
 Value = Union[float, int, bool, str, list, Quantity]
 
 
-_SURROGATE = re.compile("[\ud800-\udfff]")
-
-
 class RunRequest(BaseModel):
     """A run: model, parameter and initial-state overrides, run length, command."""
     model_config = ConfigDict(extra="forbid")
@@ -119,12 +117,12 @@ class RunRequest(BaseModel):
         while stack:
             v, where = stack.pop()
             if isinstance(v, str):
-                if _SURROGATE.search(v):
+                if lone_surrogate(v):
                     raise ValueError(f"{where}: a lone surrogate escape (\\ud800-\\udfff) "
                                      f"is not a character")
             elif isinstance(v, dict):
                 stack += [(k, f"{where}: a key") for k in v]
-                stack += [(x, f"{where}.{k}" if isinstance(k, str) and not _SURROGATE.search(
+                stack += [(x, f"{where}.{k}" if isinstance(k, str) and not lone_surrogate(
                     k) else where) for k, x in v.items()]
             elif isinstance(v, list):
                 stack += [(x, f"{where}[{i}]") for i, x in enumerate(v)]

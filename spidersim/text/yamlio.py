@@ -128,6 +128,15 @@ _LEADING_ZERO = re.compile(r"^[-+]?0[0-9_]")
 _SURROGATE = re.compile("[\ud800-\udfff]")
 
 
+def lone_surrogate(text: str):
+    """The first lone surrogate (U+D800..U+DFFF) in ``text``, or None: not a character (a
+    ``"\\ud800"`` escape in YAML or JSON, a byte that is not UTF-8 on the command line); it
+    cannot be printed, stored or written to a file. Used by the loader, the CLI's arguments
+    and the service's requests."""
+    m = _SURROGATE.search(text)
+    return m.group() if m else None
+
+
 def _check_scalar(node):
     """Refuse a lone surrogate (``"\\ud800"`` in a quoted text: not a character, it cannot
     be printed or written to a file), the YAML 1.1 number forms a reader does not expect
@@ -135,9 +144,9 @@ def _check_scalar(node):
     its line."""
     text = node.value
     line = node.start_mark.line + 1
-    m = _SURROGATE.search(text)
-    if m:
-        raise DiagramError(f"a lone surrogate \\u{ord(m.group()):04x} (an escape in a quoted "
+    ch = lone_surrogate(text)
+    if ch:
+        raise DiagramError(f"a lone surrogate \\u{ord(ch):04x} (an escape in a quoted "
                            f"text) is not a character", line=line)
     if node.tag not in (_INT_TAG, _FLOAT_TAG) or node.style is not None:
         return
