@@ -90,6 +90,36 @@ blocks:
     assert np.array_equal(r["a.x"], r["b.x"])
 
 
+@pytest.mark.parametrize("f", [0.7, 2.3, 3.1])
+def test_nearly_simultaneous_crossings_fire_once_each(engine, f):
+    """Two saturations whose inputs cross zero at the same instant in exact arithmetic:
+    ``cos(2 pi f t)`` from a source (exact in t) and from an integrated oscillator (its
+    crossing a few 1e-14 s off). Located within 2 xtol of each other they are one instant;
+    applied at the earlier one, the later guard was still on its old side and fired a second
+    time a hair later (ROS34PW2 at f = 0.7, DP54 at f = 2.3: one event too many)."""
+    text = f"""
+parameters: {{f: {f}}}
+blocks:
+  src: {{type: Sine, amplitude: 1.0, f: f, phase: pi/2}}
+  sat: {{type: Saturation, lower: 0.0, upper: 10.0}}
+  osc: {{type: StateSpace, A: [[0.0, 1.0], [-(2*pi*f)**2, 0.0]], B: [[0.0], [0.0]],
+         C: [[1.0, 0.0]], x0: [1.0, 0.0]}}
+  sat2: {{type: Saturation, lower: 0.0, upper: 10.0}}
+  zero: {{type: Constant, value: 0.0}}
+connections:
+  - src.y -> sat.u
+  - zero.y -> osc.u
+  - osc.y -> sat2.u
+simulation: {{t_end: 2.0, rtol: 1e-10, atol: 1e-12}}
+"""
+    r = spidersim.loads(text).simulate(**engine)
+    exact = np.array([(2 * k + 1) / (4 * f) for k in range(100) if (2 * k + 1) / (4 * f) <= 2])
+    for blk in ("sat", "sat2"):
+        times = np.array([t for t, b, _e in r.events if b == blk])
+        assert times.size == exact.size, (blk, times, exact)
+        assert np.max(np.abs(times - exact)) < 1e-8
+
+
 def test_event_saturation_switches_exactly_at_the_corner(engine):
     text = """
 blocks:
