@@ -167,14 +167,14 @@ def _check_plot_texts(p, k, file, line):
         if key in p and (isinstance(p[key], bool) or not isinstance(p[key], (str, int, float))):
             raise DiagramError(f"plots[{k}]: '{key}' must be a text, got "
                                f"{_kind_of(p[key])}", file=file, line=_key_line(p, key, line))
-        problem = _math_text_problem(str(p.get(key, "")))
+        problem = math_text_problem(str(p.get(key, "")))
         if problem:
             raise DiagramError(f"plots[{k}]: '{key}' holds math text ($...$) that matplotlib "
                                f"cannot draw: {problem}; write a literal dollar as \\$",
                                file=file, line=_key_line(p, key, line))
 
 
-def _math_text_problem(text):
+def math_text_problem(text):
     """What matplotlib's math-text parser says about ``text`` (None when it draws it, or
     when it is not math text: no pair of unescaped ``$``). Checked before the run, so that a
     title cannot fail the plots after the data is written."""

@@ -44,7 +44,7 @@ import numpy as np
 
 from .errors import DiagramError, SpidersimError
 from .outputs import safe_stem, save_figure, write_atomic
-from .plots import signal_values, split_signal
+from .plots import math_text_problem, signal_values, split_signal
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
 
@@ -130,6 +130,14 @@ def parse_metrics(diagram) -> list[Metric]:
         unit = entry.get("unit", "")
         if isinstance(unit, bool) or not isinstance(unit, (str, int)):
             fail(f"'unit' must be a text (it labels the axis), got {_shown(unit)}")
+        unit = str(unit)
+        if len(unit) > 40 or not unit.isprintable():
+            fail(f"'unit' labels the axis: one line of at most 40 characters, got "
+                 f"{unit[:40]!r}")
+        problem = math_text_problem(unit)
+        if problem:
+            fail(f"'unit' holds math text ($...$) that matplotlib cannot draw: {problem}; "
+                 f"write a literal dollar as \\$")
         out.append(Metric(str(name), sig, idx if n > 1 else None, red, str(unit)))
     return out
 

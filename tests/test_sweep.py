@@ -231,6 +231,10 @@ def test_vary_values():
     ("{signal: 'body.vel[3]', reduce: max}", "index 3 out of range"),
     ("{signal: wall.fn, reduce: biggest}", "unknown reduce 'biggest'"),
     ("{signal: wall.fn, reduce: max, scale: 2}", "unknown key"),
+    # the unit labels the sweep plot's axis: math text matplotlib cannot draw failed the
+    # plots after every run (an internal error)
+    ("{signal: wall.fn, reduce: max, unit: '$\\\\foo$'}", "math text"),
+    ("{signal: wall.fn, reduce: max, unit: \"N\\nm\"}", "one line"),
 ])
 def test_metric_errors_name_the_metric_and_line(tmp_path, entry, message):
     text = DROP.split("metrics:")[0] + f"metrics:\n  bad: {entry}\n"
