@@ -622,7 +622,6 @@ def cmd_blocks(args):
 
 def cmd_linearize(args):
     from . import load
-    from .linreport import analysis_request, parse_at
 
     d = load(args.file, set=_parse_sets(args.set))
     jit = not args.no_jit
@@ -634,29 +633,38 @@ def cmd_linearize(args):
         names = list(d.spec.analysis)          # every analysis of the file
     else:
         names = [args.name]
+    # every request checked before a folder is made (a bad analysis left empty folders)
+    requests = {name: _linearize_request(d, args, name) for name in names}
     outs = {name: prepare_out(_linearize_out(d, args, name)) for name in names}
     for name in names:
-        if name is not None:
-            inputs, outputs, opened, at, loop = analysis_request(d, name)
-            if loop is None and not (inputs and outputs):
-                lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
-                raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' "
-                                   f"and 'outputs' (at least one of each), got "
-                                   f"{len(inputs)} input(s) and {len(outputs)} output(s)",
-                                   file=d.file, line=lines(name))
-            if isinstance(at, str):
-                at = parse_at(at)
-        else:
-            inputs, outputs, opened = args.input or [], args.output or [], args.open or []
-            at, loop = None, args.loop
-        if args.at is not None:
-            at = parse_at(args.at)
-            if not _valid_analysis_time(at, d.simulation["t_end"]):
-                raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
-                                   f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
-                                   f"0 or at least 1e-07 s, got {args.at}", file=d.file)
-        _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, outs[name])
+        _linearize_one(d, args, name, *requests[name], jit, outs[name])
     return 0
+
+
+def _linearize_request(d, args, name):
+    """``(inputs, outputs, opened, at, loop)`` of one linearization: the named analysis of
+    the file (``name``) or the command line's signals, ``--at`` applied."""
+    from .linreport import analysis_request, parse_at
+    if name is not None:
+        inputs, outputs, opened, at, loop = analysis_request(d, name)
+        if loop is None and not (inputs and outputs):
+            lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
+            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' "
+                               f"and 'outputs' (at least one of each), got "
+                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                               file=d.file, line=lines(name))
+        if isinstance(at, str):
+            at = parse_at(at)
+    else:
+        inputs, outputs, opened = args.input or [], args.output or [], args.open or []
+        at, loop = None, args.loop
+    if args.at is not None:
+        at = parse_at(args.at)
+        if not _valid_analysis_time(at, d.simulation["t_end"]):
+            raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
+                               f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
+                               f"0 or at least 1e-07 s, got {args.at}", file=d.file)
+    return inputs, outputs, opened, at, loop
 
 
 def _check_linearize_options(args):

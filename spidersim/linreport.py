@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 
 import numpy as np
 
@@ -11,6 +12,7 @@ from .errors import DiagramError
 from .outputs import save_figure, write_atomic
 
 ANALYSIS_KEYS = ("inputs", "outputs", "open", "at", "loop")
+_ANALYSIS_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]{0,63}\Z")
 
 
 def analysis_request(d, name):
@@ -24,6 +26,10 @@ def analysis_request(d, name):
                            f"{', '.join(section) or 'none'})", file=d.file)
     entry = section[name]
     line = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)(name)
+    if not isinstance(name, str) or not _ANALYSIS_NAME.match(name):
+        raise DiagramError(f"analysis {name!r}: an analysis name is an identifier (letters, "
+                           f"digits, _ and -; it names a folder and titles the plots), e.g. "
+                           f"current_loop", file=d.file, line=line)
     if not isinstance(entry, dict):
         raise DiagramError(f"analysis '{name}' must be a mapping with inputs/outputs or loop",
                            file=d.file, line=line)

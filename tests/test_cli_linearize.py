@@ -135,3 +135,18 @@ def test_conflicting_linearize_options_are_refused(tmp_path, capsys, argv, words
     dropped without a word)."""
     assert main(["linearize", SERVO] + argv + ["--out", str(tmp_path / "o")]) == 2
     assert words in capsys.readouterr().err
+
+
+def test_analysis_name_with_math_text_is_refused_before_any_folder(tmp_path, capsys):
+    """An analysis name titles the Bode plot and names a folder: '$\\foo$' was an internal
+    error in matplotlib after an empty folder had been made; now check and linearize refuse
+    it with the file and line, and nothing is written."""
+    path = tmp_path / "lin.yaml"
+    path.write_text("blocks:\n  c: {type: Step}\n  g: {type: TransferFunction, num: [1], "
+                    "den: [1, 1]}\nconnections:\n  - c.y -> g.u\nanalysis:\n  ok: {inputs: "
+                    "[c.y], outputs: [g.y]}\n  '$\\foo$': {inputs: [c.y], outputs: [g.y]}\n")
+    out = tmp_path / "out"
+    for argv in (["check", path], ["linearize", path, "--no-jit", "--out", out]):
+        rc, _out, err = _run(capsys, *argv)
+        assert rc == 2 and "lin.yaml:8" in err and "an analysis name is an identifier" in err
+    assert not out.exists()

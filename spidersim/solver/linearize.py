@@ -146,8 +146,12 @@ def loop_notes(sys):
 
 
 def peak_gain(sys, n=800):
-    """``(peak |G(jw)|, w at the peak [rad/s])`` over a grid spanning the poles and zeros
-    of the minimal form (:class:`~.siso.Zpk`)."""
+    """``(peak |G(jw)|, w at the peak [rad/s])``: the largest of ``|G(0)|`` (finite DC gain,
+    ``w = 0``; inf with a free integrator), ``|G(j inf)|`` of a biproper pair (``w = inf``)
+    and the maximum over a grid spanning the poles and zeros of the minimal form
+    (:class:`~.siso.Zpk`), refined between the grid point's neighbours (bounded scalar
+    search on ``ln w``), so that a resonance between grid points is not under-read."""
+    from scipy.optimize import minimize_scalar
     g = _zpk(sys)
     marks = [abs(p) for p in list(g.poles) + list(g.zeros) if np.isfinite(p) and abs(p) > 0]
     lo, hi = min(marks + [1.0]) / 1e3, max(marks + [1.0]) * 1e3
@@ -156,7 +160,23 @@ def peak_gain(sys, n=800):
     with np.errstate(all="ignore"):
         logm = g.log_mag_phase(w)[0]
     k = int(np.nanargmax(logm))
-    return float(math.exp(logm[k])), float(w[k])
+    best, w_best = float(logm[k]), float(w[k])
+    a, b = math.log(w[max(k - 1, 0)]), math.log(w[min(k + 1, w.size - 1)])
+    if b > a:
+        with np.errstate(all="ignore"):
+            res = minimize_scalar(lambda lw: -float(g.log_mag_phase([math.exp(lw)])[0][0]),
+                                  bounds=(a, b), method="bounded",
+                                  options={"xatol": 1e-10})
+        if np.isfinite(res.fun) and -res.fun > best:
+            best, w_best = -float(res.fun), math.exp(float(res.x))
+    dc = abs(g.dc_gain())
+    if math.isinf(dc):
+        return math.inf, 0.0                     # a free integrator: unbounded as w -> 0
+    if dc > 0 and math.log(dc) >= best - 1e-12:
+        return dc, 0.0
+    if len(g.poles) == len(g.zeros) and g.k != 0 and math.log(abs(g.k)) >= best - 1e-12:
+        return abs(float(g.k)), math.inf         # biproper: the supremum is |G(j inf)|
+    return float(math.exp(best)), w_best
 
 
 def format_figures(fig, name="", loop=False):
