@@ -8,6 +8,11 @@ import math
 
 from .base import Block, Mode, Param, Port
 
+#: the shortest segment of a via-point path [s]: the shortest run the engine integrates
+#: (``solver.events.MIN_SPAN``); a shorter one is a typing slip whose slope and polynomial
+#: coefficients would be huge (1e-13 s between two points: a reference of 1e11 units/s)
+MIN_SEGMENT = 1e-7
+
 _OUT = {"q": Port("*", doc="position (rad or m: the unit of the positions given)"),
         "qd": Port("@q/s", doc="velocity [unit/s]"),
         "qdd": Port("@q/s2", doc="acceleration [unit/s2]")}
@@ -178,7 +183,8 @@ class ViaPointProfile(Block):
     category = "sources"
     parameters = {
         "points": Param(unit="@q", doc="via positions q_0 .. q_n (at least 2)", shape="*"),
-        "times": Param(doc="times of the via points, strictly increasing from t_0 >= 0",
+        "times": Param(doc="times of the via points, strictly increasing from t_0 >= 0, "
+                           "at least 1e-7 s apart",
                        unit="s", shape="points", ge=0.0),
     }
     outputs = _OUT
@@ -196,6 +202,16 @@ class ViaPointProfile(Block):
             raise ValueError(f"parameter 'times' must be strictly increasing: "
                              f"times[{k + 1}] = {v[k + 1]:g} s is not after "
                              f"times[{k}] = {v[k]:g} s")
+        v = np.ravel(params["times"]).astype(float)
+        if not np.all(np.isfinite(v)):
+            raise ValueError("parameter 'times' must be finite")
+        h = np.diff(v)
+        if np.any(h < MIN_SEGMENT):
+            k = int(np.argmin(h))
+            raise ValueError(f"parameter 'times': the segment from times[{k}] = {v[k]:.15g} s "
+                             f"to times[{k + 1}] = {v[k + 1]:.15g} s lasts {h[k]:.3g} s, "
+                             f"shorter than {MIN_SEGMENT:g} s (the run's time resolution); "
+                             f"its slope would be (q_{k + 1} - q_{k}) / {h[k]:.3g} s")
 
     @classmethod
     def derive(cls, params):

@@ -155,6 +155,19 @@ def test_check_refuses_non_increasing_times(times):
                         f"times: {times}}}\n")
 
 
+def test_check_refuses_a_segment_shorter_than_the_time_resolution():
+    """1e-13 s between two via points (a typing slip) gave a reference velocity of 1e13
+    without a word; segments shorter than 1e-7 s (the shortest run) are refused, naming
+    the segment. 1e-7 s itself is accepted."""
+    text = "blocks:\n  r: {type: ViaPointProfile, points: [0, 1, 2], times: [0, 1, %s]}\n"
+    with pytest.raises(ParameterError, match=r"from times\[1\] = 1 s to times\[2\] = "
+                                             r"1.0000000000001 s lasts 9.99e-14 s"):
+        spidersim.loads(text % "1.0000000000001")
+    with pytest.raises(ParameterError, match="'times' must be finite"):
+        spidersim.loads(text % ".inf")
+    spidersim.loads(text % "1.0000001")
+
+
 def test_check_refuses_fewer_than_two_points():
     with pytest.raises(ParameterError, match="'points' needs at least 2 via points, got 1"):
         spidersim.loads("blocks:\n  r: {type: ViaPointProfile, points: [1], times: [0]}\n")
