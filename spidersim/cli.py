@@ -518,15 +518,26 @@ def _check_analysis(d, t_end):
                                f"s), got {at!r}", file=d.file,
                                line=lines(name))
         if isinstance(at, dict):
-            from .diagram.analysis import AnalysisError, trim_request
-            try:
-                trim_request(at)
-            except AnalysisError as exc:
-                raise DiagramError(f"analysis '{name}': {exc}", file=d.file,
-                                   line=lines(name)) from None
+            _check_trim_at(d, name, at, lines(name))
         if loop is not None and (inputs or outputs):
             raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
                                f"'outputs', not both", file=d.file, line=lines(name))
+
+
+def _check_trim_at(d, name, at, line):
+    """The trim operating point ``at`` of analysis ``name``: keys and values
+    (:func:`~spidersim.diagram.analysis.trim_request`), each target's size against its
+    signal's, ``x0``'s against the states'; a :class:`DiagramError` at the entry's line."""
+    from .diagram.analysis import AnalysisError, trim_request, trim_targets
+    try:
+        kw = trim_request(at)
+        trim_targets(d, kw["targets"])
+        if kw.get("x0") is not None and len(kw["x0"]) != d.layout.n_x:
+            raise AnalysisError(f"trim: 'x0' has {len(kw['x0'])} value(s), the diagram "
+                                f"has {d.layout.n_x} state(s)")
+    except AnalysisError as exc:
+        raise DiagramError(f"analysis '{name}': {exc.message}", file=d.file,
+                           line=line) from None
 
 
 def validate_run(d, t_end=None, method=None):
@@ -647,14 +658,19 @@ def _linearize_request(d, args, name):
     from .linreport import analysis_request, parse_at
     if name is not None:
         inputs, outputs, opened, at, loop = analysis_request(d, name)
+        lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
         if loop is None and not (inputs and outputs):
-            lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
             raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' "
                                f"and 'outputs' (at least one of each), got "
                                f"{len(inputs)} input(s) and {len(outputs)} output(s)",
                                file=d.file, line=lines(name))
+        if loop is not None and (inputs or outputs):
+            raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
+                               f"'outputs', not both", file=d.file, line=lines(name))
         if isinstance(at, str):
             at = parse_at(at)
+        if isinstance(at, dict) and args.at is None:
+            _check_trim_at(d, name, at, lines(name))
     else:
         inputs, outputs, opened = args.input or [], args.output or [], args.open or []
         at, loop = None, args.loop

@@ -104,15 +104,24 @@ def _servo_with_analysis(tmp_path, entry):
      "'free_inputs' must be a list"),
     ("{loop: pos_ctrl.y, inputs: [pos_ctrl.y], outputs: [motor.w]}",
      "give either 'loop' or 'inputs' and 'outputs', not both"),
+    # a list target was broadcast against its signal (a 1-element signal "trimmed" to
+    # three values, then a residual of 1 reported as non-convergence); x0 of the wrong size
+    ("{loop: pos_ctrl.y, at: {trim: {targets: {motor.w: [1, 2, 3]}}}}",
+     "target 'motor.w' has 3 values, the signal has 1"),
+    ("{loop: pos_ctrl.y, at: {trim: {x0: [0, 1]}}}", "'x0' has 2 value(s), the diagram has"),
+    ("{loop: pos_ctrl.y, at: {trim: {targets: {motor.ww: 1}}}}", "unknown signal 'motor.ww'"),
 ])
 def test_check_refuses_bad_trim_and_analysis_entries(tmp_path, capsys, entry, words):
     """``check`` refuses what ``linearize`` would fail on, with the entry's line: a trim
     mapping's keys and values (each of these was an internal error, or was accepted by
     check), and an entry with both a loop and inputs/outputs (the latter were dropped)."""
     path = _servo_with_analysis(tmp_path, entry)
-    assert main(["check", path]) == 2
-    err = capsys.readouterr().err
-    assert words in err and "servo_x.yaml:" in err, err
+    for argv in (["check", path], ["linearize", path, "x", "--no-jit", "--out",
+                                   str(tmp_path / "out")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert words in err and "servo_x.yaml:" in err, err
+    assert not (tmp_path / "out").exists()
 
 
 def test_trim_target_written_as_text_is_a_number(tmp_path, capsys):

@@ -443,7 +443,12 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     """
     from scipy.optimize import least_squares
 
-    targets = dict(targets or {})
+    targets = trim_targets(d, targets)
+    if x0 is not None:
+        x0 = np.ravel(np.asarray(x0, dtype=float))
+        if x0.size != d.layout.n_x:
+            raise AnalysisError(f"trim: 'x0' has {x0.size} value(s), the diagram has "
+                                f"{d.layout.n_x} state(s)", file=d.file)
     free_inputs = list(free_inputs)
     outs = list(targets)
     lin = Linearizer(d, free_inputs, outs, (), jit) if free_inputs else None
@@ -473,6 +478,24 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     x = sol.x[:len(x_start)]
     u = sol.x[len(x_start):]
     return OperatingPoint(float(t), x, base.modes.copy(), _named_inputs(lin, u), resid)
+
+
+def trim_targets(d, targets):
+    """``targets`` (signal name -> a number or a list) as arrays of the signals' sizes: a
+    number for a signal of several elements holds for each; a list must have the signal's
+    size (it was broadcast against it, or misaligned with the next target). Raises
+    :class:`AnalysisError` naming the target."""
+    out = {}
+    for name, v in dict(targets or {}).items():
+        size = _signal_ref(d, name)[4]
+        v = np.ravel(np.asarray(v, dtype=float))
+        if v.size == 1:
+            v = np.full(size, v[0])
+        elif v.size != size:
+            raise AnalysisError(f"trim: target '{name}' has {v.size} values, the signal has "
+                                f"{size}", file=d.file)
+        out[name] = v
+    return out
 
 
 def _state_names(d):
