@@ -232,3 +232,15 @@ def test_check_refuses_what_gives_no_honest_verdict(tmp_path, capsys, edit, line
     assert f"mg.yaml:{line}:" in err
     for w in words:
         assert w in err
+
+
+def test_as_dict_is_strict_json():
+    """A value that is not a finite number (a band without a limit, here built by hand: the
+    checks keep such bands out) is written as null, never as a bare NaN that strict JSON
+    readers refuse."""
+    import json
+    a = mg.Assessment(np.array([[355.0, 398.0, 447.0]]), np.array([[1.0]]),
+                      mg.iss_limit([398.0]), 1.0, 0.0, (0, 1))
+    d = json.loads(json.dumps(a.as_dict(), allow_nan=False))
+    assert d["bands"][0]["limit_ug"] is None and d["bands"][0]["margin_db"] is None
+    assert d["passed"] is False
