@@ -379,11 +379,12 @@ def _label_peaks(ax, peaks, min_rel=0.05):
 
 
 def peak_label(f, amp, unit, lone=True):
-    """The label of a spectrum peak: ``'111.4 Hz: 0.0123 N.m'`` (unit ``1``: none); a peak
+    """The label of a spectrum peak: ``'111.4 Hz: 0.0123 N.m'`` (unit ``1`` or unknown
+    ``?``: none shown); a peak
     that is not a lone tone gets ``~`` before its height (the curve's, see
     :func:`hann_peak`)."""
     return (f"{f:.1f} Hz: {'' if lone else '~'}{amp:.3g}"
-            + ("" if unit in ("1", "", None) else f" {unit}"))
+            + ("" if unit in ("1", "?", "", None) else f" {unit}"))
 
 
 def spectrum_plot(result, spec, path):

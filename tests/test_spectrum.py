@@ -77,6 +77,7 @@ def test_plot_labels_carry_the_corrected_amplitude(monkeypatch, tmp_path):
     (amp, fk, _colour, unit, lone), = got
     assert amp == pytest.approx(0.5, rel=1e-3) and fk == pytest.approx(120.5, abs=1e-3)
     assert plots.peak_label(fk, amp, unit, lone) == "120.5 Hz: 0.5 N"
+    assert plots.peak_label(fk, amp, "?", lone) == "120.5 Hz: 0.5"      # unit unknown
 
 
 def test_solver_steps_are_refused():
