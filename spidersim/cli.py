@@ -404,8 +404,8 @@ def _microgravity_report(d, r, out, plots=True):
     a.axes = ["x", "y", "z"][:a.levels.shape[1]] if a.levels.shape[1] <= 3 else []
     print(a.table())
     from .outputs import atomic_path, write_atomic
-    write_atomic(os.path.join(out, "microgravity.json"),
-                 lambda fh: json.dump(a.as_dict(), fh, indent=1))
+    write_atomic(os.path.join(out, "microgravity.json"),      # strict JSON: no NaN
+                 lambda fh: json.dump(a.as_dict(), fh, indent=1, allow_nan=False))
     if not plots:
         return []
     path = os.path.join(out, "microgravity.png")
@@ -543,7 +543,9 @@ def _check_trim_at(d, name, at, line):
 def validate_run(d, t_end=None, method=None):
     """Every check ``run`` makes before integrating, so that ``check`` refuses what ``run``
     would: method, t_end, output_interval, plots (keys, signals, sizes, files), analysis
-    entries. (Loading already checked the blocks, parameters, wiring, log and metrics.)"""
+    entries, windows, and the uniform grid a spectrum or the microgravity bands need.
+    (Loading already checked the blocks, parameters, wiring, log, metrics and the
+    microgravity section's own settings.)"""
     from .plots import check_plot_specs
     from .sweep import parse_metrics
     _check_method(d, method)
@@ -555,6 +557,45 @@ def validate_run(d, t_end=None, method=None):
     parse_metrics(d)
     _check_analysis(d, t_end)
     _check_windows(d, raw)
+    _check_uniform_grid(d, raw)
+
+
+def _check_uniform_grid(d, raw_plots):
+    """A spectrum plot and the microgravity bands need samples on a uniform time grid:
+    ``simulation.output_interval`` (without it the rows are the solver's steps, and a tone
+    faster than the steps was aliased to nothing: a PASS with 290 dB of margin); for the
+    bands its Nyquist frequency must exceed the top band's upper edge."""
+    oi = d.simulation.get("output_interval")
+    lines = getattr(raw_plots, "lines", None) or []
+    for k, p in enumerate(d.spec.plots):
+        if p.get("kind") == "spectrum" and oi is None:
+            raise DiagramError(f"plots[{k}]: a spectrum needs samples on a uniform time "
+                               f"grid: add simulation.output_interval (without it the rows "
+                               f"are the solver's steps, and content faster than the steps "
+                               f"is lost)", file=d.file,
+                               line=lines[k] if k < len(lines) else None)
+    mg = d.microgravity
+    if not mg:
+        return
+    from .microgravity import top_band_edge
+    edge = top_band_edge(mg["f_max"])
+    longest = 1.0 / (2.0 * edge)
+    if oi is None:
+        raise DiagramError(f"microgravity: the band levels need samples on a uniform time "
+                           f"grid: add simulation.output_interval, at most {longest:.4g} s "
+                           f"for f_max = {mg['f_max']:g} Hz (the top band reaches "
+                           f"{edge:.4g} Hz, which must be below the Nyquist frequency "
+                           f"1 / (2 output_interval)); without it the rows are the solver's "
+                           f"steps, and content faster than the steps is lost",
+                           file=d.file, line=getattr(d.spec.data, "line_of",
+                                                     lambda k: None)("microgravity"))
+    if not 1.0 / (2.0 * oi) > edge:
+        raise DiagramError(f"microgravity: simulation.output_interval ({oi:g} s) is too "
+                           f"long for f_max = {mg['f_max']:g} Hz: its Nyquist frequency "
+                           f"{1 / (2 * oi):.4g} Hz must exceed the top band's upper edge "
+                           f"{edge:.4g} Hz; make output_interval shorter than {longest:.4g} "
+                           f"s or f_max lower", file=d.file,
+                           line=d.spec.simulation_lines.get("output_interval"))
 
 
 def _check_windows(d, raw_plots):

@@ -15,16 +15,19 @@ Band analysis
 -------------
 One-third-octave bands with base-10 centres (IEC 61260-1 / ANSI S1.11):
 ``f_c = 1000 * 10^(n/10)`` Hz, edges ``f_c * 10^(-1/20)`` and ``f_c * 10^(+1/20)``. Over the
-chosen window the signal is sampled uniformly (linear interpolation of the recorded points
-when the record is not uniform), its mean is removed, and the mean square in a band is the
-sum of the one-sided periodogram over the FFT bins inside the band (Parseval, rectangular
+chosen window the signal must be sampled uniformly (a run with
+``simulation.output_interval``; a record of the solver's own steps is refused, see
+:mod:`spidersim.sampling`), its mean is removed, and the mean square in a band is the sum
+of the one-sided periodogram over the FFT bins inside the band (Parseval, rectangular
 window)::
 
     ms_band = sum_{f_lo <= f_k < f_hi} c_k |X_k|^2 / N^2,    c_k = 2 (1 for 0 and Nyquist)
 
 so a sine of amplitude ``A`` in a band gives ``A / sqrt(2)``. A band is reported only where
 the record resolves it: at least two bins wide (``f_hi - f_lo >= 2 / T``) and below the
-Nyquist frequency.
+Nyquist frequency. The band centres considered (``f_min..f_max``) must lie on the limit
+curve (0.01..300 Hz): a band without a limit has no verdict, so such a range is refused
+rather than left out of the verdict.
 
 Limit curve
 -----------
@@ -36,7 +39,14 @@ vibratory limit as RMS per one-third-octave band, also in SSP 57000):
 - 1600 micro-g for 100 < f <= 300 Hz,
 
 evaluated at each band's centre frequency. The margin of a band is
-``20 log10(limit / level)`` dB (positive: inside the limit).
+``20 log10(limit / level)`` dB (positive: inside the limit); the verdict is PASS when every
+band assessed has a margin >= 0 (at least one band is always assessed: a window that
+resolves none is an error, not a PASS).
+
+Peak transient
+--------------
+The largest ``|a_k(t)|`` over the whole record and the axes ``k`` (per axis, as the bands;
+not the magnitude ``|a|`` of the vector, which can be up to ``sqrt(3)`` times larger).
 """
 from __future__ import annotations
 
@@ -44,8 +54,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-G0 = 9.80665            # m/s^2 per g
+from .sampling import uniform_window
+
+G0 = 9.80665            # m/s^2 per g (standard gravity)
 MICRO_G = G0 * 1e-6     # m/s^2 per micro-g
+#: frequency range of the ISS limit curve [Hz]
+LIMIT_RANGE = (0.01, 300.0)
 
 
 def iss_limit(f):
@@ -55,7 +69,30 @@ def iss_limit(f):
     """
     f = np.asarray(f, dtype=float)
     out = np.where(f <= 0.1, 1.6, np.where(f <= 100.0, 16.0 * f, 1600.0))
-    return np.where((f >= 0.01) & (f <= 300.0), out, np.nan)
+    return np.where((f >= LIMIT_RANGE[0]) & (f <= LIMIT_RANGE[1]), out, np.nan)
+
+
+def band_range_problem(f_min, f_max):
+    """``(message, key)`` when band centres in ``[f_min, f_max]`` [Hz] cannot all be judged
+    against the limit curve (a bound outside 0.01..300 Hz) or there is no band centre in
+    the range; None when the range is fine. ``key`` is the setting to change."""
+    lo, hi = LIMIT_RANGE
+    for key, v in (("f_min", f_min), ("f_max", f_max)):
+        if not lo <= v <= hi:
+            return (f"{key} ({v:g} Hz) is outside the ISS limit curve ({lo:g}..{hi:g} Hz; "
+                    f"SSP 41000 sets no limit beyond it, so a band there has no verdict): "
+                    f"give f_min and f_max within {lo:g}..{hi:g} Hz", key)
+    if not len(third_octave_bands(f_min, f_max)):
+        return (f"no one-third-octave band centre (1000 * 10^(n/10) Hz) lies in "
+                f"{f_min:g}..{f_max:g} Hz: widen the range", "f_min")
+    return None
+
+
+def top_band_edge(f_max):
+    """Upper edge [Hz] of the highest band whose centre is at most ``f_max``: the Nyquist
+    frequency ``1 / (2 dt)`` of the samples must exceed it for that band to be assessed."""
+    n1 = int(np.floor(10 * np.log10(f_max / 1000.0) + 1e-9))
+    return 1000.0 * 10.0 ** (n1 / 10.0) * 10 ** 0.05
 
 
 def third_octave_bands(f_min=0.01, f_max=300.0):
@@ -69,31 +106,21 @@ def third_octave_bands(f_min=0.01, f_max=300.0):
     return np.column_stack([fc * 10 ** -0.05, fc, fc * 10 ** 0.05])
 
 
-def uniform(t, y, t0=None, t1=None):
-    """``(dt, samples)`` of ``y(t)`` on a uniform grid over ``[t0, t1]``.
+def uniform(t, y, t0=None, t1=None, resample=False):
+    """``(dt, samples)`` of ``y(t)`` on a uniform grid over ``[t0, t1]`` inside the record.
 
-    Recorded points already uniform (to 1e-9 relative) are used as they are; otherwise the
-    grid step is the median recorded step and the values are interpolated linearly.
+    The recorded points must be uniform (see :func:`spidersim.sampling.uniform_window`,
+    which raises :class:`~spidersim.sampling.NonUniformRecord` otherwise); ``resample=True``
+    interpolates them linearly at the median step instead, which is right only where the
+    points are dense compared with the signal's content.
     """
     t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
     t0 = t[0] if t0 is None else t0
     t1 = t[-1] if t1 is None else t1
     if not t[0] <= t0 < t1 <= t[-1]:
         raise ValueError(f"window [{t0}, {t1}] s is not inside the record "
                          f"[{t[0]}, {t[-1]}] s")
-    sel = (t >= t0) & (t <= t1)
-    ts, ys = t[sel], y[sel]
-    steps = np.diff(ts)
-    if steps.size and np.ptp(steps) <= 1e-9 * steps.mean():
-        return float(steps.mean()), ys
-    dt = float(np.median(np.diff(t[(t >= t0) & (t <= t1)]))) if sel.sum() > 2 else \
-        (t1 - t0) / 100
-    n = int(np.floor((t1 - t0) / dt)) + 1
-    grid = t0 + dt * np.arange(n)
-    ys = np.column_stack([np.interp(grid, t, y[:, k]) for k in range(y.shape[1])]) \
-        if y.ndim == 2 else np.interp(grid, t, y)
-    return dt, ys
+    return uniform_window(t, y, t0, t1, resample=resample)
 
 
 def band_rms(x, dt, bands):
@@ -145,8 +172,9 @@ class Assessment:
 
     @property
     def passed(self):
+        """Every band assessed has a margin >= 0 dB, and there is at least one."""
         m = self.margin_db
-        return bool(np.all(m[np.isfinite(m)] >= 0.0))
+        return bool(m.size > 0 and np.all(np.isfinite(m)) and np.all(m >= 0.0))
 
     def table(self):
         """Printable per-band table with the verdict."""
@@ -169,16 +197,22 @@ class Assessment:
         return "\n".join(rows)
 
     def as_dict(self):
-        return {"window": list(self.window), "passed": self.passed,
-                "peak_ug": self.peak, "peak_time": self.peak_time,
-                "bands": [{"center_hz": float(b[1]), "lower_hz": float(b[0]),
-                           "upper_hz": float(b[2]), "level_ug": float(lev),
-                           "limit_ug": float(lim), "margin_db": float(m)}
+        """The assessment as plain data for strict JSON: a value that is not a finite
+        number (none is expected: the bands lie on the limit curve and are resolved)
+        becomes None (``null``), never a bare NaN."""
+        def num(v):
+            v = float(v)
+            return v if np.isfinite(v) else None
+        return {"window": [num(v) for v in self.window], "passed": self.passed,
+                "peak_ug": num(self.peak), "peak_time": num(self.peak_time),
+                "bands": [{"center_hz": num(b[1]), "lower_hz": num(b[0]),
+                           "upper_hz": num(b[2]), "level_ug": num(lev),
+                           "limit_ug": num(lim), "margin_db": num(m)}
                           for b, lev, lim, m in zip(self.bands, self.worst, self.limit,
                                                     self.margin_db)]}
 
 
-def assess(t, force, mass, window=None, f_range=(0.01, 300.0)):
+def assess(t, force, mass, window=None, f_range=LIMIT_RANGE, resample=False):
     """Assess a base-force record against the ISS vibratory limit.
 
     Parameters
@@ -193,15 +227,39 @@ def assess(t, force, mass, window=None, f_range=(0.01, 300.0)):
         Part of the record whose band levels are assessed [s] (default: all of it); the
         peak transient is taken over the whole record.
     f_range : (f_min, f_max)
-        Band centres considered [Hz]; bands the record cannot resolve are left out.
+        Band centres considered [Hz], within the limit curve's 0.01..300 Hz. The samples'
+        Nyquist frequency must exceed the top band's upper edge (:func:`top_band_edge`);
+        low bands the window is too short to resolve are left out.
+    resample : bool
+        Interpolate a record that is not on a uniform time grid (linearly, at its median
+        step) instead of refusing it: right only for points dense compared with the
+        signal's content (a measured record with jitter), never for a solver's steps.
+
+    Raises
+    ------
+    ValueError
+        A bad mass, window or frequency range, a window that resolves no band, or
+        (:class:`~spidersim.sampling.NonUniformRecord`) a non-uniform record.
     """
     if not mass > 0:
         raise ValueError(f"station mass must be > 0, got {mass}")
+    if not f_range[0] < f_range[1]:
+        raise ValueError(f"f_min ({f_range[0]:g}) must be below f_max ({f_range[1]:g})")
+    problem = band_range_problem(*f_range)
+    if problem:
+        raise ValueError(problem[0])
     force = np.asarray(force, dtype=float)
     if force.ndim == 1:
         force = force[:, None]
     t0, t1 = window if window is not None else (t[0], t[-1])
-    dt, f_u = uniform(t, force, t0, t1)
+    dt, f_u = uniform(t, force, t0, t1, resample=resample)
+    edge = top_band_edge(f_range[1])
+    if not 1.0 / (2.0 * dt) > edge:
+        raise ValueError(f"samples every {dt:g} s resolve bands up to {1 / (2 * dt):.4g} Hz "
+                         f"(Nyquist) only: the top band of f_max = {f_range[1]:g} Hz "
+                         f"reaches {edge:.4g} Hz; sample at least every "
+                         f"{1 / (2 * edge):.4g} s (simulation.output_interval) or lower "
+                         f"f_max")
     a_ug = f_u / mass / MICRO_G
     bands = third_octave_bands(*f_range)
     levels = np.column_stack([band_rms(a_ug[:, k], dt, bands) for k in range(a_ug.shape[1])])

@@ -13,10 +13,20 @@ Signals with different units go to separate panels sharing the time axis, unless
 ``one_panel: true`` (e.g. a set point from a unit-less source against the force it sets).
 
 ``kind: spectrum`` draws the amplitude spectrum of each signal over ``[t_min, t_max]``: the
-samples are resampled on a uniform grid (the run's ``output_interval`` makes this exact),
-the mean removed, a Hann window applied, and the FFT scaled so that a sinusoid of amplitude
-A shows a peak of height A. ``f_max`` limits the frequency axis; the ``peaks`` highest local
-maxima are labelled with their frequency in Hz.
+samples must lie on a uniform grid (the run's ``simulation.output_interval``; a record of the
+solver's own steps is refused, see :mod:`spidersim.sampling`), the mean is removed, a
+periodic Hann window ``w_j = (1 - cos(2 pi j / n)) / 2`` applied, and the FFT scaled by
+``2 / sum(w) = 4 / n``, so that a sinusoid of amplitude A whose frequency falls on a bin
+(``f = k / T``, ``T = n dt``) shows a peak of height A on the curve. Between two bins, at
+``f = (k + d) / T`` with ``|d| <= 1/2``, the curve's highest bin shows
+``A sinc(d) / (1 - d^2)`` (``sinc(d) = sin(pi d) / (pi d)``: the Hann window's scalloping
+loss, at most 15.1 % low at ``d = 1/2``). The labelled peaks are corrected: see
+:func:`hann_peak`, which recovers ``d`` from the ratio of the two highest bins and the
+amplitude from the formula above, exactly for a lone tone, and checks the third bin against
+the same shape: a peak that is not one tone's (a drifting line, lines a few bins apart) keeps
+the curve's height, labelled ``~``. ``f_max`` limits the frequency axis; the ``peaks`` highest
+local maxima are labelled ``f Hz: A unit`` with that frequency and amplitude, marked at that
+height.
 
 ``kind: animation`` writes a GIF (default file ``<title>.gif``): a 3-D stick figure of an arm
 from the joint angles of an Arm block; keys ``model``, ``frames``, ``fps``, ``trace`` (see
@@ -278,50 +288,103 @@ def time_plot(result, spec, path):
     return path
 
 
-def amplitude_spectrum(t, y, t_min=None, t_max=None):
-    """``(f [Hz], amplitude)`` of ``y(t)`` over the window (see the module docstring)."""
-    t = np.asarray(t)
+def amplitude_spectrum(t, y, t_min=None, t_max=None, resample=False):
+    """``(f [Hz], amplitude)`` of ``y(t)`` over the window (see the module docstring).
+
+    The samples in the window must be uniform (a last row off the grid is dropped); a record
+    that is not raises :class:`~spidersim.sampling.NonUniformRecord` unless ``resample=True``
+    (linear interpolation at the median step: right only for dense points)."""
+    from .sampling import uniform_window
+    t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     lo = t[0] if t_min is None else t_min
     hi = t[-1] if t_max is None else t_max
     sel = (t >= lo) & (t <= hi)
     if sel.sum() < 8:               # window outside a (short) run: use what there is
-        sel = np.ones_like(t, bool)
-    ts, ys = t[sel], y[sel]
-    if len(ts) < 2:
+        lo, hi = t[0], t[-1]
+    if len(t) < 2:
         return np.zeros(1), np.zeros(1)
-    # uniform grid at the median spacing of the samples in the window
-    dt = float(np.median(np.diff(ts)))
-    n = int(round((ts[-1] - ts[0]) / dt)) + 1
-    grid = ts[0] + dt * np.arange(n)
-    # drop duplicate times (two samples at an event instant): keep the later one
-    keep = np.append(np.diff(ts) > 0, True)
-    yu = np.interp(grid, ts[keep], ys[keep])
+    dt, yu = uniform_window(t, y, lo, hi, resample=resample)
+    n = len(yu)
     yu = yu - yu.mean()
-    w = np.hanning(n)
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)     # periodic Hann: sum(w) = n / 2
     amp = 2.0 * np.abs(np.fft.rfft(yu * w)) / w.sum()
     return np.fft.rfftfreq(n, dt), amp
 
 
+#: a peak is taken for a lone tone when its smaller neighbour is within this of the height
+#: the Hann shape predicts (ratios to the peak bin, which lie in 0.2..0.5 for one tone)
+LONE_TONE_TOL = 0.05
+
+
+def hann_peak(f, a, k):
+    """``(frequency [Hz], amplitude, lone)`` of the tone behind the local maximum ``a[k]``
+    of a Hann amplitude spectrum (:func:`amplitude_spectrum`).
+
+    For a lone tone of amplitude ``A`` at ``(k + d) df``, ``|d| <= 1/2``, the periodic Hann
+    window gives (bins ``m`` at distance ``x = m - k - d``, ``n`` large)
+
+        a_m = A |sinc(x)| / |1 - x^2|,    sinc(x) = sin(pi x) / (pi x),
+
+    so the ratio of the larger neighbour to the maximum is
+    ``r = a_{k+1} / a_k = (1 + d) / (2 - d)`` (for ``d >= 0``; mirrored for ``d < 0``),
+    whence ``|d| = (2 r - 1) / (1 + r)`` (``r = 1/2`` on a bin, ``1`` halfway) and
+    ``A = a_k (1 - d^2) / sinc(d)``, at ``f_k + d df``. Exact for a lone tone up to
+    ``O((pi d / n)^2)`` and the leakage of other lines.
+
+    The smaller neighbour checks the shape: one tone puts it at ``(1 - d) / (2 + d)`` of the
+    peak. When it is off by more than :data:`LONE_TONE_TOL` (a line that drifts over the
+    window, several lines within a few bins, noise, a line within a few bins of 0 Hz) the
+    peak is no lone tone and has no single amplitude: the curve's height ``a_k`` is returned
+    with the parabolic interpolation of the frequency, and ``lone`` is False. At the ends of
+    the array the bin itself is returned.
+    """
+    df = f[1] - f[0] if len(f) > 1 else 0.0
+    if k <= 0 or k >= len(a) - 1 or a[k] <= 0:
+        return float(f[k]), float(a[k]), False
+    right = a[k + 1] >= a[k - 1]
+    big, small = (a[k + 1], a[k - 1]) if right else (a[k - 1], a[k + 1])
+    r = min(big / a[k], 1.0)
+    d = min(max((2 * r - 1) / (1 + r), 0.0), 0.5)
+    if abs(small / a[k] - (1 - d) / (2 + d)) <= LONE_TONE_TOL:
+        amp = a[k] * (1 - d * d) / np.sinc(d)
+        return float(f[k] + (d if right else -d) * df), float(amp), True
+    den = a[k - 1] - 2 * a[k] + a[k + 1]
+    fk = f[k] + (0.5 * (a[k - 1] - a[k + 1]) / den * df if den != 0 else 0.0)
+    return float(fk), float(a[k]), False
+
+
 def _label_peaks(ax, peaks, min_rel=0.05):
-    """Label peaks in Hz, largest first, in the colour of their trace; a peak below
-    ``min_rel`` of the largest, or whose label would sit within 6 % of the axis width and
-    8 % of its height of a label already placed, is left unlabelled (legible, not crowded)."""
+    """Label peaks ``f Hz: A unit`` at their corrected frequency and amplitude
+    (:func:`hann_peak`), largest first, in the colour of their trace, with a marker there; a
+    peak below ``min_rel`` of the largest, or whose label would sit within 6 % of the axis
+    width and 8 % of its height of a label already placed, is left unlabelled (legible, not
+    crowded)."""
     if not peaks:
         return
     peaks = sorted(peaks, reverse=True)
     top = peaks[0][0]
     x0, x1 = ax.get_xlim()
     placed = []
-    for amp, fk, x, colour in peaks:
+    for amp, fk, colour, unit, lone in peaks:
         if amp < min_rel * top:
             break
-        if any(abs(x - px) < 0.06 * (x1 - x0) and abs(amp - pa) < 0.08 * top
+        if any(abs(fk - px) < 0.06 * (x1 - x0) and abs(amp - pa) < 0.08 * top
                for px, pa in placed):
             continue
-        placed.append((x, amp))
-        ax.annotate(f"{fk:.1f} Hz", (x, amp), textcoords="offset points", xytext=(4, 4),
-                    fontsize="small", color=colour)
+        placed.append((fk, amp))
+        ax.plot([fk], [amp], marker="v", ms=4, color=colour, ls="none")
+        ax.annotate(peak_label(fk, amp, unit, lone), (fk, amp), textcoords="offset points",
+                    xytext=(4, 4), fontsize="small", color=colour)
+
+
+def peak_label(f, amp, unit, lone=True):
+    """The label of a spectrum peak: ``'111.4 Hz: 0.0123 N.m'`` (unit ``1`` or unknown
+    ``?``: none shown); a peak
+    that is not a lone tone gets ``~`` before its height (the curve's, see
+    :func:`hann_peak`)."""
+    return (f"{f:.1f} Hz: {'' if lone else '~'}{amp:.3g}"
+            + ("" if unit in ("1", "?", "", None) else f" {unit}"))
 
 
 def spectrum_plot(result, spec, path):
@@ -342,17 +405,14 @@ def spectrum_plot(result, spec, path):
         f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
         sel = f <= f_max if f_max else np.ones_like(f, bool)
         f, a = f[sel], a[sel]
-        line, = ax.plot(f, a, label=f"{label} [{result.units.get(label.split('[')[0], '1')}]")
+        unit = result.units.get(label.split('[')[0], '1')
+        line, = ax.plot(f, a, label=f"{label} [{unit}]")
         if n_peaks and len(a) > 3:
             loc = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
             loc = loc[np.argsort(a[loc])[::-1][:n_peaks]]
-            df = f[1] - f[0]
             for k in loc:
-                # parabolic interpolation of the peak between bins
-                al, be, ga = a[k - 1], a[k], a[k + 1]
-                den = al - 2 * be + ga
-                fk = f[k] + (0.5 * (al - ga) / den * df if den != 0 else 0.0)
-                peaks.append((a[k], fk, f[k], line.get_color()))
+                fk, ak, lone = hann_peak(f, a, k)    # corrected between bins
+                peaks.append((ak, fk, line.get_color(), unit, lone))
     _label_peaks(ax, peaks)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("amplitude")

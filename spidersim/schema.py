@@ -37,6 +37,12 @@ _QUANTITY = {"type": "object", "required": ["value", "unit"], "additionalPropert
                                                     "mm, deg, kg.m2"}}}
 _NUMBER_OR_EXPR = {"anyOf": [{"type": "number"}, {"type": "string", "minLength": 1},
                              _QUANTITY]}
+#: microgravity f_min / f_max: band centres on the ISS limit curve (0.01..300 Hz), a number
+#: or an expression of the parameters
+_BAND_BOUND = {"anyOf": [{"type": "number", "minimum": 0.01, "maximum": 300},
+                         {"type": "string", "minLength": 1}],
+               "description": "Hz, band centres assessed: within the ISS limit curve's "
+                              "0.01..300 Hz"}
 _VALUE = {"anyOf": [{"type": "number"}, {"type": "string", "minLength": 1},
                     {"type": "array", "items": {"$ref": "#/$defs/value"}}, _QUANTITY]}
 
@@ -228,7 +234,7 @@ def schema() -> dict:
                                  "signal": {"type": "string"}, "mass": _NUMBER_OR_EXPR,
                                  "window": {"type": "array", "items": {"type": "number"},
                                             "minItems": 2, "maxItems": 2},
-                                 "f_min": {"type": "number"}, "f_max": {"type": "number"}}},
+                                 "f_min": _BAND_BOUND, "f_max": _BAND_BOUND}},
         },
         "$defs": defs,
     }

@@ -208,6 +208,11 @@ class Diagram:
             out[k] = _positive_setting(sec, k, default, self.flat.scope, err)
         if not out["f_min"] < out["f_max"]:
             raise err(f"f_min ({out['f_min']:g}) must be below f_max ({out['f_max']:g})")
+        from ..microgravity import band_range_problem
+        problem = band_range_problem(out["f_min"], out["f_max"])
+        if problem:
+            msg, key = problem
+            raise err(msg, key if key in sec else None)
         out["window"] = _time_window(sec.get("window"), err)
         return out
 
