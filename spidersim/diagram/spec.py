@@ -394,15 +394,26 @@ def _parse_exposed_ports(data, file):
     inputs = {}
     for k, v in _section(data, "inputs", LineDict, file).items():
         line = data["inputs"].line_of(k)
+        _check_port_name(k, "input", file, line)
         vs = v if isinstance(v, list) else [v]
         inputs[k] = [parse_address(a, file, line, f"exposed input '{k}'") for a in vs]
         port_lines[("in", k)] = line
     outputs = {}
     for k, v in _section(data, "outputs", LineDict, file).items():
         line = data["outputs"].line_of(k)
+        _check_port_name(k, "output", file, line)
         outputs[k] = parse_address(v, file, line, f"exposed output '{k}'")
         port_lines[("out", k)] = line
     return inputs, outputs, port_lines
+
+
+def _check_port_name(name, kind, file, line):
+    """An exposed port's name is an identifier: the parent connects it as ``inst.name``
+    (a name such as ``a.b`` or ``1x`` could never be connected or logged)."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise DiagramError(f"exposed {kind} name {name!r} is not an identifier (letters, "
+                           f"digits, _; no dots): the parent connects it as "
+                           f"'instance.<name>'", file=file, line=line)
 
 
 def _parse_simulation(data, file):

@@ -45,6 +45,17 @@ def test_typo_in_exposed_input_is_reported_in_the_subsystem_file(tmp_path):
     assert "parent.yaml:5" in msg and "'s'" in msg          # the instance's line
 
 
+@pytest.mark.parametrize("old, new, line", [("  u: g.u", "  a.b: g.u", 7),
+                                             ("  u: g.u", "  '1x': g.u", 7),
+                                             ("  y: i.y", "  y.z: i.y", 9)])
+def test_exposed_port_name_must_be_an_identifier(tmp_path, old, new, line):
+    """An exposed port named 'a.b' could never be connected ('inst.a.b' is not an address):
+    the parent was told to connect it anyway. Refused in the subsystem file, at its line."""
+    err, msg = _error(tmp_path, SUB.replace(old, new), PARENT)
+    assert "is not an identifier" in msg and err.line == line
+    assert err.file.endswith("sub.yaml")
+
+
 def test_unconnected_exposed_input_is_reported_at_the_instance(tmp_path):
     exc, msg = _error(tmp_path, SUB, PARENT.replace("connections:\n  - c.y -> s.u\n", ""))
     assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 5
