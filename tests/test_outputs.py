@@ -70,13 +70,18 @@ metrics:
 
 
 def test_linearize_and_sweep_folders_are_sanitised(tmp_path, monkeypatch, capsys):
-    """Default folders of linearize and sweep come from the safe stem of ``name:`` and of
-    the analysis name: nothing is written outside ``results/``."""
+    """Default folders of linearize and sweep come from the safe stem of ``name:``, and an
+    analysis name is an identifier ('../../up' is refused before anything is written):
+    nothing is written outside ``results/``."""
     work = tmp_path / "work"
     work.mkdir()
     path = work / "d.yaml"
     path.write_text(LIN.format(name="../../../esc ape", analysis='"../../up"'))
     monkeypatch.chdir(work)
+    assert main(["linearize", str(path), "--no-jit"]) == 2
+    assert "an analysis name is an identifier" in capsys.readouterr().err
+    assert _files(tmp_path) == [os.path.join("work", "d.yaml")]
+    path.write_text(LIN.format(name="../../../esc ape", analysis="up"))
     assert main(["linearize", str(path), "--no-jit"]) == 0, capsys.readouterr().err
     assert main(["sweep", str(path), "--vary", "c.after=1,2", "--workers", "0"]) == 0, \
         capsys.readouterr().err

@@ -433,6 +433,13 @@ class SciPyLoop:
         (t, x)), ``"interrupted"`` or ``"bound"`` (the segment's end reached)."""
         s = self.system
         t_seg = min(s.next_time(t), self.t_end)
+        if t_seg - t <= _tol(t):
+            # the same instant (3 x 0.3 = 0.8999999999999999 against t_end = 0.9): SciPy's
+            # steppers refuse a span of a few ulps (LSODA: "Unexpected istate"); the state
+            # cannot change over it, so the segment's end is reached where it stands
+            if self.output_interval is None:
+                self.rec.add(t_seg, x)
+            return None, "bound", t_seg, x
         self.st["segments"] += 1
         kw = self.kw
         if self.h_cap is not None:                 # retrying an unseen return: shorter

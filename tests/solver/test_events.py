@@ -327,3 +327,25 @@ def test_locate_when_the_start_reevaluates_across():
     # an ordinary crossing is still located on the far side, to xtol
     t = locate(lambda s: 1.05 - s, 1.0, 1.1, 0.05, 1e-13)
     assert 1.05 <= t <= 1.05 + 2e-13
+
+
+@pytest.mark.parametrize("method", ["LSODA", "RK45", "Radau", "DP54", "NDF"])
+@pytest.mark.parametrize("Ts, t_end", [(0.3, 0.9), (0.7, 2.1), (0.1, 0.3)])
+def test_last_sample_a_few_ulps_before_t_end(method, Ts, t_end):
+    """3 x 0.3 = 0.8999999999999999 < t_end = 0.9: after the last sample, a segment of one
+    ulp is left. LSODA failed on it ("Unexpected istate in LSODA"); now the run ends at
+    t_end with the integral of the held samples sum_k sin(2 pi k Ts) Ts (exact)."""
+    text = f"""
+blocks:
+  s: {{type: Sine, amplitude: 1, f: 1}}
+  z: {{type: ZeroOrderHold, Ts: {Ts}}}
+  i: {{type: Integrator}}
+connections:
+  - s.y -> z.u
+  - z.y -> i.u
+"""
+    r = spidersim.loads(text).simulate(method=method, t_end=t_end, rtol=1e-10, atol=1e-12)
+    n = int(round(t_end / Ts))
+    exact = sum(np.sin(2 * np.pi * k * Ts) * Ts for k in range(n))
+    assert abs(r["i.y"][-1] - exact) < 1e-9
+    assert r.t[-1] == t_end
