@@ -91,10 +91,9 @@ class Metric:
 
 def parse_metrics(diagram) -> list[Metric]:
     """The ``metrics`` section of a loaded diagram, checked against its logged signals."""
-    spec = diagram.spec
-    raw = spec.metrics
-    out = []
+    raw = diagram.spec.metrics
     sizes = diagram.logged_sizes()
+    out = []
     for name, entry in raw.items():
         line = raw.line_of(name) if hasattr(raw, "line_of") else None
 
@@ -110,36 +109,48 @@ def parse_metrics(diagram) -> list[Metric]:
         if unknown:
             fail(f"unknown key(s) {', '.join(sorted(unknown))}; keys are signal, reduce, "
                  f"unit")
-        if not isinstance(entry.get("signal"), str):
-            fail(f"'signal' must be 'block.port' or 'block.port[i]', got "
-                 f"{entry.get('signal')!r}")
-        sig, idx = split_signal(entry["signal"])
-        if sig not in sizes:
-            import difflib
-            near = difflib.get_close_matches(sig, list(sizes), n=3)
-            fail(f"no logged signal '{sig}'" + (f"; did you mean {', '.join(near)}?"
-                                                if near else ""))
-        n = sizes[sig]
-        if idx is None and n > 1:
-            fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]'")
-        if idx is not None and idx >= n:
-            fail(f"index {idx} out of range for '{sig}' ({n} element(s))")
+        sig, idx, n = _metric_signal(entry.get("signal"), sizes, fail)
         red = entry.get("reduce", "max")
         if not isinstance(red, str) or red not in REDUCERS:
             fail(f"unknown reduce {_shown(red)}; one of {', '.join(REDUCERS)}")
-        unit = entry.get("unit", "")
-        if isinstance(unit, bool) or not isinstance(unit, (str, int)):
-            fail(f"'unit' must be a text (it labels the axis), got {_shown(unit)}")
-        unit = str(unit)
-        if len(unit) > 40 or not unit.isprintable():
-            fail(f"'unit' labels the axis: one line of at most 40 characters, got "
-                 f"{unit[:40]!r}")
-        problem = math_text_problem(unit)
-        if problem:
-            fail(f"'unit' holds math text ($...$) that matplotlib cannot draw: {problem}; "
-                 f"write a literal dollar as \\$")
-        out.append(Metric(str(name), sig, idx if n > 1 else None, red, str(unit)))
+        out.append(Metric(str(name), sig, idx if n > 1 else None, red,
+                          _metric_unit(entry.get("unit", ""), fail)))
     return out
+
+
+def _metric_signal(text, sizes, fail):
+    """``(signal, index or None, size)`` of a metric's ``signal`` among the logged
+    ``sizes``; ``fail(message)`` raises."""
+    if not isinstance(text, str):
+        fail(f"'signal' must be 'block.port' or 'block.port[i]', got {text!r}")
+    sig, idx = split_signal(text)
+    if sig not in sizes:
+        import difflib
+        near = difflib.get_close_matches(sig, list(sizes), n=3)
+        fail(f"no logged signal '{sig}'" + (f"; did you mean {', '.join(near)}?"
+                                            if near else ""))
+    n = sizes[sig]
+    if idx is None and n > 1:
+        fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]'")
+    if idx is not None and idx >= n:
+        fail(f"index {idx} out of range for '{sig}' ({n} element(s))")
+    return sig, idx, n
+
+
+def _metric_unit(unit, fail):
+    """A metric's ``unit``: a label of its axis and column (not converted), one line that
+    matplotlib can draw; ``fail(message)`` raises."""
+    if isinstance(unit, bool) or not isinstance(unit, (str, int)):
+        fail(f"'unit' must be a text (it labels the axis), got {_shown(unit)}")
+    unit = str(unit)
+    if len(unit) > 40 or not unit.isprintable():
+        fail(f"'unit' labels the axis: one line of at most 40 characters, got "
+             f"{unit[:40]!r}")
+    problem = math_text_problem(unit)
+    if problem:
+        fail(f"'unit' holds math text ($...$) that matplotlib cannot draw: {problem}; "
+             f"write a literal dollar as \\$")
+    return unit
 
 
 def _shown(v):

@@ -307,24 +307,8 @@ def trim_request(at):
     of them), ``derivatives`` ``"all"`` or a list of state names, ``free_inputs`` a list of
     signal names, ``x0`` a list of numbers, ``t`` a time, ``tol`` > 0. An
     :class:`AnalysisError` names what is wrong."""
-    if not isinstance(at, dict) or set(at) != {"trim"}:
-        raise AnalysisError(f"an operating point mapping is {{trim: {{targets: ..., "
-                            f"free_inputs: [...], derivatives: [...]}}}}, got {at!r}")
-    spec = at["trim"] if at["trim"] is not None else {}
-    if not isinstance(spec, dict):
-        raise AnalysisError(f"'trim' must be a mapping of {', '.join(TRIM_KEYS)}, got "
-                            f"{spec!r}")
-    unknown = [k for k in spec if k not in TRIM_KEYS]
-    if unknown:
-        raise AnalysisError(f"trim: unknown key '{unknown[0]}' (keys: {', '.join(TRIM_KEYS)})")
-    kw = {}
-    targets = spec.get("targets") or {}
-    if not isinstance(targets, dict):
-        raise AnalysisError(f"trim: 'targets' must be a mapping of signals to values, got "
-                            f"{targets!r}")
-    kw["targets"] = {str(k): ([_number(x, f"trim: target '{k}'") for x in v]
-                              if isinstance(v, list) else _number(v, f"trim: target '{k}'"))
-                     for k, v in targets.items()}
+    spec = _trim_mapping(at)
+    kw = {"targets": _trim_target_values(spec.get("targets") or {})}
     der = spec.get("derivatives", "all")
     kw["derivatives"] = der if der == "all" else _names(der, "trim: 'derivatives' ('all' or "
                                                              "a list)")
@@ -341,6 +325,31 @@ def trim_request(at):
         if kw["tol"] <= 0:
             raise AnalysisError(f"trim: 'tol' must be > 0, got {kw['tol']:g}")
     return kw
+
+
+def _trim_mapping(at):
+    """The inner mapping of ``{trim: {...}}`` (``{trim: null}`` is ``{}``), its keys known."""
+    if not isinstance(at, dict) or set(at) != {"trim"}:
+        raise AnalysisError(f"an operating point mapping is {{trim: {{targets: ..., "
+                            f"free_inputs: [...], derivatives: [...]}}}}, got {at!r}")
+    spec = at["trim"] if at["trim"] is not None else {}
+    if not isinstance(spec, dict):
+        raise AnalysisError(f"'trim' must be a mapping of {', '.join(TRIM_KEYS)}, got "
+                            f"{spec!r}")
+    unknown = [k for k in spec if k not in TRIM_KEYS]
+    if unknown:
+        raise AnalysisError(f"trim: unknown key '{unknown[0]}' (keys: {', '.join(TRIM_KEYS)})")
+    return spec
+
+
+def _trim_target_values(targets):
+    """``targets`` of a trim mapping: signal name -> a finite number or a list of them."""
+    if not isinstance(targets, dict):
+        raise AnalysisError(f"trim: 'targets' must be a mapping of signals to values, got "
+                            f"{targets!r}")
+    return {str(k): ([_number(x, f"trim: target '{k}'") for x in v]
+                     if isinstance(v, list) else _number(v, f"trim: target '{k}'"))
+            for k, v in targets.items()}
 
 
 def operating_point(d, at, jit=True):
