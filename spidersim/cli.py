@@ -22,12 +22,14 @@ from .outputs import prepare_out, safe_stem
 class Progress:
     """Progress bar on stderr for runs longer than a second (a line per 25 % off a tty)."""
 
-    def __init__(self, t_end, stream=sys.stderr):
+    def __init__(self, t_end, stream=None):
         self.t_end = t_end
-        self.stream = stream
+        # sys.stderr of the moment (a default bound at import kept a closed stream once
+        # the caller had replaced it: a notebook's, or pytest's capture of an earlier test)
+        self.stream = stream if stream is not None else sys.stderr
         self.t0 = time.perf_counter()
         self.last = 0.0
-        self.tty = stream.isatty()
+        self.tty = self.stream.isatty()
         self.shown = False
         self.next_mark = 0.25
 
@@ -616,6 +618,33 @@ def _check_windows(d, raw_plots):
                            f"before the end of the run (simulation.t_end = {t_end:g} s): no "
                            f"verdict "
                            f"could be given", file=d.file,
+                           line=getattr(d.spec.data, "line_of", lambda k: None)(
+                               "microgravity"))
+    if mg:
+        _check_window_length(d, mg, t_end)
+
+
+def _check_window_length(d, mg, t_end):
+    """The microgravity window resolves at least its widest (top) band: a band needs two
+    frequency bins, ``df = 1 / (n dt)``, so the window must last ``2 / (hi - lo)`` of the top
+    band (a shorter one resolved no band: no verdict, exit status 0)."""
+    from .microgravity import third_octave_bands
+    bands = third_octave_bands(mg["f_min"], mg["f_max"])
+    if not len(bands):
+        return
+    lo, _fc, hi = bands[-1]
+    t0, t1 = mg.get("window") or (0.0, t_end)
+    t1 = min(t1, t_end)
+    oi = d.simulation.get("output_interval")
+    # the samples in the window: n = floor(T / dt) + 1, spanning n dt in frequency terms
+    length = (math.floor((t1 - t0) / oi + 1e-9) + 1) * oi if oi else t1 - t0
+    need = 2.0 / (hi - lo)
+    if length < need * (1 - 1e-9):
+        need_t = (math.ceil(need / oi - 1e-9) - 1) * oi if oi else need
+        raise DiagramError(f"microgravity: the window [{t0:g}, {t1:g}] s lasts {t1 - t0:g} s; "
+                           f"the widest band ({lo:.4g}-{hi:.4g} Hz) needs at least "
+                           f"{need_t:.4g} s (two frequency bins), and lower bands longer: no "
+                           f"band would be assessed", file=d.file,
                            line=getattr(d.spec.data, "line_of", lambda k: None)(
                                "microgravity"))
 

@@ -244,3 +244,25 @@ def test_as_dict_is_strict_json():
     d = json.loads(json.dumps(a.as_dict(), allow_nan=False))
     assert d["bands"][0]["limit_ug"] is None and d["bands"][0]["margin_db"] is None
     assert d["passed"] is False
+
+
+@pytest.mark.parametrize("t1, ok", [(1.0859, False), (1.086, True)])
+def test_window_too_short_for_any_band_is_refused_by_check(tmp_path, capsys, t1, ok):
+    """f_max 100 Hz: the widest band (89.1-112.2 Hz) needs two bins, n dt >= 2 / 23.1 Hz,
+    i.e. 87 samples of 1 ms: a window of 0.086 s. A shorter one resolved no band, so run
+    gave no verdict and exit status 0; now check refuses it at the section's line, and the
+    shortest accepted window gives a verdict."""
+    from spidersim.cli import main
+    text = MG_DIAGRAM.replace("  window: [1, 9]\n", f"  window: [1, {t1}]\n  f_max: 100\n")
+    f = tmp_path / "mg.yaml"
+    f.write_text(text)
+    if not ok:
+        assert main(["check", str(f)]) == 2
+        err = capsys.readouterr().err
+        assert "mg.yaml:16:" in err and "needs at least 0.086 s" in err
+        return
+    out = tmp_path / "out"
+    assert main(["run", str(f), "--out", str(out), "--no-plots", "--no-jit",
+                 "--t-end", "1.2"]) == 0
+    assert "verdict:" in capsys.readouterr().out
+    assert len(_strict_json(out / "microgravity.json")["bands"]) == 1

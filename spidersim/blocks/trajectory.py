@@ -206,7 +206,7 @@ class ViaPointProfile(Block):
         if not np.all(np.isfinite(v)):
             raise ValueError("parameter 'times' must be finite")
         h = np.diff(v)
-        if np.any(h < MIN_SEGMENT):
+        if np.any(h < MIN_SEGMENT * (1 - 1e-6)):    # 10.0000001 - 10 = 9.99999994e-8
             k = int(np.argmin(h))
             raise ValueError(f"parameter 'times': the segment from times[{k}] = {v[k]:.15g} s "
                              f"to times[{k + 1}] = {v[k + 1]:.15g} s lasts {h[k]:.3g} s, "

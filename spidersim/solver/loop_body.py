@@ -443,13 +443,18 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
                          G[G_TMP], xtol, sig, p, modes)
         G[G_TIMES, j] = ti
         t_ev = min(t_ev, ti)
-    # crossings located within 2 xtol of the earliest are one instant: applied together at
-    # the latest of them, where every one of them has crossed (applied at the earliest, a
-    # guard located a hair later would still be on its old side and fire again)
-    t_first = t_ev
-    for j in range(nh):
-        if G[G_TIMES, j] <= t_first + 2 * xtol:
-            t_ev = max(t_ev, G[G_TIMES, j])
+    # crossings located within 2 xtol of the earliest, or of one already in the group
+    # (chained), are one instant: applied together at the latest of them, where every one
+    # of them has crossed. Applied at the earliest, a guard located a hair later was still
+    # on its old side and fired again; grouped without chaining, a guard just beyond the
+    # window could have crossed by the latest time and was never fired
+    grow = True
+    while grow:
+        grow = False
+        for j in range(nh):
+            if t_ev < G[G_TIMES, j] <= t_ev + 2 * xtol:
+                t_ev = G[G_TIMES, j]
+                grow = True
     if t_ev < t_end_step:
         _dense(meth, t, h, x, x1, K, B, t_ev, xs)
     else:
@@ -463,7 +468,7 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
     bmask[:] = 0
     window = fst[F_CHATTER_WINDOW]
     for j in range(nh):
-        if G[G_TIMES, j] > t_first + 2 * xtol:
+        if G[G_TIMES, j] > t_ev:
             continue
         i = hit[j]
         d = math.copysign(1.0, G[G_NEW, i] - G[G_OLD, i]) \
@@ -482,7 +487,7 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
         chat[b, c % CHATTER_COUNT] = t_ev
         chat[b, CHATTER_COUNT] = c + 1
     for j in range(nh):
-        if G[G_TIMES, j] <= t_first + 2 * xtol:
+        if G[G_TIMES, j] <= t_ev:
             bmask[g_block[hit[j]]] = 1
     _sf.initialize(fn, t_ev, xs, sig, p, modes)
     code = _settle(fn, t_ev, xs, G, g_dir, g_block, bmask, ev_t,

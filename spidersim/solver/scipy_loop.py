@@ -258,12 +258,18 @@ class SciPyLoop:
         hits = self.hit_buf[:n_hit].copy()
         dense = solver.dense_output()
         times, xtol = self._locate(hits, dense, t_old, solver.t, g_old)
-        # crossings within 2 xtol of the earliest are one instant, applied at the latest of
-        # them (where each has crossed; at the earliest, one located a hair later would
-        # still be on its old side and fire again)
-        t_first = min(times.values())
-        now = [i for i in hits if times[i] <= t_first + 2 * xtol]
-        t_ev = max(times[i] for i in now)
+        # crossings within 2 xtol of the earliest, or of one already in the group (chained),
+        # are one instant, applied at the latest of them, where each has crossed (at the
+        # earliest, one located a hair later would still be on its old side and fire again;
+        # without chaining, one just beyond the window could have crossed and never fire)
+        t_ev = min(times.values())
+        grow = True
+        while grow:
+            later = [times[i] for i in hits if t_ev < times[i] <= t_ev + 2 * xtol]
+            grow = bool(later)
+            if grow:
+                t_ev = max(later)
+        now = [i for i in hits if times[i] <= t_ev]
         x_ev = dense(t_ev) if t_ev < solver.t else solver.y.copy()
         if self.output_interval is not None:
             self._record_grid(dense, t_old, t_ev)

@@ -166,6 +166,7 @@ def test_check_refuses_a_segment_shorter_than_the_time_resolution():
     with pytest.raises(ParameterError, match="'times' must be finite"):
         spidersim.loads(text % ".inf")
     spidersim.loads(text % "1.0000001")
+    spidersim.loads(text.replace("[0, 1, %s]", "[0, 10, %s]") % "10.0000001")  # 9.99999994e-8
 
 
 def test_check_refuses_fewer_than_two_points():

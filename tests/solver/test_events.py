@@ -120,6 +120,33 @@ simulation: {{t_end: 2.0, rtol: 1e-10, atol: 1e-12}}
         assert np.max(np.abs(times - exact)) < 1e-8
 
 
+def test_chained_crossings_within_the_location_tolerance_all_fire(engine):
+    """Three guards on one sine crossing at T, T + 1.9 xtol and T + 1.95 xtol (xtol = 1e-13 s):
+    one instant. Grouped only within 2 xtol of the earliest and applied at the latest, the
+    middle one (located just beyond the window's edge but crossed by then) fired nowhere (a
+    reviewer's reproducer: DP54, NDF, ROS34PW2); chained, each fires exactly once."""
+    import math
+    T, xt, f = 0.5, 1e-13, 0.3
+
+    def g(t):
+        return math.sin(2 * math.pi * f * t)
+    text = """
+parameters: {cW: 0.5, cX: 0.5, cY: 0.5}
+blocks:
+  r: {type: Sine, amplitude: 1.0, f: 0.3}
+  satW: {type: Saturation, lower: -10.0, upper: cW}
+  satX: {type: Saturation, lower: -10.0, upper: cX}
+  relY: {type: Relay, on_point: cY, off_point: -1.0}
+connections:
+  - r.y -> satW.u, satX.u, relY.u
+simulation: {t_end: 0.8, rtol: 1e-8, atol: 1e-10}
+"""
+    r = spidersim.loads(text, set={"cW": g(T), "cX": g(T + 1.9 * xt),
+                                   "cY": g(T + 1.95 * xt)}).simulate(**engine)
+    fired = sorted(b for t, b, _e in r.events if abs(t - T) < 1e-9)
+    assert fired == ["relY", "satW", "satX"], r.events
+
+
 def test_event_saturation_switches_exactly_at_the_corner(engine):
     text = """
 blocks:
