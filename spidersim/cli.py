@@ -264,7 +264,8 @@ def cmd_run(args):
           f"{s['rhs_calls']} RHS calls, "
           + (f"{s['wall_time']:.3f} s" if s['wall_time'] >= 0.1 else
              f"{1e3 * s['wall_time']:.2f} ms") + " integration")
-    print(f"spidersim: wrote {out}/result.npz, result.csv, report.txt"
+    print(f"spidersim: wrote {out}/result.npz, "
+          + ("result.csv, " if r.csv_written() else "") + "report.txt"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
     return 0
 

@@ -2,6 +2,7 @@
 from a sanitised ``name:``; an unusable ``--out`` is refused before compiling."""
 import os
 
+import numpy as np
 import pytest
 
 from spidersim.cli import main
@@ -178,3 +179,24 @@ def test_safe_stem():
     assert safe_stem("", None, "..") == "diagram"
     assert safe_stem("a" * 500) == "a" * 80
     assert safe_stem("süß\n\"x\"") == "s_x"
+
+
+def test_csv_only_up_to_its_size_limit(tmp_path, monkeypatch):
+    """result.csv holds every value as text (about 3x the binary record): written up to
+    CSV_MAX_VALUES values; a larger record is in result.npz only, report.txt says so, and a
+    table left by an earlier run in the folder is removed (it would pass for this run's)."""
+    import spidersim
+    from spidersim.solver import result as res
+    r = spidersim.loads("blocks:\n  c: {type: Constant, value: 2}\n  i: {type: Integrator}\n"
+                        "connections:\n  - c.y -> i.u\n").simulate(t_end=1.0, jit=False,
+                                                                    output_interval=0.01)
+    n = r.csv_values()
+    assert n == len(r.t) * (1 + len(list(r.columns())))
+    r.save(tmp_path)
+    assert (tmp_path / "result.csv").stat().st_size > 0
+    monkeypatch.setattr(res, "CSV_MAX_VALUES", n - 1)
+    r.save(tmp_path)
+    assert not (tmp_path / "result.csv").exists()
+    assert f"result.csv: not written ({n:,} values" in (tmp_path / "report.txt").read_text()
+    back = res.Result.load(tmp_path)
+    assert np.array_equal(back["i.y"], r["i.y"])

@@ -160,11 +160,26 @@ class Result:
                 data = np.column_stack([self.t[lo:hi]] + [c[lo:hi] for _, c in cols])
                 for row in data:
                     w.writerow([repr(float(v)) for v in row])
-        write_atomic(os.path.join(folder, "result.csv"), csv_rows)
+        csv_path = os.path.join(folder, "result.csv")
+        if self.csv_written():
+            write_atomic(csv_path, csv_rows)
+        elif os.path.isfile(csv_path):
+            os.remove(csv_path)              # an earlier run's table would pass for this one's
         write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(self.report()))
         write_atomic(os.path.join(folder, "report.json"),
                      lambda fh: write_meta_json(fh, self._meta_head(), self.events, indent=1))
         return folder
+
+    def csv_values(self):
+        """Values the CSV table would hold: rows x (time + every column)."""
+        return len(self.t) * (1 + sum(b - a for a, b in self._slices.values()))
+
+    def csv_written(self):
+        """Whether :meth:`save` writes ``result.csv``: at most :data:`CSV_MAX_VALUES` values
+        (as text about 24 bytes each, three times the binary record); a larger record is in
+        ``result.npz`` only (a 1e300 s run at the default recording budget wrote 6.6 GB of
+        CSV beside its 7.8 GB NPZ)."""
+        return self.csv_values() <= CSV_MAX_VALUES
 
     def meta(self):
         """Everything but the samples: status, units, sizes, statistics, events, provenance."""
@@ -232,6 +247,9 @@ class Result:
                 lines += [f"{k}:"] + [f"  {a}: {b}" for a, b in v.items()]
             else:
                 lines.append(f"{k}: {v}")
+        if not self.csv_written():
+            lines.append(f"result.csv: not written ({self.csv_values():,} values, more than "
+                         f"{CSV_MAX_VALUES:,}); the data is in result.npz")
         if self.events:
             lines.append(f"event log ({len(self.events)}, first 20):")
             lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]
@@ -244,6 +262,8 @@ class Result:
 
 #: rows of the CSV table converted at a time
 CSV_BLOCK = 1 << 12
+#: the largest record written as ``result.csv`` too (values; about 240 MB of text)
+CSV_MAX_VALUES = 10_000_000
 #: events of a log converted to text (or to tuples) at a time
 EVENT_BLOCK = 1 << 12
 
