@@ -510,7 +510,9 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                                      f"service's limit of {limits.max_points} per answer; "
                                      f"ask for ?stride={need} or ?points="
                                      f"{limits.max_points // size}, or download the whole "
-                                     f"record from /jobs/{job_id}/result.npz or result.csv")
+                                     f"record from /jobs/{job_id}/result.npz"
+                                     + (" or result.csv" if os.path.isfile(os.path.join(
+                                         store.job_dir(job_id), "result.csv")) else ""))
         t = read_rows(npz, "t", s)[1]
         y = read_rows(npz, name, s)[1]
         return {"name": name, "unit": meta["units"][name], "size": size,
