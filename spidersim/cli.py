@@ -860,9 +860,20 @@ def cmd_serve(args):
         tok = service.add_user(args.add_user, args.data)
         print(f"user '{args.add_user}': token (shown once, keep it secret):\n{tok}")
         return 0
+    if args.revoke_user:
+        try:
+            n = service.revoke_user(args.revoke_user, args.data)
+        except KeyError:
+            print(f"spidersim: error: no user '{args.revoke_user}'", file=sys.stderr)
+            return 1
+        print(f"user '{args.revoke_user}': {n} token(s) revoked (refused from the next "
+              f"request on; --add-user gives a new one)")
+        return 0
     from .service.app import Limits
     lim = Limits(max_t_end=args.max_t_end, max_active=args.max_jobs,
-                 max_body=args.max_body, max_signals=args.max_signals)
+                 max_body=args.max_body, max_signals=args.max_signals,
+                 max_record_mb=args.max_record_mb, max_points=args.max_points,
+                 keep_days=args.keep_days)
     service.serve(args.host, args.port, args.models, args.data, args.workers, args.scheduler,
                   lim, args.job_timeout, not args.no_jit)
     return 0
@@ -968,12 +979,23 @@ def build_parser():
     sw_.add_argument("--workers", type=count(1, 256), default=None,
                      help="worker processes, at most 256 (default 2)")
     sw_.add_argument("--scheduler", metavar="ADDRESS", help="run jobs on this Dask scheduler")
-    sv.add_argument("--add-user", metavar="NAME", help="create a user / new token and exit")
+    sv_ = sv.add_mutually_exclusive_group()
+    sv_.add_argument("--add-user", metavar="NAME", help="create a user / new token and exit")
+    sv_.add_argument("--revoke-user", metavar="NAME",
+                     help="delete every token of a user and exit (effective at once)")
     sv.add_argument("--max-t-end", type=positive_float, default=60.0,
                     help="simulated s per run")
     sv.add_argument("--max-jobs", type=count(1), default=8, help="queued+running jobs per user")
     sv.add_argument("--max-body", type=count(1), default=256 * 1024, help="request bytes")
-    sv.add_argument("--max-signals", type=count(1), default=64, help="logged signals per run")
+    sv.add_argument("--max-signals", type=count(1), default=64,
+                    help="signals a request's 'log' may name (a model's own log list is "
+                         "bounded by --max-record-mb)")
+    sv.add_argument("--max-record-mb", type=positive_float, default=256.0,
+                    help="recorded data of one job, MB (a run stops there keeping its data)")
+    sv.add_argument("--max-points", type=count(1000), default=200_000,
+                    help="values of one /signals answer (more: 413)")
+    sv.add_argument("--keep-days", type=positive_float, default=7.0,
+                    help="days a finished job's files are kept (then 410 Gone)")
     sv.add_argument("--job-timeout", type=positive_float, default=3600.0, help="wall s per job")
     sv.add_argument("--no-jit", action="store_true", help="interpreted runs (debugging)")
     sv.set_defaults(fn=cmd_serve)

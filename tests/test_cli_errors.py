@@ -325,6 +325,10 @@ def test_run_unsolvable_loop_is_reported_and_keeps_data(tmp_path, capsys, monkey
     (["serve", "--max-jobs", "0"], "argument --max-jobs: expected an integer >= 1"),
     (["serve", "--max-body", "1.5"], "argument --max-body: expected an integer >= 1"),
     (["serve", "--port", "70000"], "argument --port: expected an integer in 1..65535"),
+    (["serve", "--max-record-mb", "inf"], "argument --max-record-mb: expected a finite"),
+    (["serve", "--keep-days", "0"], "argument --keep-days: expected a finite number > 0"),
+    (["serve", "--max-points", "10"], "argument --max-points: expected an integer >= 1000"),
+    (["serve", "--add-user", "a", "--revoke-user", "a"], "not allowed with argument"),
 ])
 def test_numeric_options_refuse_nan_inf_and_out_of_range(argv, words, capsys):
     """Numeric options are finite and in range before anything runs: ``--max-t-end nan``

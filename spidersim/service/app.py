@@ -2,15 +2,27 @@
 
 Every route but ``GET /health``, ``/`` and the page's static files needs
 ``Authorization: Bearer <token>`` (401 otherwise); a job of another user answers 404 as an
-unknown one. Limits answer 413 (body size), 422 (run length, logged signals, bad request)
-and 429 (active jobs per user, with ``Retry-After``), each with a ``detail`` message.
+unknown one. Limits answer 413 (body size, a signal answer of more than ``max_points``
+values), 422 (run length, logged signals, bad request, a non-finite number) and 429 (active
+jobs per user, with ``Retry-After``), each with a ``detail`` message; the files of a job
+finished more than ``keep_days`` ago are removed and its result routes answer 410 Gone.
+
+Every JSON answer is strict JSON (RFC 8259): a non-finite number in a stored value or a
+result (a run whose rows hold inf or nan) is written as ``null``
+(:class:`StrictJSONResponse`); a request holding one (``1e999``, ``Infinity``, ``NaN``) is
+refused with 422 naming its field.
 """
 from __future__ import annotations
 
 import asyncio
 import json
+import math
 import os
 import re
+import shutil
+import threading
+import time
+import zipfile
 from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
@@ -26,6 +38,7 @@ from spidersim.errors import SpidersimError
 from spidersim.text.yamlio import lone_surrogate
 
 from .commands import prepare
+from .execute import finite_json
 from .library import BadName, Library, UnknownModel
 from .store import KeyReused, Store, TooManyJobs
 
@@ -36,8 +49,46 @@ _FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
 class Limits(BaseModel):
     max_body: int = 256 * 1024          # bytes of a request body
     max_t_end: float = 60.0              # s of simulated time per run
-    max_signals: int = 64                # logged signals per run
+    max_signals: int = 64                # signals a request's 'log' may name
     max_active: int = 8                  # queued + running jobs per user
+    max_record_mb: float = 256.0         # recording budget of one job [MB = 1e6 bytes]
+    max_points: int = 200_000            # values (samples x elements) of one /signals answer
+    keep_days: float = 7.0               # days a finished job's files are kept
+
+
+def dumps_strict(content) -> str:
+    """Strict JSON text of ``content``: non-finite numbers as ``null`` (never the
+    ``Infinity``/``NaN`` tokens, which are not JSON and which browsers refuse)."""
+    try:
+        return json.dumps(content, allow_nan=False, ensure_ascii=False,
+                          separators=(",", ":"))
+    except ValueError:
+        return json.dumps(finite_json(content), allow_nan=False, ensure_ascii=False,
+                          separators=(",", ":"))
+
+
+class StrictJSONResponse(JSONResponse):
+    """The app's JSON answers: non-finite numbers written as ``null`` (Starlette's
+    response raised ``ValueError: Out of range float values`` -> 500, and a job stored
+    with an infinite value made every later job list of its user a 500)."""
+
+    def render(self, content) -> bytes:
+        return dumps_strict(content).encode("utf-8")
+
+
+def non_finite_field(v, where="body"):
+    """The path (``body.parameters.V_max``) of the first non-finite number in a parsed
+    request, or None."""
+    stack = [(v, where)]
+    while stack:
+        x, w = stack.pop()
+        if isinstance(x, float) and not math.isfinite(x):
+            return w
+        if isinstance(x, dict):
+            stack += [(y, f"{w}.{k}") for k, y in x.items()]
+        elif isinstance(x, list):
+            stack += [(y, f"{w}[{i}]") for i, y in enumerate(x)]
+    return None
 
 
 # ---------------------------------------------------------------------------- request types
@@ -112,7 +163,14 @@ class RunRequest(BaseModel):
     @classmethod
     def _characters(cls, data):
         """Refuse texts holding a lone surrogate (JSON ``\\ud800`` escapes): not a
-        character, it cannot be printed, stored or written to a file."""
+        character, it cannot be printed, stored or written to a file; and non-finite
+        numbers (``1e999`` overflows to inf; ``Infinity``, ``NaN``): not JSON, they cannot
+        be answered back (an infinite value is given as the text ``"inf"``)."""
+        bad = non_finite_field(data)
+        if bad is not None:
+            raise ValueError(f"{bad}: a non-finite number (1e999 overflows to inf, Infinity, "
+                             f"NaN) is not a JSON number; give a finite value (a parameter "
+                             f"that may be infinite takes the text \"inf\")")
         stack = [(data, "body")]
         while stack:
             v, where = stack.pop()
@@ -147,12 +205,73 @@ def current_user(request: Request,
 User = Annotated[tuple, Depends(current_user)]
 
 
+def read_rows(path, name, stride, chunk_rows=1 << 16):
+    """Every ``stride``-th row of array ``name`` of an NPZ written by ``Result.save``
+    (entries stored, not compressed), read from the file in blocks of ``chunk_rows`` rows:
+    the answer's memory is the rows returned plus one block, not the whole array (six
+    parallel requests for 63 MB signals took the server from 230 MB to 2.1 GB).
+    Returns ``(n_rows, array)``; ``stride=None`` reads only the row count."""
+    fmt = np.lib.format
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(name + ".npy")
+        with zf.open(info) as f:
+            version = fmt.read_magic(f)
+            read = fmt.read_array_header_1_0 if version == (1, 0) else \
+                fmt.read_array_header_2_0
+            shape, fortran, dtype = read(f)
+            head = f.tell()
+        n = shape[0] if shape else 1
+        if stride is None:
+            return n, None
+        if info.compress_type != zipfile.ZIP_STORED or fortran or dtype.hasobject:
+            with np.load(path, allow_pickle=False) as z:          # not ours: plain load
+                return n, np.ascontiguousarray(z[name][::stride])
+    width = int(np.prod(shape[1:])) if len(shape) > 1 else 1
+    row = width * dtype.itemsize
+    with open(path, "rb") as fh:                  # the entry's data in the ZIP file
+        fh.seek(info.header_offset)
+        local = fh.read(30)
+        start = info.header_offset + 30 + int.from_bytes(local[26:28], "little") \
+            + int.from_bytes(local[28:30], "little") + head
+        parts = []
+        step = max(stride, (chunk_rows // stride) * stride)
+        for lo in range(0, n, step):
+            hi = min(n, lo + step)
+            fh.seek(start + lo * row)
+            block = np.frombuffer(fh.read((hi - lo) * row), dtype=dtype)
+            parts.append(block.reshape((hi - lo,) + tuple(shape[1:]))[::stride].copy())
+    out = np.concatenate(parts) if parts else np.zeros((0,) + tuple(shape[1:]), dtype)
+    return n, out
+
+
 def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None = None):
     """The ASGI app; ``runner_factory(store, library) -> Runner`` starts the workers."""
     limits = limits or Limits()
     store = Store(data_dir)
     library = Library(models)
     state = {"runner": None}
+    keep_s = limits.keep_days * 86400.0
+
+    def expired(job):
+        """A finished job whose files are past the retention time (removed, or about to
+        be by the sweeper)."""
+        return bool(job.get("expired")) or (
+            job["state"] in ("done", "failed", "cancelled") and job["finished"] is not None
+            and time.time() - job["finished"] > keep_s)
+
+    def sweep():
+        """Remove the files of jobs finished more than ``keep_days`` ago; return how many."""
+        ids = store.expire(time.time() - keep_s)
+        for jid in ids:
+            shutil.rmtree(store.job_dir(jid), ignore_errors=True)
+        return len(ids)
+
+    def sweeper(stop):
+        while not stop.wait(min(600.0, max(0.5, keep_s / 10))):
+            try:
+                sweep()
+            except Exception as exc:              # database busy: next time
+                print(f"spidersim serve: result clean-up failed: {exc}", flush=True)
 
     def _files(job):
         folder = store.job_dir(job["id"])
@@ -170,8 +289,9 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                                  "created", "started", "finished", "version", "diagram_hash")}
         j["request"] = job["request"]
         j["fraction"] = min(1.0, job["progress"] / job["t_end"]) if job["t_end"] > 0 else 1.0
+        j["expired"] = expired(job)
         if job["state"] in ("done", "failed"):
-            j["files"] = _files(job)
+            j["files"] = {"data": [], "plots": []} if j["expired"] else _files(job)
         return j
 
     async def lifespan(app):
@@ -179,10 +299,18 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         if failed or queued:
             print(f"spidersim serve: {failed} job(s) were running when the server stopped "
                   f"(marked failed), {queued} queued job(s) will run", flush=True)
+        n = sweep()
+        if n:
+            print(f"spidersim serve: removed the files of {n} job(s) finished more than "
+                  f"{limits.keep_days:g} day(s) ago", flush=True)
+        stop = threading.Event()
+        threading.Thread(target=sweeper, args=(stop,), daemon=True,
+                         name="spidersim-retention").start()
         if runner_factory is not None:
             state["runner"] = runner_factory(store, library)
             state["runner"].start()
         yield
+        stop.set()
         if state["runner"] is not None:
             state["runner"].stop()
 
@@ -191,7 +319,7 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                               "parameters, initial state and a command, run, fetch results. "
                               "Authorize with 'Authorization: Bearer <token>' (a token comes "
                               "from 'spidersim serve --add-user NAME').",
-                  lifespan=lifespan)
+                  lifespan=lifespan, default_response_class=StrictJSONResponse)
     app.state.store, app.state.library, app.state.limits = store, library, limits
 
     @app.exception_handler(RequestValidationError)
@@ -199,7 +327,8 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         """FastAPI's 422, written as ASCII JSON: the errors quote the input, and an input
         holding a lone surrogate (a JSON \\ud800 escape) cannot be encoded as UTF-8 (the
         default response failed with a 500)."""
-        text = json.dumps({"detail": jsonable_encoder(exc.errors())}, ensure_ascii=True)
+        text = json.dumps(finite_json({"detail": jsonable_encoder(exc.errors())}),
+                          ensure_ascii=True, allow_nan=False)
         return Response(text, status_code=422, media_type="application/json")
 
     @app.middleware("http")
@@ -269,11 +398,10 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         if t_end > limits.max_t_end:
             raise HTTPException(422, f"t_end = {t_end:g} s is longer than this service's "
                                      f"limit of {limits.max_t_end:g} s of simulated time")
-        n_sig = len(d.logged_sizes())
-        if n_sig > limits.max_signals:
-            raise HTTPException(422, f"the run would log {n_sig} signals, more than the limit "
-                                     f"of {limits.max_signals}: give 'log' with the signals "
-                                     f"you need")
+        n_sig = len(body.get("log") or ())   # a model's own log list is its author's
+        if n_sig > limits.max_signals:        # choice; the recording budget bounds its size
+            raise HTTPException(422, f"'log' names {n_sig} signals, more than the limit "
+                                     f"of {limits.max_signals}: name the signals you need")
         body["t_end"] = t_end
         try:
             job, created = store.create_job(u[0], m.name, body, t_end, spidersim.__version__,
@@ -323,7 +451,7 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                 key = (pub["state"], pub["progress"], pub["message"])
                 if key != last:
                     last = key
-                    yield f"event: {pub['state']}\ndata: {json.dumps(pub)}\n\n"
+                    yield f"event: {pub['state']}\ndata: {dumps_strict(pub)}\n\n"
                 if job["state"] not in ("queued", "running"):
                     return
                 await asyncio.sleep(0.25)
@@ -335,6 +463,10 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
     def job_file(job, rel):
         if job["state"] in ("queued", "running", "cancelled"):
             raise HTTPException(409, f"job {job['id']} is {job['state']}: no results")
+        if expired(job):
+            raise HTTPException(410, f"the results of job {job['id']} were removed: this "
+                                     f"service keeps them {limits.keep_days:g} day(s) after "
+                                     f"the job ends")
         p = os.path.join(store.job_dir(job["id"]), rel)
         if not os.path.isfile(p):
             raise HTTPException(404, f"job {job['id']} has no file {rel}")
@@ -355,17 +487,36 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
     def job_signal(job_id: str, name: str, u: User, stride: int = 1,
                    points: Optional[int] = None):
         job = own_job(job_id, u)
-        meta = json.load(open(job_file(job, "meta.json")))
+        try:                            # units and sizes, not meta.json's events
+            with open(job_file(job, "signals.json")) as fh:
+                meta = json.load(fh)
+        except HTTPException:           # a job of an earlier version
+            with open(job_file(job, "meta.json")) as fh:
+                meta = json.load(fh)
         if name not in meta["units"]:
             raise HTTPException(404, f"no logged signal '{name}'; signals: "
                                      f"{', '.join(meta['units'])}")
-        with np.load(job_file(job, "result.npz"), allow_pickle=False) as z:
-            t, y = z["t"], z[name]
+        npz = job_file(job, "result.npz")
+        n, _ = read_rows(npz, "t", None)
         s = max(1, int(stride))
         if points is not None:          # about this many samples, evenly spaced
-            s = max(1, -(-len(t) // max(2, int(points))))
-        return {"name": name, "unit": meta["units"][name], "size": meta["sizes"][name],
-                "stride": s, "t": t[::s].tolist(), "values": y[::s].tolist()}
+            s = max(1, -(-n // max(2, int(points))))
+        size = int(meta["sizes"][name])
+        values = -(-n // s) * size
+        if values > limits.max_points:
+            need = -(-n * size // limits.max_points)
+            raise HTTPException(413, f"signal '{name}' has {n} samples of {size} value(s): "
+                                     f"{values} values at stride {s}, more than this "
+                                     f"service's limit of {limits.max_points} per answer; "
+                                     f"ask for ?stride={need} or ?points="
+                                     f"{limits.max_points // size}, or download the whole "
+                                     f"record from /jobs/{job_id}/result.npz"
+                                     + (" or result.csv" if os.path.isfile(os.path.join(
+                                         store.job_dir(job_id), "result.csv")) else ""))
+        t = read_rows(npz, "t", s)[1]
+        y = read_rows(npz, name, s)[1]
+        return {"name": name, "unit": meta["units"][name], "size": size,
+                "stride": s, "t": t.tolist(), "values": y.tolist()}
 
     @app.get("/jobs/{job_id}/plots/{file}")
     def job_plot(job_id: str, file: str, u: User):

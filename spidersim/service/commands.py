@@ -515,6 +515,10 @@ def _run_length(req, t_cmd, d, spec):
         t_end = t_cmd if t_cmd is not None else d.simulation["t_end"]
     if not _is_time(t_end):
         _fail(f"t_end must be a positive number of seconds, got {found(t_end)}", spec)
+    from spidersim.solver.events import MIN_SPAN
+    if t_end < MIN_SPAN:                   # the CLI's check: refused before it is queued
+        _fail(f"t_end must be at least {MIN_SPAN:g} s (the solvers take steps shorter "
+              f"than 1e-10 s as a stall), got {found(t_end)}", spec)
     return float(t_end)
 
 

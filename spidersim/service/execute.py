@@ -8,16 +8,24 @@ Files of a job (the job folder under ``--data``, or returned as bytes from a Das
     report.txt     solver statistics and events
     meta.json      status, message, units, sizes, events and statistics: with result.npz
                    it rebuilds the :class:`spidersim.Result` (``spidersim.remote``)
+    signals.json   units and sizes only (what a signal answer reads)
+
+result.csv is left out when it would be larger than :data:`MAX_CSV_MB` (about 24 bytes a
+value: the 193 MB NPZ of a run stopped at its budget made a 438 MB CSV); the NPZ holds the
+same data. Every JSON file is strict JSON (non-finite numbers as null).
     plots/         the model's plots (PNG) and arm animation (GIF)
 """
 from __future__ import annotations
 
+import json
+import math
 import os
 import shutil
 import tempfile
 import time
 
 from spidersim.errors import IntegrationError
+from spidersim.solver import record_budget
 from spidersim.solver.result import write_meta_json
 
 from .commands import prepare
@@ -25,21 +33,58 @@ from .library import Model
 
 #: seconds between two progress reports of a run
 PROGRESS_EVERY = 0.25
+#: events written into meta.json and the report files (the rest counted in
+#: ``stats["events_total"]``): a run of millions of sampler events wrote 39 MB of them
+MAX_EVENTS = 100_000
+#: MB above which result.csv is not written (estimated at 24 bytes a value)
+MAX_CSV_MB = 64.0
+
+
+def finite_json(v):
+    """``v`` with every non-finite float (inf, -inf, nan) replaced by None: strict JSON
+    (RFC 8259 has no Infinity or NaN; browsers refuse them)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: finite_json(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [finite_json(x) for x in v]
+    return v
 
 
 def _meta(r, status, message):
     """meta.json without its events (written in blocks by ``write_meta_json``: a list of
     millions of events as Python lists took ten times the memory the budget counts)."""
-    return {"status": status, "message": message, "units": dict(r.units),
+    return finite_json({"status": status, "message": message, "units": dict(r.units),
             "sizes": {n: (1 if r[n].ndim == 1 else int(r[n].shape[1])) for n in r.names},
             "stats": {k: (v if isinstance(v, (int, float, str, bool)) or v is None
-                          else str(v)) for k, v in r.stats.items()}}
+                          else str(v)) for k, v in r.stats.items()}})
+
+
+def _save_without_csv(r, folder):
+    """What ``Result.save`` writes but result.csv (the same writers: NPZ streamed in
+    blocks, files renamed when complete)."""
+    from spidersim.outputs import write_atomic
+    os.makedirs(folder, exist_ok=True)
+    arrays = {"t": r.t}
+    arrays.update({n: r[n] for n in r.names})
+    write_atomic(os.path.join(folder, "result.npz"),
+                 lambda fh: r._write_npz(fh, arrays), binary=True)
+    write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(r.report()))
+    write_atomic(os.path.join(folder, "report.json"),
+                 lambda fh: write_meta_json(fh, finite_json(r._meta_head()), r.events,
+                                            indent=1))
 
 
 def run_job(task, report=None, out=None):
     """Run ``task`` = ``{"id", "model", "path", "request", "jit"}``.
 
     ``report(t)`` receives the simulated time reached every :data:`PROGRESS_EVERY` seconds.
+    With ``task["wall_limit"]`` [s] the run stops (the loop's ``should_stop``) when that
+    much wall time has passed, status ``"interrupted"``, keeping its rows. A run stopped
+    at the recording budget (``SPIDERSIM_RECORD_LIMIT_MB``, which the service sets per
+    worker) keeps its rows too, status ``"failed"``. At most :data:`MAX_EVENTS` events
+    are written.
     With ``out`` the files are written there; without, they are returned as
     ``{"files": {relative name: bytes}}`` (a Dask worker's disk is not the server's).
     Returns ``{"status": "ok" | "failed", "message", "t_reached", "wall_time", ...}``;
@@ -57,16 +102,38 @@ def run_job(task, report=None, out=None):
 
     status, message = "ok", ""
     t0 = time.perf_counter()
+    limit = task.get("wall_limit")
+    deadline = None if limit is None else time.monotonic() + float(limit)
+    should_stop = None if deadline is None else (lambda: time.monotonic() > deadline)
     try:
-        r = d.simulate(t_end=t_end, jit=task.get("jit", True), progress=progress)
+        r = d.simulate(t_end=t_end, jit=task.get("jit", True), progress=progress,
+                       should_stop=should_stop)
     except IntegrationError as exc:
         if exc.partial is None:
             raise
         r, status, message = exc.partial, "failed", model.public_message(exc)
+        message = message.replace(f"or set {record_budget.ENV}",
+                                  "or ask the service's administrator (its recording budget "
+                                  "per job: serve --max-record-mb)")
+    if status == "ok" and r.status == "interrupted":
+        status, message = "interrupted", r.message
+    if len(r.events) > MAX_EVENTS:
+        r.stats["events_total"] = len(r.events)
+        r.events = r.events[:MAX_EVENTS]
+        note = (f"only the first {MAX_EVENTS} of {r.stats['events_total']} events are "
+                f"written")
+        message = f"{message}; {note}" if message else note
     wall = time.perf_counter() - t0
     folder = out or tempfile.mkdtemp(prefix="spidersim-job-")
     try:
-        r.save(folder)
+        n_values = len(r.t) * (1 + sum(r[n][:1].size for n in r.names))
+        if n_values * 24 > MAX_CSV_MB * 1e6:
+            note = (f"result.csv not written ({n_values} values, over the service's "
+                    f"{MAX_CSV_MB:g} MB for it): the data are in result.npz")
+            message = f"{message}; {note}" if message else note
+            _save_without_csv(r, folder)
+        else:
+            r.save(folder)
         meta = _meta(r, status, message)
         plot_error = ""
         if task["request"].get("plots", True) and len(r.t) > 1 and d.spec.plots:
@@ -78,6 +145,8 @@ def run_job(task, report=None, out=None):
         meta["plot_error"] = plot_error
         with open(os.path.join(folder, "meta.json"), "w") as fh:
             write_meta_json(fh, meta, r.events)
+        with open(os.path.join(folder, "signals.json"), "w") as fh:
+            json.dump({"units": meta["units"], "sizes": meta["sizes"]}, fh)
         res = {"status": status, "message": message, "plot_error": plot_error,
                "t_reached": float(r.t[-1]) if len(r.t) else 0.0, "wall_time": wall,
                "t_end": t_end}

@@ -5,7 +5,13 @@ Local pool: ``workers`` slots, each a server thread owning one worker process (s
 sends it to its process and relays progress to the store. Every job runs in a process the
 server can kill: *cancel* terminates the process (a process pool cannot stop a running
 future), and so does the wall-time limit; a process that dies for any other reason fails its
-job with the exit status, and the slot starts a fresh process for the next job. Worker
+job with the exit status, and the slot starts a fresh process for the next job. The
+wall-time limit stops a run cooperatively first (the integration loop's ``should_stop``:
+the rows computed so far are saved, the job fails saying which limit) and kills the
+process only :data:`KILL_GRACE` seconds later. Workers ignore SIGINT and SIGTERM (a
+stop of the whole process group, as systemd does, is the server's to handle): once the
+server begins to stop no slot claims a job, queued jobs stay queued for the next start,
+and a job claimed at that moment goes back to the queue. Worker
 processes keep the compiled diagrams they have loaded (and share the numba disk cache
 ``SPIDERSIM_CACHE``), so only the first run of a structure compiles. A worker exits when the
 server's end of its pipe closes or its parent changes (server killed).
@@ -29,6 +35,9 @@ from spidersim.errors import SpidersimError
 from .execute import run_job
 
 POLL = 0.2           # s between checks of cancel flags and process health
+#: s after the wall-time limit before a run that did not stop (or is still writing its
+#: files) is killed
+KILL_GRACE = 60.0
 
 
 def _worker_main(conn, parent_pid, record_mb=None):
@@ -39,7 +48,8 @@ def _worker_main(conn, parent_pid, record_mb=None):
         from spidersim.solver import record_budget
         os.environ[record_budget.ENV] = f"{record_mb:.6g}"
     import spidersim  # noqa: F401  (import once, before the first job)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)      # the server handles Ctrl-C
+    signal.signal(signal.SIGINT, signal.SIG_IGN)      # the server handles Ctrl-C and
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)     # a stop of the process group
     while True:
         try:
             task = conn.recv()
@@ -77,12 +87,14 @@ def _died_message(code):
 class Runner:
     """Common part: slots that claim queued jobs and finish them in the store."""
 
-    def __init__(self, store, library, n_slots, job_timeout=3600.0, jit=True):
+    def __init__(self, store, library, n_slots, job_timeout=3600.0, jit=True,
+                 job_record_mb=None):
         self.store = store
         self.library = library
         self.n_slots = max(1, int(n_slots))
         self.job_timeout = float(job_timeout)
         self.jit = jit
+        self.job_record_mb = job_record_mb
         self._wake = threading.Condition()
         self._stopping = False
         self._threads = []
@@ -99,15 +111,25 @@ class Runner:
         with self._wake:
             self._wake.notify_all()
 
-    def stop(self):
+    def begin_stop(self):
+        """No more claims; running jobs are stopped by their slots."""
         self._stopping = True
         self.wake()
+
+    def stop(self, wait=10.0):
+        """Stop claiming; wait up to ``wait`` s for the slots to stop their jobs and mark
+        them failed (the server's exit otherwise left them 'running' in the store)."""
+        self.begin_stop()
+        t_end = time.monotonic() + wait
+        for th in self._threads:
+            th.join(max(0.0, t_end - time.monotonic()))
 
     def _task(self, job):
         model = self.library.models.get(job["model"])
         return {"id": job["id"], "model": job["model"],
                 "path": model.path if model else None, "request": job["request"],
-                "jit": self.jit, "out": self.store.job_dir(job["id"])}
+                "jit": self.jit, "out": self.store.job_dir(job["id"]),
+                "wall_limit": self.job_timeout}
 
     def _loop(self, k):
         while not self._stopping:
@@ -120,6 +142,9 @@ class Runner:
                 with self._wake:
                     self._wake.wait(1.0)
                 continue
+            if self._stopping:                # claimed as the server began to stop
+                self.store.release(job["id"])
+                return
             self.running[job["id"]] = k
             try:
                 if job["model"] not in self.library.models:
@@ -138,6 +163,10 @@ class Runner:
         if res.get("plot_error"):
             msg = (msg + "; " if msg else "") + res["plot_error"]
         state = "done" if res["status"] == "ok" else "failed"
+        if res["status"] == "interrupted":    # stopped by the wall-time limit, data kept
+            msg = (f"stopped: the wall-time limit of {self.job_timeout:g} s per job was "
+                   f"reached at t = {res.get('t_reached', 0.0):.6g} s; the data computed "
+                   f"so far are kept")
         self.store.finish(job["id"], state, msg, progress=res.get("t_reached"))
 
 
@@ -152,6 +181,8 @@ class LocalRunner(Runner):
         #: each worker's share of the recording budget [MB]: the budget (the machine's, or
         #: the server's SPIDERSIM_RECORD_LIMIT_MB) divided among the slots
         self.record_mb = record_budget.budget_bytes() / 1e6 / self.n_slots
+        if self.job_record_mb is not None:    # the service's per-job budget
+            self.record_mb = min(self.record_mb, float(self.job_record_mb))
 
     def _process(self, k):
         p = self._procs[k]
@@ -177,9 +208,10 @@ class LocalRunner(Runner):
             self._procs[k] = None
 
     def stop(self):
-        super().stop()
+        super().stop()                # each slot kills its own process and marks its job
         for k in range(self.n_slots):
-            self._kill(k)
+            if self._procs[k] is not None:
+                self._kill(k)
 
     def _run(self, k, job):
         jid = job["id"]
@@ -220,10 +252,11 @@ class LocalRunner(Runner):
                 self._kill(k)
                 self.store.finish(jid, "cancelled", "cancelled while running")
                 return
-            if time.monotonic() - t0 > self.job_timeout:
-                self._kill(k)
+            if time.monotonic() - t0 > self.job_timeout + KILL_GRACE:
+                self._kill(k)               # it did not stop at the limit: no data
                 self.store.finish(jid, "failed", f"stopped: the wall-time limit of "
-                                  f"{self.job_timeout:g} s per job was reached")
+                                  f"{self.job_timeout:g} s per job was reached (the run "
+                                  f"did not stop within {KILL_GRACE:g} s: killed, no data)")
                 return
 
 

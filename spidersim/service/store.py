@@ -8,7 +8,13 @@ same job.
 Tokens have the form ``sst_<id>_<secret>``; only a per-token random salt and the scrypt hash
 of the secret are stored (``hashlib.scrypt``, n = 2^14, r = 8, p = 1). The token is shown once,
 when it is made. Verified tokens are remembered in memory (keyed by their SHA-256) so that a
-client polling a job does not pay the scrypt cost on every request.
+client polling a job does not pay the scrypt cost on every request; every request still
+looks the token's row up (one indexed query), so a token deleted from the database
+(:meth:`Store.revoke_user`, ``spidersim serve --revoke-user NAME``) is refused from the next
+request on, without a restart.
+
+Retention: :meth:`Store.expire` marks finished jobs past the retention time ``expired``
+(their files are removed by the app; the record stays and its result routes answer 410).
 
 Job states: ``queued`` -> ``running`` -> ``done`` | ``failed`` | ``cancelled`` (a queued job
 may be cancelled directly). ``progress`` is the simulated time reached [s]; ``t_end`` the
@@ -43,7 +49,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     request TEXT NOT NULL, state TEXT NOT NULL, t_end REAL NOT NULL,
     progress REAL NOT NULL DEFAULT 0, message TEXT NOT NULL DEFAULT '',
     created REAL NOT NULL, started REAL, finished REAL,
-    version TEXT, diagram_hash TEXT, idem_key TEXT, cancel INTEGER NOT NULL DEFAULT 0);
+    version TEXT, diagram_hash TEXT, idem_key TEXT, cancel INTEGER NOT NULL DEFAULT 0,
+    expired REAL);
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(user_id, idem_key)
     WHERE idem_key IS NOT NULL;
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, seq);
@@ -51,7 +58,8 @@ CREATE INDEX IF NOT EXISTS jobs_user ON jobs(user_id, seq);
 """
 
 _JOB_COLS = ("id", "user_id", "model", "request", "state", "t_end", "progress", "message",
-             "created", "started", "finished", "version", "diagram_hash", "idem_key")
+             "created", "started", "finished", "version", "diagram_hash", "idem_key",
+             "expired")
 
 
 def _scrypt(secret: str, salt: bytes) -> bytes:
@@ -66,9 +74,12 @@ class Store:
         os.makedirs(self.data_dir, exist_ok=True)
         self.path = os.path.join(self.data_dir, "service.sqlite")
         self._local = threading.local()
-        self._verified = {}          # sha256(token) -> (user_id, name)
+        self._verified = {}          # sha256(token) -> (token id, (user_id, name))
         with self._conn() as c:
             c.executescript(SCHEMA)
+            cols = {r[1] for r in c.execute("PRAGMA table_info(jobs)")}
+            if "expired" not in cols:            # a database of an earlier version
+                c.execute("ALTER TABLE jobs ADD COLUMN expired REAL")
 
     # ------------------------------------------------------------------ plumbing
     def _conn(self) -> sqlite3.Connection:
@@ -115,8 +126,13 @@ class Store:
             return None
         key = hashlib.sha256(token.encode()).digest()
         hit = self._verified.get(key)
-        if hit is not None:
-            return hit
+        if hit is not None:                     # verified before: is it still there?
+            row = self._conn().execute("SELECT 1 FROM tokens WHERE id = ?",
+                                       (hit[0],)).fetchone()
+            if row is not None:
+                return hit[1]
+            self._verified.pop(key, None)
+            return None
         parts = token.split("_", 2)
         if len(parts) != 3 or parts[0] != "sst":
             return None
@@ -125,8 +141,18 @@ class Store:
             " WHERE t.id = ?", (parts[1],)).fetchone()
         if row is None or not hmac.compare_digest(_scrypt(parts[2], row["salt"]), row["hash"]):
             return None
-        self._verified[key] = (row["id"], row["name"])
-        return self._verified[key]
+        self._verified[key] = (parts[1], (row["id"], row["name"]))
+        return self._verified[key][1]
+
+    def revoke_user(self, name) -> int:
+        """Delete every token of user ``name`` (the user and its jobs stay; ``add_user``
+        gives a new token); return the number deleted. Effective on the next request of a
+        running server. Raises KeyError for an unknown user."""
+        c = self._conn()
+        row = c.execute("SELECT id FROM users WHERE name = ?", (name,)).fetchone()
+        if row is None:
+            raise KeyError(name)
+        return c.execute("DELETE FROM tokens WHERE user_id = ?", (row["id"],)).rowcount
 
     # ------------------------------------------------------------------ jobs
     def create_job(self, user_id, model, request: dict, t_end, version, diagram_hash,
@@ -176,6 +202,27 @@ class Store:
         j["request"] = json.loads(j["request"])
         j["cancel"] = bool(row["cancel"])
         return j
+
+    def expire(self, cutoff):
+        """Mark jobs finished before ``cutoff`` (a time.time()) expired; return their ids."""
+        c = self._conn()
+        c.execute("BEGIN IMMEDIATE")
+        try:
+            ids = [r[0] for r in c.execute(
+                "SELECT id FROM jobs WHERE expired IS NULL AND finished IS NOT NULL AND "
+                "finished < ? AND state IN ('done', 'failed', 'cancelled')", (cutoff,))]
+            c.executemany("UPDATE jobs SET expired = ? WHERE id = ?",
+                          [(time.time(), i) for i in ids])
+            c.execute("COMMIT")
+        except BaseException:
+            c.execute("ROLLBACK")
+            raise
+        return ids
+
+    def release(self, job_id):
+        """Put a job claimed while the server began to stop back in the queue."""
+        self._conn().execute("UPDATE jobs SET state = 'queued', started = NULL, progress = 0 "
+                             "WHERE id = ? AND state = 'running'", (job_id,))
 
     def get_job(self, job_id, user_id=None):
         q, args = "SELECT * FROM jobs WHERE id = ?", [job_id]

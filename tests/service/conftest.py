@@ -89,8 +89,11 @@ def add_user(data, name, process=False):
 class Server:
     """One ``spidersim serve`` process; ``restart()`` keeps the data folder."""
 
-    def __init__(self, data, models, extra=()):
+    def __init__(self, data, models, extra=(), new_session=False):
+        """``new_session``: the server leads its own process group (as under systemd),
+        so that a test can signal the whole group."""
         self.data, self.models, self.extra = str(data), models, list(extra)
+        self.new_session = new_session
         self.proc = None
         self.log = os.path.join(self.data, "server.log")
 
@@ -104,7 +107,8 @@ class Server:
             args += ["--models", m]
         self._fh = open(self.log, "a")
         self.proc = subprocess.Popen(args + self.extra, stdout=self._fh,
-                                     stderr=subprocess.STDOUT)
+                                     stderr=subprocess.STDOUT,
+                                     start_new_session=self.new_session)
         t0 = time.time()
         while time.time() - t0 < 60:
             if self.proc.poll() is not None:

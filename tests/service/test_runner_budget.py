@@ -67,3 +67,10 @@ def test_the_share_is_handed_to_the_worker_process(monkeypatch):
     r._process(0)
     (target, args), = started
     assert target is R._worker_main and args[2] == 300.0
+
+
+def test_the_services_budget_per_job_caps_the_share(monkeypatch):
+    """``serve --max-record-mb`` bounds each worker's share: the smaller of the two."""
+    monkeypatch.setenv(rb.ENV, "1200")
+    assert R.LocalRunner(None, None, workers=4, job_record_mb=100).record_mb == 100.0
+    assert R.LocalRunner(None, None, workers=4, job_record_mb=1000).record_mb == 300.0
