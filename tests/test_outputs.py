@@ -200,3 +200,21 @@ def test_csv_only_up_to_its_size_limit(tmp_path, monkeypatch):
     assert f"result.csv: not written ({n:,} values" in (tmp_path / "report.txt").read_text()
     back = res.Result.load(tmp_path)
     assert np.array_equal(back["i.y"], r["i.y"])
+
+
+def test_meta_json_is_strict_json():
+    """report.json / meta.json are written by write_meta_json: strict JSON (RFC 8259 has no
+    Infinity or NaN; they were written as such and broke the service's job list), every
+    non-finite number as null, in the head and in the event times."""
+    import io
+    import json
+    from spidersim.solver.result import write_meta_json
+    fh = io.StringIO()
+    write_meta_json(fh, {"stats": {"t_reached": float("inf"), "x": [1.0, float("nan")]}},
+                    [(float("-inf"), "b", "e"), (0.5, "b", "e")], indent=1)
+
+    def refuse(name):
+        raise ValueError(f"{name} in the JSON")
+    js = json.loads(fh.getvalue(), parse_constant=refuse)
+    assert js["stats"] == {"t_reached": None, "x": [1.0, None]}
+    assert js["events"] == [[None, "b", "e"], [0.5, "b", "e"]]

@@ -18,7 +18,6 @@ same data. Every JSON file is strict JSON (non-finite numbers as null).
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -26,7 +25,7 @@ import time
 
 from spidersim.errors import IntegrationError
 from spidersim.solver import record_budget
-from spidersim.solver.result import write_meta_json
+from spidersim.solver.result import finite_json, write_meta_json  # noqa: F401 (re-exported)
 
 from .commands import prepare
 from .library import Model
@@ -40,18 +39,6 @@ MAX_EVENTS = 100_000
 MAX_CSV_MB = 64.0
 
 
-def finite_json(v):
-    """``v`` with every non-finite float (inf, -inf, nan) replaced by None: strict JSON
-    (RFC 8259 has no Infinity or NaN; browsers refuse them)."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: finite_json(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [finite_json(x) for x in v]
-    return v
-
-
 def _meta(r, status, message):
     """meta.json without its events (written in blocks by ``write_meta_json``: a list of
     millions of events as Python lists took ten times the memory the budget counts)."""
@@ -59,21 +46,6 @@ def _meta(r, status, message):
             "sizes": {n: (1 if r[n].ndim == 1 else int(r[n].shape[1])) for n in r.names},
             "stats": {k: (v if isinstance(v, (int, float, str, bool)) or v is None
                           else str(v)) for k, v in r.stats.items()}})
-
-
-def _save_without_csv(r, folder):
-    """What ``Result.save`` writes but result.csv (the same writers: NPZ streamed in
-    blocks, files renamed when complete)."""
-    from spidersim.outputs import write_atomic
-    os.makedirs(folder, exist_ok=True)
-    arrays = {"t": r.t}
-    arrays.update({n: r[n] for n in r.names})
-    write_atomic(os.path.join(folder, "result.npz"),
-                 lambda fh: r._write_npz(fh, arrays), binary=True)
-    write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(r.report()))
-    write_atomic(os.path.join(folder, "report.json"),
-                 lambda fh: write_meta_json(fh, finite_json(r._meta_head()), r.events,
-                                            indent=1))
 
 
 def run_job(task, report=None, out=None):
@@ -126,14 +98,12 @@ def run_job(task, report=None, out=None):
     wall = time.perf_counter() - t0
     folder = out or tempfile.mkdtemp(prefix="spidersim-job-")
     try:
-        n_values = len(r.t) * (1 + sum(r[n][:1].size for n in r.names))
-        if n_values * 24 > MAX_CSV_MB * 1e6:
-            note = (f"result.csv not written ({n_values} values, over the service's "
+        csv_max = int(MAX_CSV_MB * 1e6 / 24)
+        if not r.csv_written(csv_max):
+            note = (f"result.csv not written ({r.csv_values()} values, over the service's "
                     f"{MAX_CSV_MB:g} MB for it): the data are in result.npz")
             message = f"{message}; {note}" if message else note
-            _save_without_csv(r, folder)
-        else:
-            r.save(folder)
+        r.save(folder, csv_max_values=csv_max)
         meta = _meta(r, status, message)
         plot_error = ""
         if task["request"].get("plots", True) and len(r.t) > 1 and d.spec.plots:

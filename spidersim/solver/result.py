@@ -136,8 +136,10 @@ class Result:
             for k in range(a, b):
                 yield (name if b - a == 1 else f"{name}[{k - a}]"), self._data[:, k]
 
-    def save(self, folder):
-        """Write ``result.npz``, ``result.csv`` and ``report.txt`` into ``folder``.
+    def save(self, folder, csv_max_values=None):
+        """Write ``result.npz``, ``result.csv`` (up to ``csv_max_values`` values, default
+        :data:`CSV_MAX_VALUES`: :meth:`csv_written`), ``report.txt`` and ``report.json``
+        (strict JSON: non-finite numbers as null) into ``folder``.
 
         Each file is written to a temporary name in ``folder`` and renamed when complete, so
         a full disk or a crash leaves either the complete file or none (an OSError names the
@@ -161,11 +163,12 @@ class Result:
                 for row in data:
                     w.writerow([repr(float(v)) for v in row])
         csv_path = os.path.join(folder, "result.csv")
-        if self.csv_written():
+        if self.csv_written(csv_max_values):
             write_atomic(csv_path, csv_rows)
         elif os.path.isfile(csv_path):
             os.remove(csv_path)              # an earlier run's table would pass for this one's
-        write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(self.report()))
+        write_atomic(os.path.join(folder, "report.txt"),
+                     lambda fh: fh.write(self.report(csv_max_values)))
         write_atomic(os.path.join(folder, "report.json"),
                      lambda fh: write_meta_json(fh, self._meta_head(), self.events, indent=1))
         return folder
@@ -174,12 +177,12 @@ class Result:
         """Values the CSV table would hold: rows x (time + every column)."""
         return len(self.t) * (1 + sum(b - a for a, b in self._slices.values()))
 
-    def csv_written(self):
-        """Whether :meth:`save` writes ``result.csv``: at most :data:`CSV_MAX_VALUES` values
-        (as text about 24 bytes each, three times the binary record); a larger record is in
-        ``result.npz`` only (a 1e300 s run at the default recording budget wrote 6.6 GB of
-        CSV beside its 7.8 GB NPZ)."""
-        return self.csv_values() <= CSV_MAX_VALUES
+    def csv_written(self, max_values=None):
+        """Whether :meth:`save` writes ``result.csv``: at most ``max_values`` values (default
+        :data:`CSV_MAX_VALUES`; as text about 24 bytes each, three times the binary record);
+        a larger record is in ``result.npz`` only (a 1e300 s run at the default recording
+        budget wrote 6.6 GB of CSV beside its 7.8 GB NPZ)."""
+        return self.csv_values() <= (CSV_MAX_VALUES if max_values is None else max_values)
 
     def meta(self):
         """Everything but the samples: status, units, sizes, statistics, events, provenance."""
@@ -229,7 +232,7 @@ class Result:
         r.provenance = meta.get("provenance", {})
         return r
 
-    def report(self):
+    def report(self, csv_max_values=None):
         s = self.stats
         lines = [f"status: {self.status}"]
         if self.message:
@@ -247,9 +250,10 @@ class Result:
                 lines += [f"{k}:"] + [f"  {a}: {b}" for a, b in v.items()]
             else:
                 lines.append(f"{k}: {v}")
-        if not self.csv_written():
+        if not self.csv_written(csv_max_values):
+            limit = CSV_MAX_VALUES if csv_max_values is None else csv_max_values
             lines.append(f"result.csv: not written ({self.csv_values():,} values, more than "
-                         f"{CSV_MAX_VALUES:,}); the data is in result.npz")
+                         f"{limit:,}); the data is in result.npz")
         if self.events:
             lines.append(f"event log ({len(self.events)}, first 20):")
             lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]
@@ -324,12 +328,24 @@ class EventLog(collections.abc.Sequence):
         return f"EventLog({len(self)} events: {self[:3]}{' ...' if len(self) > 3 else ''})"
 
 
+def finite_json(v):
+    """``v`` with every non-finite float (inf, -inf, nan) replaced by None: strict JSON
+    (RFC 8259 has no Infinity or NaN; browsers and strict parsers refuse them)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: finite_json(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [finite_json(x) for x in v]
+    return v
+
+
 def write_meta_json(fh, head, events, indent=None):
     """Write ``head`` (a dict) with ``"events": events`` appended as JSON into ``fh`` (a
     text file or anything with ``write(str)``), the events in blocks: a log of millions of
     events is never one list of lists nor one text (``json.dump`` of ``Result.meta()`` held
     both, about 300 bytes an event)."""
-    text = json.dumps(head, indent=indent, default=_jsonable)
+    text = json.dumps(finite_json(head), indent=indent, default=_jsonable, allow_nan=False)
     sep = ",\n" + " " * indent if indent is not None else ", "
     fh.write(text[:text.rindex("}")].rstrip() + (sep if head else "") + '"events": [')
     first, tails = True, {}
@@ -340,7 +356,7 @@ def write_meta_json(fh, head, events, indent=None):
             if tail is None:
                 tail = tails[(blk, ev)] = ", " + json.dumps([blk, ev])[1:]
             t = float(t)
-            part.append("[" + (repr(t) if math.isfinite(t) else json.dumps(t)) + tail)
+            part.append("[" + (repr(t) if math.isfinite(t) else "null") + tail)
         fh.write(("" if first else ", ") + ", ".join(part))
         first = False
     fh.write("]}" if indent is None else "]\n}")
