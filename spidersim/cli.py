@@ -522,6 +522,21 @@ def _check_analysis(d, t_end):
         if loop is not None and (inputs or outputs):
             raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
                                f"'outputs', not both", file=d.file, line=lines(name))
+        _check_continuous(d, name, inputs, outputs, opened, loop, lines(name))
+
+
+def _check_continuous(d, name, inputs, outputs, opened, loop, line=None):
+    """No sampled block on the path of a linearization (analysis ``name``, or the command
+    line's signals when None); a :class:`DiagramError` naming the blocks and parameters."""
+    from .diagram.analysis import AnalysisError, check_continuous_path
+    try:
+        if loop is not None:
+            check_continuous_path(d, [loop], [loop], [loop])
+        else:
+            check_continuous_path(d, inputs, outputs, opened)
+    except AnalysisError as exc:
+        raise DiagramError((f"analysis '{name}': " if name else "") + exc.message,
+                           file=d.file, line=line) from None
 
 
 def _check_trim_at(d, name, at, line):
@@ -721,6 +736,10 @@ def _linearize_request(d, args, name):
             raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
                                f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
                                f"0 or at least 1e-07 s, got {args.at}", file=d.file)
+    if loop is not None or (inputs and outputs):
+        _check_continuous(d, name, inputs, outputs, opened, loop,
+                          getattr(d.spec.data.get("analysis"), "line_of",
+                                  lambda k: None)(name) if name else None)
     return inputs, outputs, opened, at, loop
 
 
@@ -1004,9 +1023,11 @@ def cmd_cache(args):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """spidersim's own warnings as one line (``spidersim: warning: ...``), others as usual."""
-    from .errors import RenamedParameterWarning
+    from .errors import LinearizationWarning, RenamedParameterWarning
     if issubclass(category, RenamedParameterWarning):
         print(f"spidersim: warning: {message}", file=sys.stderr)
+    elif issubclass(category, LinearizationWarning):
+        print(f"spidersim: note: {message}", file=sys.stderr)
     else:
         _SHOW_WARNING(message, category, filename, lineno, file, line)
 
