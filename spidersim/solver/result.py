@@ -30,6 +30,9 @@ class Result:
     #: how the run was made (versions, platform, date, file hashes, command line, --set);
     #: filled by the CLI, written into report.txt, report.json and the NPZ metadata
     provenance: dict = {}
+    #: names of the files the run wrote into its folder (set by the CLI before the reports
+    #: are written; listed in report.txt and report.json as ``files``)
+    files: tuple = ()
 
     def __init__(self, t, data, slices, units, events, stats, status="ok", message=""):
         self.t = np.asarray(t)
@@ -136,8 +139,9 @@ class Result:
             for k in range(a, b):
                 yield (name if b - a == 1 else f"{name}[{k - a}]"), self._data[:, k]
 
-    def save(self, folder):
-        """Write ``result.npz``, ``result.csv`` and ``report.txt`` into ``folder``.
+    def save(self, folder, reports=True):
+        """Write ``result.npz``, ``result.csv``, and with ``reports`` ``report.txt`` and
+        ``report.json`` (:meth:`save_reports`) into ``folder``.
 
         Each file is written to a temporary name in ``folder`` and renamed when complete, so
         a full disk or a crash leaves either the complete file or none (an OSError names the
@@ -161,10 +165,16 @@ class Result:
                 for row in data:
                     w.writerow([repr(float(v)) for v in row])
         write_atomic(os.path.join(folder, "result.csv"), csv_rows)
+        if reports:
+            self.save_reports(folder)
+        return folder
+
+    def save_reports(self, folder):
+        """``report.txt`` and ``report.json`` (with :attr:`files`, the files of the run,
+        when set) into ``folder``."""
         write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(self.report()))
         write_atomic(os.path.join(folder, "report.json"),
                      lambda fh: write_meta_json(fh, self._meta_head(), self.events, indent=1))
-        return folder
 
     def meta(self):
         """Everything but the samples: status, units, sizes, statistics, events, provenance."""
@@ -172,9 +182,12 @@ class Result:
 
     def _meta_head(self):
         """:meth:`meta` without the events (they are written by :func:`write_meta_json`)."""
-        return {"status": self.status, "message": self.message, "units": self.units,
+        head = {"status": self.status, "message": self.message, "units": self.units,
                 "sizes": {n: b - a for n, (a, b) in self._slices.items()},
                 "stats": self.stats, "provenance": self.provenance}
+        if self.files:
+            head["files"] = list(self.files)
+        return head
 
     def _write_npz(self, fh, arrays):
         """``result.npz`` as ``np.savez`` writes it (one ``.npy`` entry per array, stored),
@@ -232,6 +245,8 @@ class Result:
                 lines += [f"{k}:"] + [f"  {a}: {b}" for a, b in v.items()]
             else:
                 lines.append(f"{k}: {v}")
+        if self.files:
+            lines.append(f"files of this run: {', '.join(self.files)}")
         if self.events:
             lines.append(f"event log ({len(self.events)}, first 20):")
             lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]
