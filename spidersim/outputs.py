@@ -91,6 +91,23 @@ def is_special(path):
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 
 
+def _open_special(path, binary, kw):
+    """Open special file ``path`` for writing; a FIFO that no process reads is an
+    :class:`OSError` at once (opened without blocking: ``ENXIO``), not a wait forever."""
+    import errno
+    import fcntl
+    if stat.S_ISFIFO(os.stat(path).st_mode):
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError as exc:
+            if exc.errno == errno.ENXIO:
+                raise OSError(exc.errno, "it is a FIFO that no process is reading") from None
+            raise
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+        return os.fdopen(fd, "wb" if binary else "w", **kw)
+    return open(path, "wb" if binary else "w", **kw)
+
+
 def write_atomic(path, write, binary=False):
     """``write(fh)`` into a temporary file beside ``path``, then rename it to ``path``.
 
@@ -102,7 +119,7 @@ def write_atomic(path, write, binary=False):
     kw = {} if binary else {"newline": ""}
     if is_special(path):
         try:
-            with open(path, "wb" if binary else "w", **kw) as fh:
+            with _open_special(path, binary, kw) as fh:
                 write(fh)
         except OSError as exc:
             raise _named(exc, path) from None

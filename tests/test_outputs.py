@@ -192,7 +192,8 @@ def test_special_files_are_written_through_not_replaced(tmp_path, capsys):
     """``schema -o`` onto a FIFO delivers the schema to its reader and the FIFO stays a
     FIFO (the write-then-rename replaced it by a regular file; as root /dev/null too);
     write_atomic and atomic_path onto /dev/null leave it a character device; a regular
-    file is still replaced atomically."""
+    file is still replaced atomically. A FIFO nobody reads is an error at once (opened
+    without blocking), not a wait forever."""
     import json
     import stat
     from spidersim.outputs import atomic_path, is_special, write_atomic
@@ -203,6 +204,10 @@ def test_special_files_are_written_through_not_replaced(tmp_path, capsys):
     th.join(30)
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     assert json.loads(chunks[0])["$schema"].startswith("https://json-schema.org/")
+    with pytest.raises(OSError, match="a FIFO that no process is reading"):
+        write_atomic(str(fifo), lambda fh: fh.write("nobody reads"))   # not a hang
+    assert main(["schema", "-o", str(fifo)]) == 2
+    assert "no process is reading" in capsys.readouterr().err
     write_atomic(os.devnull, lambda fh: fh.write("x"))
     with atomic_path(os.devnull) as p:
         assert p == os.devnull
