@@ -220,7 +220,7 @@ def cmd_run(args):
     validate_run(d, args.t_end, args.method)    # None: the file's, located at its line
     t_end = args.t_end if args.t_end is not None else d.simulation["t_end"]
     out = args.out or default_out(d)
-    prepare_out(out)
+    out = prepare_out(out)
     stop = StopRequest()
     # SIGINT/SIGTERM handled from here to the last file written: before the integration
     # they end the command at once; during it they stop it at the current step; while the
@@ -368,15 +368,49 @@ def _write_results(r, d, out, no_plots):
     a file that cannot be written is an error naming it (never a truncated file)."""
     from .plots import make_plots
     try:
-        r.save(out)
+        _remove_previous_run(out)
+        r.save(out, reports=False)
         if no_plots or len(r.t) < 2:
-            return _microgravity_report(d, r, out, plots=False) if len(r.t) > 1 else []
-        pngs = make_plots(r, d.spec.plots, out)
-        return pngs + _microgravity_report(d, r, out, plots=True)
+            pngs = _microgravity_report(d, r, out, plots=False) if len(r.t) > 1 else []
+        else:
+            pngs = make_plots(r, d.spec.plots, out)
+            pngs += _microgravity_report(d, r, out, plots=True)
+        mg = ["microgravity.json"] if os.path.isfile(os.path.join(out, "microgravity.json")) \
+            and d.microgravity is not None else []
+        r.files = tuple(["result.npz"] + (["result.csv"] if r.csv_written() else [])
+                        + ["report.txt", "report.json"] + mg
+                        + [os.path.basename(p) for p in pngs])
+        r.save_reports(out)
+        return pngs
     except OSError as exc:
         raise SpidersimError(f"{exc.strerror or exc}; the results folder {out} keeps only "
                              f"complete files (free some space or choose another --out)"
                              ) from None
+
+
+def _remove_previous_run(out):
+    """Remove the files the previous run into ``out`` wrote (the ``files`` of its
+    ``report.json``), so that the folder holds this run's files only (a second run with
+    --no-plots left the first run's plots beside the new data); other files stay."""
+    import json
+    import re
+
+    from .outputs import remove_stale
+    try:
+        # the list is in the head, before the event log (which may be hundreds of MB)
+        with open(os.path.join(out, "report.json"), encoding="utf-8", errors="replace") as fh:
+            head = fh.read(1 << 22)
+        m = re.search(r'\n "files": (\[[^\]]*\])', head)
+        listed = json.loads(m.group(1)) if m else []
+    except (OSError, ValueError):
+        return []
+    removed = remove_stale(out, listed if isinstance(listed, list) else ())
+    other = [n for n in removed if n not in ("result.npz", "result.csv", "report.txt",
+                                             "report.json")]      # rewritten anyway
+    if other:
+        print(f"spidersim: removed the previous run's {', '.join(other)} from {out}/",
+              file=sys.stderr)
+    return removed
 
 
 def _microgravity_report(d, r, out, plots=True):
@@ -525,6 +559,21 @@ def _check_analysis(d, t_end):
         if loop is not None and (inputs or outputs):
             raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
                                f"'outputs', not both", file=d.file, line=lines(name))
+        _check_continuous(d, name, inputs, outputs, opened, loop, lines(name))
+
+
+def _check_continuous(d, name, inputs, outputs, opened, loop, line=None):
+    """No sampled block on the path of a linearization (analysis ``name``, or the command
+    line's signals when None); a :class:`DiagramError` naming the blocks and parameters."""
+    from .diagram.analysis import AnalysisError, check_continuous_path
+    try:
+        if loop is not None:
+            check_continuous_path(d, [loop], [loop], [loop])
+        else:
+            check_continuous_path(d, inputs, outputs, opened)
+    except AnalysisError as exc:
+        raise DiagramError((f"analysis '{name}': " if name else "") + exc.message,
+                           file=d.file, line=line) from None
 
 
 def _check_trim_at(d, name, at, line):
@@ -751,6 +800,10 @@ def _linearize_request(d, args, name):
             raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
                                f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
                                f"0 or at least 1e-07 s, got {args.at}", file=d.file)
+    if loop is not None or (inputs and outputs):
+        _check_continuous(d, name, inputs, outputs, opened, loop,
+                          getattr(d.spec.data.get("analysis"), "line_of",
+                                  lambda k: None)(name) if name else None)
     return inputs, outputs, opened, at, loop
 
 
@@ -815,7 +868,7 @@ def cmd_sweep(args):
         from .diagram.spec import parse_file
         out = os.path.join("results", safe_stem(parse_file(args.file).name, os.path.splitext(
             os.path.basename(args.file))[0]) + "_sweep")
-    prepare_out(out)                     # before any run: a bad --out is refused at once
+    out = prepare_out(out)               # before any run: a bad --out is refused at once
     where = (f"Dask scheduler {args.scheduler}" if args.scheduler else
              "serial, this process" if workers == 0 else
              f"local Dask cluster, {workers} worker(s)")
@@ -879,6 +932,15 @@ def cmd_serve(args):
     return 0
 
 
+def out_folder(text):
+    """An ``--out`` value: a folder name, not empty (``--out ""`` silently meant the
+    default ``results/<name>``)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a folder, got an empty text (leave "
+                                         "--out out for the default results/<name>)")
+    return text
+
+
 def positive_float(text):
     """argparse type of a time or a limit: a finite number > 0 (``nan``, ``inf``, ``0``,
     ``-1`` and ``true`` are refused with the option's name, exit status 2)."""
@@ -919,7 +981,7 @@ def build_parser():
     r.add_argument("--set", action="append", metavar="PATH=VALUE",
                    help="override a parameter (name, block.param or sub.block.param)")
     r.add_argument("--t-end", type=positive_float, help="simulated time [s]")
-    r.add_argument("--out", help="results folder (default results/<diagram name>)")
+    r.add_argument("--out", type=out_folder, help="results folder (default results/<diagram name>)")
     r.add_argument("--method", help="LSODA (default), RK45, RK23, DOP853, Radau, BDF; "
                    "DP54, ROS34PW2 (stiff), NDF (stiff, variable order): the compiled loop")
     r.add_argument("--no-jit", action="store_true", help="interpreted mode (no numba)")
@@ -949,7 +1011,7 @@ def build_parser():
                     help="loop transfer L with the loop opened at this signal")
     lz.add_argument("--at", help="operating point: a time [s], 'initial' (default) or 'trim'")
     lz.add_argument("--set", action="append", metavar="PATH=VALUE")
-    lz.add_argument("--out", help="folder for the matrices and the Bode plot")
+    lz.add_argument("--out", type=out_folder, help="folder for the matrices and the Bode plot")
     lz.add_argument("--no-jit", action="store_true")
     lz.set_defaults(fn=cmd_linearize)
     sw = sub.add_parser("sweep", help="grid of runs on Dask, scalar metrics per run "
@@ -965,7 +1027,7 @@ def build_parser():
     sw.add_argument("--set", action="append", metavar="PATH=VALUE",
                     help="base parameter value for every run")
     sw.add_argument("--t-end", type=positive_float, help="simulated time of each run [s]")
-    sw.add_argument("--out", help="results folder (default results/<diagram>_sweep)")
+    sw.add_argument("--out", type=out_folder, help="results folder (default results/<diagram>_sweep)")
     sw.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sw.set_defaults(fn=cmd_sweep)
 
@@ -1056,9 +1118,11 @@ def cmd_cache(args):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """spidersim's own warnings as one line (``spidersim: warning: ...``), others as usual."""
-    from .errors import RenamedParameterWarning
+    from .errors import LinearizationWarning, RenamedParameterWarning
     if issubclass(category, RenamedParameterWarning):
         print(f"spidersim: warning: {message}", file=sys.stderr)
+    elif issubclass(category, LinearizationWarning):
+        print(f"spidersim: note: {message}", file=sys.stderr)
     else:
         _SHOW_WARNING(message, category, filename, lineno, file, line)
 

@@ -93,3 +93,8 @@ class IntegrationError(SpidersimError):
 class RenamedParameterWarning(FutureWarning):
     """A parameter given under its old name (accepted for one release); the message says
     where and what the new name is. The CLI prints it as ``spidersim: warning: ...``."""
+
+
+class LinearizationWarning(UserWarning):
+    """A linearization made with a documented simplification (a quantizer taken as its
+    unquantized gain). The CLI prints it as ``spidersim: note: ...``."""

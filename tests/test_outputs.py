@@ -218,3 +218,97 @@ def test_meta_json_is_strict_json():
     js = json.loads(fh.getvalue(), parse_constant=refuse)
     assert js["stats"] == {"t_reached": None, "x": [1.0, None]}
     assert js["events"] == [[None, "b", "e"], [0.5, "b", "e"]]
+
+
+def _fifo_reader(path):
+    """Start a thread reading FIFO ``path`` to its end; returns (thread, chunks)."""
+    import threading
+    chunks = []
+
+    def read():
+        with open(path, "rb") as fh:
+            chunks.append(fh.read())
+    th = threading.Thread(target=read, daemon=True)
+    th.start()
+    return th, chunks
+
+
+def test_special_files_are_written_through_not_replaced(tmp_path, capsys):
+    """``schema -o`` onto a FIFO delivers the schema to its reader and the FIFO stays a
+    FIFO (the write-then-rename replaced it by a regular file; as root /dev/null too);
+    write_atomic and atomic_path onto /dev/null leave it a character device; a regular
+    file is still replaced atomically. A FIFO nobody reads is an error at once (opened
+    without blocking), not a wait forever."""
+    import json
+    import stat
+    from spidersim.outputs import atomic_path, is_special, write_atomic
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    th, chunks = _fifo_reader(fifo)
+    assert main(["schema", "-o", str(fifo)]) == 0
+    th.join(30)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert json.loads(chunks[0])["$schema"].startswith("https://json-schema.org/")
+    with pytest.raises(OSError, match="a FIFO that no process is reading"):
+        write_atomic(str(fifo), lambda fh: fh.write("nobody reads"))   # not a hang
+    assert main(["schema", "-o", str(fifo)]) == 2
+    assert "no process is reading" in capsys.readouterr().err
+    write_atomic(os.devnull, lambda fh: fh.write("x"))
+    with atomic_path(os.devnull) as p:
+        assert p == os.devnull
+        open(p, "w").write("y")
+    assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
+    assert is_special(os.devnull) and not is_special(tmp_path) and not is_special(fifo / "no")
+    reg = tmp_path / "r.txt"
+    reg.write_text("old")
+    write_atomic(str(reg), lambda fh: fh.write("new"))
+    assert reg.read_text() == "new" and sorted(os.listdir(tmp_path)) == ["fifo", "r.txt"]
+
+
+RUN = """\
+name: two
+blocks:
+  c: {type: Constant, value: 1}
+  g: {type: Gain, k: 2}
+connections: [c.y -> g.u]
+simulation: {t_end: 0.01}
+plots:
+  - {title: Gain out, signals: [g.y]}
+"""
+
+
+def test_second_run_removes_the_first_runs_files_and_lists_its_own(tmp_path, capsys):
+    """A first run writes its plot; a second run into the same --out with --no-plots
+    removes it (the first report.json listed it), keeps a file of the user's, and lists
+    its own files in report.txt and report.json."""
+    import json
+    path = tmp_path / "d.yaml"
+    path.write_text(RUN)
+    out = tmp_path / "o"
+    assert main(["run", str(path), "--out", str(out), "--no-jit"]) == 0
+    assert "gain_out.png" in os.listdir(out)
+    (out / "mine.png").write_text("user's")
+    capsys.readouterr()
+    assert main(["run", str(path), "--out", str(out), "--no-jit", "--no-plots"]) == 0
+    assert "removed the previous run's gain_out.png" in capsys.readouterr().err
+    own = ["result.npz", "result.csv", "report.txt", "report.json"]
+    assert sorted(os.listdir(out)) == sorted(own + ["mine.png"])
+    assert json.loads((out / "report.json").read_text())["files"] == own
+    assert "files of this run: " + ", ".join(own) in (out / "report.txt").read_text()
+
+
+def test_empty_out_and_dotdot_out(tmp_path, monkeypatch, capsys):
+    """``--out ""`` is refused (it meant results/<name> without a word) for run, linearize
+    and sweep; ``--out x/../y`` writes into y and does not create x."""
+    path = tmp_path / "d.yaml"
+    path.write_text(RUN)
+    monkeypatch.chdir(tmp_path)
+    for argv in (["run", str(path)], ["linearize", str(path), "--input", "c.y", "--output",
+                                       "g.y"], ["sweep", str(path), "--vary", "g.k=1"]):
+        with pytest.raises(SystemExit) as ei:
+            main(argv + ["--out", ""])
+        assert ei.value.code == 2
+        assert "--out: must name a folder" in capsys.readouterr().err
+    assert not (tmp_path / "results").exists()
+    assert main(["run", str(path), "--out", "x/../y", "--no-jit", "--no-plots"]) == 0
+    assert (tmp_path / "y" / "result.npz").exists() and not (tmp_path / "x").exists()

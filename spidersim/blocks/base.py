@@ -96,6 +96,21 @@ Contract for block implementers
    cross-parameter validation (raise ``ValueError`` with a message), and
    ``kernel_source(params, kernel) -> str`` for kernels whose argument list depends on a
    structural parameter (e.g. a sum with N inputs), ``input_names(params)`` for such blocks.
+9. Linearization (:mod:`spidersim.diagram.analysis`) differentiates the continuous-time
+   equations, so two kinds of block declare what they are:
+
+   ``sample_period = "Ts"``
+       the block is *sampled* (a discrete-time law, output held between samples) when that
+       parameter is > 0: its held outputs have no derivative with respect to anything
+       between samples, and a linearization through it would be silently wrong (a held
+       controller reads as gain 0). Linearization refuses a path through such a block,
+       naming it and the parameter (``Ts = 0`` when the parameter allows it: the block's
+       continuous form).
+   ``quantizer = {"bits": 0}``
+       parameter -> value that removes the block's quantization (a staircase output of
+       zero slope almost everywhere). Linearization uses the block with these values: a
+       quantizer is linearized as its unquantized gain (as Simulink does), and the report
+       names the blocks so treated.
 """
 from __future__ import annotations
 
@@ -310,6 +325,15 @@ def _check_renamed(cls):
                                          f"'{new}' declared and '{old}' not")
 
 
+def _check_linearization_decls(cls):
+    """``sample_period`` and the keys of ``quantizer`` name declared parameters."""
+    names = ([cls.sample_period] if cls.sample_period else []) + list(cls.quantizer)
+    for n in names:
+        if n not in cls.parameters:
+            raise _definition_error(cls, f"'{n}' (sample_period or quantizer) is not a "
+                                         f"declared parameter")
+
+
 def _check_kernel_set(cls):
     """The kernels defined fit the declarations: ``derivative`` needs states, ``guard``
     needs events, events need both ``guard`` and ``on_event``."""
@@ -436,6 +460,10 @@ class Block:
     #: old parameter name -> current name: a renamed parameter is still accepted under its
     #: old name for one release, with a :class:`RenamedParameterWarning` saying where
     renamed: dict = {}
+    #: name of the parameter that makes the block sampled when > 0 (contract item 9)
+    sample_period: str | None = None
+    #: parameter -> value that removes the block's quantization (contract item 9)
+    quantizer: dict = {}
 
     def __init_subclass__(cls, abstract=False, **kw):
         super().__init_subclass__(**kw)
@@ -455,6 +483,7 @@ class Block:
         roles = _declared_roles(cls)
         _check_implicit(cls)
         _check_renamed(cls)
+        _check_linearization_decls(cls)
         _check_kernel_set(cls)
         _check_kernels(cls, roles, _derived_names(cls))
 

@@ -352,6 +352,7 @@ class JointCascade(Block):
              "i_held": Mode(doc="held current command (sampled, A)"),
              "w_held": Mode(doc="held speed reference (sampled, rad/s)"),
              "k": Mode(doc="samples taken")}
+    sample_period = "Ts"
 
     @classmethod
     def check(cls, params):

@@ -22,6 +22,8 @@ _K = Mode(doc="number of samples taken")
 class _Sampled(Block, abstract=True):
     """Shared kernels of the sampled blocks: samples at ``offset + k Ts``, output held."""
 
+    sample_period = "Ts"
+
     @staticmethod
     def next_time(t, offset, Ts, k):
         return offset + k[0] * Ts

@@ -82,6 +82,8 @@ class Resolver(Block):
                                doc="measured angle"),
                "w_m": Port("rad/s", feedthrough=("w",), doc="measured speed")}
     modes = {"held": Mode(doc="last sample (sampled mode)"), "k": Mode(doc="samples taken")}
+    sample_period = "Ts"
+    quantizer = {"bits": 0}       # linearized as theta_m = theta
 
     @classmethod
     def check(cls, params):
@@ -225,6 +227,7 @@ class RDC(Block):
                            doc="digital velocity: w_r as a w_bits word of full scale w_max")}
     states = {"theta_r": State("rad", initial="theta0", doc="tracked angle"),
               "w_r": State("rad/s", initial="w0", doc="loop integrator: the speed")}
+    quantizer = {"bits": 0, "w_bits": 0}    # linearized as theta_d = theta_r, w_d = w_r
 
     @staticmethod
     def output(t, theta_r, w_r, bits, w_bits, w_max, theta_d, w_d):

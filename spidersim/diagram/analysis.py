@@ -12,6 +12,16 @@ solves) is differentiated:
   negative-feedback loop, so :func:`loop_transfer` returns ``L = -T``;
 - outputs are read at their source ports.
 
+Sampled blocks and quantizers (contract item 9 of :mod:`spidersim.blocks.base`): a block
+that is sampled (``sample_period`` > 0) on a path from an input (or opening) to an output
+is refused with an :class:`AnalysisError` naming it and its parameter: its held output has
+no derivative between samples, so the linear model would be silently wrong (a sampled
+controller reads as gain 0). A quantizer (``quantizer``) is linearized as its unquantized
+gain: the copy that is differentiated has the block's quantization parameters set to the
+values that remove it (the staircase has zero slope almost everywhere; its describing gain
+for small signals many steps wide is 1). :attr:`Linearizer.quantizers` lists the blocks on
+the path so treated.
+
 python-control does not allow '.' in signal names, so the state space names its states,
 inputs and outputs with '/' in place of '.' (``j3.motor.w`` -> ``j3/motor/w``).
 
@@ -167,14 +177,107 @@ def _diagram_copy(d, flat, blocks):
     return dlin
 
 
-class Linearizer:
-    """A diagram transformed with analysis points, ready to be differentiated."""
+def _path_blocks(blocks, conns, points, refs, outputs):
+    """Paths of the blocks on a path (through any block, states included) from an analysis
+    point's perturbation to the source of an output, in the flat diagram with the points
+    inserted (an opened connection no longer carries the signal)."""
+    succ, pred = {}, {}
+    for c in conns:
+        succ.setdefault(c.src[0], set()).add(c.dst[0])
+        pred.setdefault(c.dst[0], set()).add(c.src[0])
 
-    def __init__(self, d, inputs, outputs, open=(), jit=True):
+    def reach(start, nxt):
+        seen, todo = set(start), list(start)
+        while todo:
+            for b in nxt.get(todo.pop(), ()):
+                if b not in seen:
+                    seen.add(b)
+                    todo.append(b)
+        return seen
+
+    down = reach([p.delta for p in points], succ)
+    up = reach([refs[n][0] for n in outputs], pred)
+    return [b for b in blocks if b in down and b in up and not b.startswith("__lin_")]
+
+
+def sampled_on_path(blocks, path):
+    """``(block path, type, parameter, value, continuous_allowed)`` of each block of ``path``
+    that is sampled (its ``sample_period`` parameter > 0)."""
+    found = []
+    for b in path:
+        inst = blocks[b]
+        name = inst.cls.sample_period
+        if name and float(inst.params.get(name, 0.0)) > 0.0:
+            decl = inst.cls.parameters[name]
+            zero_ok = not (decl.gt is not None and decl.gt >= 0.0)
+            found.append((b, inst.cls.type_name, name, float(inst.params[name]), zero_ok))
+    return found
+
+
+def _sampled_error(d, found):
+    """The :class:`AnalysisError` for sampled blocks on the linearization path."""
+    items = []
+    for b, type_name, name, v, zero_ok in found:
+        fix = (f"{name} = 0 makes it continuous (--set {b}.{name}=0)" if zero_ok else
+               "a discrete-time block with no continuous form: replace it by its "
+               "continuous counterpart")
+        items.append(f"'{b}' ({type_name}, {name} = {v:g} s: {fix})")
+    return AnalysisError("cannot linearize through sampled block(s) on the path from the "
+                         "inputs to the outputs: " + "; ".join(items) + ". Their outputs "
+                         "are held between samples (zero derivative), so the linear model "
+                         "would be wrong (a held controller reads as gain 0); spidersim "
+                         "linearizes continuous-time models only", file=d.file)
+
+
+def check_continuous_path(d, inputs, outputs, open=()):
+    """Raise :class:`AnalysisError` when a sampled block lies on a path from ``inputs`` or
+    ``open`` to ``outputs`` of diagram ``d`` (``check`` calls it for analysis entries);
+    return the quantizers on the path (``(block path, {parameter: value})``)."""
+    inputs, outputs, open = list(inputs), list(outputs), list(open or ())
+    refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
+    blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
+    path = _path_blocks(blocks, conns, points, refs, outputs)
+    found = sampled_on_path(blocks, path)
+    if found:
+        raise _sampled_error(d, found)
+    return [(b, {k: blocks[b].params[k] for k in blocks[b].cls.quantizer})
+            for b in path if _quantized(blocks[b])]
+
+
+def _quantized(inst):
+    """True when block instance ``inst`` quantizes (a ``quantizer`` parameter differs from
+    the value that removes the quantization)."""
+    return any(inst.params.get(k) != v for k, v in inst.cls.quantizer.items())
+
+
+def _unquantized(blocks):
+    """``blocks`` with every quantizer's quantization removed (contract item 9)."""
+    import dataclasses
+    return {b: (dataclasses.replace(inst, params={**inst.params, **inst.cls.quantizer})
+                if _quantized(inst) else inst) for b, inst in blocks.items()}
+
+
+class Linearizer:
+    """A diagram transformed with analysis points, ready to be differentiated.
+
+    ``linear=True`` (linearization): a sampled block on a path from an input or opening to
+    an output is an :class:`AnalysisError`, and quantizers are replaced by their
+    unquantized form (:attr:`quantizers` names those on the path); ``False`` (trim's free
+    inputs) keeps the diagram as it is."""
+
+    def __init__(self, d, inputs, outputs, open=(), jit=True, linear=True):
         self.d = d
         inputs, outputs, open = list(inputs), list(outputs), list(open or ())
         refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
         blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
+        self.quantizers = []
+        if linear:
+            path = _path_blocks(blocks, conns, points, refs, outputs)
+            found = sampled_on_path(blocks, path)
+            if found:
+                raise _sampled_error(d, found)
+            self.quantizers = [b for b in path if _quantized(blocks[b])]
+            blocks = _unquantized(blocks)
         #: (name, const path, size) of each input; (const path, (path, port, s0, s1)) of
         #: each opening
         self.in_slots = [(p.name, p.delta, refs[p.name][4]) for p in points
@@ -257,6 +360,8 @@ class Linearizer:
         import control
         nu = sum(b - a for _, a, b in self.in_p)
         A, B, C, D = jacobians(self.evaluate, self.x, np.zeros(nu))
+        if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
+            self._non_finite()
         in_names = [nm for name, a, b in self.in_p for nm in _channel_names(name, b - a)]
         out_names = [nm for name, arr, a, b in self.out_slices
                      for nm in _channel_names(name, b - a)]
@@ -264,6 +369,22 @@ class Linearizer:
                           inputs=[control_name(n) for n in in_names],
                           outputs=[control_name(n) for n in out_names],
                           name=control_name(self.d.spec.name))
+
+
+    def _non_finite(self):
+        """Raise the error behind non-finite Jacobian entries: a failed algebraic-loop
+        solve (an :class:`AlgebraicLoopError` walking the loop, as ``run`` reports it) or
+        the first non-finite signal or derivative (:class:`AnalysisError`)."""
+        from ..errors import AlgebraicLoopError
+        report, lp = self.system.loop_failure()
+        if report:
+            raise AlgebraicLoopError("cannot linearize at t = " + f"{self.t:g} s: " + report,
+                                     file=lp.get("file") or self.d.file, line=lp.get("line"),
+                                     block=lp.get("block"))
+        diagnose = getattr(self.system, "diagnose", None)
+        why = diagnose(self.t, self.x) if diagnose is not None else ""
+        raise AnalysisError("cannot linearize: the perturbed model has non-finite values"
+                            + (f" ({why})" if why else ""), file=self.d.file)
 
 
 def _covers(src, s0, s1, d):
@@ -386,6 +507,13 @@ def linearize(d, inputs, outputs, at=None, open=(), jit=True):
         raise AnalysisError("linearize needs at least one input and one output signal",
                             file=d.file)
     lin = Linearizer(d, inputs, outputs, open, jit)
+    if lin.quantizers:
+        import warnings
+
+        from ..errors import LinearizationWarning
+        warnings.warn(f"quantizer(s) linearized as their unquantized gain: "
+                      f"{', '.join(lin.quantizers)} (staircase outputs have zero slope "
+                      f"between steps)", LinearizationWarning, stacklevel=3)
     lin.system_jit = jit
     op = operating_point(d, at, jit)
     lin.at(op.t, op.x, op.modes)
@@ -398,6 +526,14 @@ def loop_transfer(d, signal, at=None, jit=True):
     is ``L / (1 + L)``)."""
     sys = linearize(d, [signal], [signal], at=at, open=[signal], jit=jit)
     import control
+    D = np.asarray(sys.D, dtype=float)
+    closing = np.eye(D.shape[0]) - D          # I + L(j inf), with L = -T and D = T(j inf)
+    if np.linalg.cond(closing) > 1e12:
+        raise AnalysisError(f"the loop at '{signal}' is singular when closed: its gain at "
+                            f"high frequency L(j inf) = {-float(D.ravel()[0]):.6g} makes "
+                            f"1 + L(j inf) = 0 (an algebraic loop of gain -1 through "
+                            f"'{signal}': the closed diagram has no unique solution, and "
+                            f"run fails there too)", file=d.file)
     return control.ss(sys.A, sys.B, -sys.C, -sys.D, states=sys.state_labels,
                       inputs=sys.input_labels, outputs=sys.output_labels,
                       name=f"L({control_name(signal)})")
@@ -460,7 +596,7 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
                                 f"{d.layout.n_x} state(s)", file=d.file)
     free_inputs = list(free_inputs)
     outs = list(targets)
-    lin = Linearizer(d, free_inputs, outs, (), jit) if free_inputs else None
+    lin = Linearizer(d, free_inputs, outs, (), jit, linear=False) if free_inputs else None
     names = _state_names(d)
     rows = _derivative_rows(d, derivatives, names)
     base = operating_point(d, None, jit)

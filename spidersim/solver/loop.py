@@ -426,12 +426,42 @@ def _fail(system, run, code, st, wall0, IntegrationError):
                                  block=lp.get("block"))
         err.partial = run.result(st, "failed", loop)
         raise err
-    why = _failure_detail(system, t, run.xs)
-    full = (f"integration failed at t = {t:.9g} s: {_FAILURES.get(code, 'solver failure')}"
-            + (f"; {why}" if why else ""))
+    what = _FAILURES.get(code, 'solver failure')
+    ahead = non_finite_ahead(system, t, run.xs) if code in (FAIL_SMALL_STEP,
+                                                              FAIL_STALL) else ""
+    if ahead:
+        # the step shrank because every trial step beyond t met a NaN or inf (log or sqrt
+        # of a negative, a division by zero): say so, as LSODA's 'non-finite value' does
+        what = f"non-finite value just after t (the step size shrank to round-off): {ahead}"
+        why = ""
+    else:
+        why = _failure_detail(system, t, run.xs)
+    full = (f"integration failed at t = {t:.9g} s: {what}" + (f"; {why}" if why else ""))
     raise IntegrationError(full, partial=run.result(st, "failed", full))
 
 
 def _failure_detail(system, t, x):
     diagnose = getattr(system, "diagnose", None)
     return diagnose(t, x) if diagnose is not None else ""
+
+
+def non_finite_ahead(system, t, x):
+    """When the derivatives are finite at ``(t, x)`` but not just beyond (an Euler
+    prediction ``x + dt f`` at ``t + dt``, ``dt`` from ``1e-12 max(1, |t|)`` up to
+    ``1e-3 max(1, |t|)``): the system's diagnosis there (the first non-finite signal or
+    derivative, by name); else ''. Failure reporting only: the run has already stopped."""
+    diagnose, rhs = getattr(system, "diagnose", None), getattr(system, "rhs", None)
+    if diagnose is None or rhs is None:
+        return ""
+    x = np.asarray(x, dtype=float)
+    with np.errstate(all="ignore"):
+        f0 = np.array(rhs(t, x), dtype=float)
+        if not np.all(np.isfinite(f0)):
+            return diagnose(t, x)
+        scale = max(1.0, abs(t))
+        for k in range(12, 2, -1):
+            dt = scale * 10.0 ** -k
+            x1 = x + dt * f0
+            if not np.all(np.isfinite(np.asarray(rhs(t + dt, x1), dtype=float))):
+                return diagnose(t + dt, x1)
+    return ""

@@ -30,6 +30,11 @@ class Result:
     #: how the run was made (versions, platform, date, file hashes, command line, --set);
     #: filled by the CLI, written into report.txt, report.json and the NPZ metadata
     provenance: dict = {}
+    #: names of the files the run wrote into its folder (set by the CLI before the reports
+    #: are written; listed in report.txt and report.json as ``files``)
+    files: tuple = ()
+    #: the largest record written as result.csv too (None: :data:`CSV_MAX_VALUES`)
+    csv_max_values = None
 
     def __init__(self, t, data, slices, units, events, stats, status="ok", message=""):
         self.t = np.asarray(t)
@@ -136,15 +141,18 @@ class Result:
             for k in range(a, b):
                 yield (name if b - a == 1 else f"{name}[{k - a}]"), self._data[:, k]
 
-    def save(self, folder, csv_max_values=None):
+    def save(self, folder, reports=True, csv_max_values=None):
         """Write ``result.npz``, ``result.csv`` (up to ``csv_max_values`` values, default
-        :data:`CSV_MAX_VALUES`: :meth:`csv_written`), ``report.txt`` and ``report.json``
-        (strict JSON: non-finite numbers as null) into ``folder``.
+        :data:`CSV_MAX_VALUES`: :meth:`csv_written`), and with ``reports`` ``report.txt``
+        and ``report.json`` (:meth:`save_reports`; strict JSON, non-finite numbers as null)
+        into ``folder``.
 
         Each file is written to a temporary name in ``folder`` and renamed when complete, so
         a full disk or a crash leaves either the complete file or none (an OSError names the
         file; the temporary is removed).
         """
+        if csv_max_values is not None:
+            self.csv_max_values = csv_max_values
         os.makedirs(folder, exist_ok=True)
         arrays = {"t": self.t}
         arrays.update({n: self[n] for n in self.names})
@@ -163,15 +171,20 @@ class Result:
                 for row in data:
                     w.writerow([repr(float(v)) for v in row])
         csv_path = os.path.join(folder, "result.csv")
-        if self.csv_written(csv_max_values):
+        if self.csv_written():
             write_atomic(csv_path, csv_rows)
         elif os.path.isfile(csv_path):
             os.remove(csv_path)              # an earlier run's table would pass for this one's
-        write_atomic(os.path.join(folder, "report.txt"),
-                     lambda fh: fh.write(self.report(csv_max_values)))
+        if reports:
+            self.save_reports(folder)
+        return folder
+
+    def save_reports(self, folder):
+        """``report.txt`` and ``report.json`` (with :attr:`files`, the files of the run,
+        when set) into ``folder``."""
+        write_atomic(os.path.join(folder, "report.txt"), lambda fh: fh.write(self.report()))
         write_atomic(os.path.join(folder, "report.json"),
                      lambda fh: write_meta_json(fh, self._meta_head(), self.events, indent=1))
-        return folder
 
     def csv_values(self):
         """Values the CSV table would hold: rows x (time + every column)."""
@@ -179,10 +192,15 @@ class Result:
 
     def csv_written(self, max_values=None):
         """Whether :meth:`save` writes ``result.csv``: at most ``max_values`` values (default
-        :data:`CSV_MAX_VALUES`; as text about 24 bytes each, three times the binary record);
-        a larger record is in ``result.npz`` only (a 1e300 s run at the default recording
-        budget wrote 6.6 GB of CSV beside its 7.8 GB NPZ)."""
-        return self.csv_values() <= (CSV_MAX_VALUES if max_values is None else max_values)
+        :attr:`csv_max_values`, else :data:`CSV_MAX_VALUES`; as text about 24 bytes each,
+        three times the binary record); a larger record is in ``result.npz`` only (a 1e300 s
+        run at the default recording budget wrote 6.6 GB of CSV beside its 7.8 GB NPZ)."""
+        return self.csv_values() <= self._csv_limit(max_values)
+
+    def _csv_limit(self, max_values=None):
+        if max_values is not None:
+            return max_values
+        return CSV_MAX_VALUES if self.csv_max_values is None else self.csv_max_values
 
     def meta(self):
         """Everything but the samples: status, units, sizes, statistics, events, provenance."""
@@ -190,9 +208,12 @@ class Result:
 
     def _meta_head(self):
         """:meth:`meta` without the events (they are written by :func:`write_meta_json`)."""
-        return {"status": self.status, "message": self.message, "units": self.units,
+        head = {"status": self.status, "message": self.message, "units": self.units,
                 "sizes": {n: b - a for n, (a, b) in self._slices.items()},
                 "stats": self.stats, "provenance": self.provenance}
+        if self.files:
+            head["files"] = list(self.files)
+        return head
 
     def _write_npz(self, fh, arrays):
         """``result.npz`` as ``np.savez`` writes it (one ``.npy`` entry per array, stored),
@@ -232,7 +253,7 @@ class Result:
         r.provenance = meta.get("provenance", {})
         return r
 
-    def report(self, csv_max_values=None):
+    def report(self):
         s = self.stats
         lines = [f"status: {self.status}"]
         if self.message:
@@ -250,10 +271,12 @@ class Result:
                 lines += [f"{k}:"] + [f"  {a}: {b}" for a, b in v.items()]
             else:
                 lines.append(f"{k}: {v}")
-        if not self.csv_written(csv_max_values):
-            limit = CSV_MAX_VALUES if csv_max_values is None else csv_max_values
+        if not self.csv_written():
+            limit = self._csv_limit()
             lines.append(f"result.csv: not written ({self.csv_values():,} values, more than "
                          f"{limit:,}); the data is in result.npz")
+        if self.files:
+            lines.append(f"files of this run: {', '.join(self.files)}")
         if self.events:
             lines.append(f"event log ({len(self.events)}, first 20):")
             lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]

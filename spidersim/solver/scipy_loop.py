@@ -157,7 +157,13 @@ class SciPyLoop:
                                      block=lp.get("block"))
             err.partial = self.rec.result(self.events, st, "failed", loop)
             raise err
-        why = s.diagnose(t, x) if x is not None else ""
+        from .loop import non_finite_ahead
+        ahead = non_finite_ahead(s, t, x) if x is not None and "step size" in msg else ""
+        if ahead:           # every trial step beyond t met a NaN or inf: say so (as LSODA)
+            msg, why = (f"non-finite value just after t (the step size shrank to "
+                        f"round-off): {ahead}"), ""
+        else:
+            why = s.diagnose(t, x) if x is not None else ""
         full = f"integration failed at t = {t:.9g} s: {msg}" + (f"; {why}" if why else "")
         raise IntegrationError(full, partial=self.rec.result(self.events, st, "failed", full))
 

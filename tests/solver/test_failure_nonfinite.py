@@ -1,0 +1,64 @@
+"""Failure reports of the compiled loop when the derivatives turn non-finite just beyond
+the last step (log or sqrt of a negative): DP54 and NDF reported only "required step size
+is less than spacing between numbers"; LSODA said "non-finite value". And the relative
+tolerance's valid range, refused by check, run and the API alike."""
+import pytest
+
+import spidersim
+from spidersim.cli import main
+from spidersim.errors import DiagramError, IntegrationError
+
+FN = """\
+blocks:
+  s: {{type: Sine, amplitude: 1, f: 1, offset: 0.5}}
+  f: {{type: Function, fn: {fn}}}
+  i: {{type: Integrator}}
+connections: [s.y -> f.u, f.y -> i.u]
+simulation: {{t_end: 2, method: {method}}}
+"""
+
+
+@pytest.mark.parametrize("method", ["DP54", "NDF"])
+@pytest.mark.parametrize("fn", ["log", "sqrt"])
+def test_non_finite_derivative_is_named(method, fn):
+    """0.5 + sin(2 pi t) turns negative at t = 7/12 s = 0.58333 s: the failure says
+    'non-finite value' and names the signal f.y (the block f) that is NaN there, at that
+    time to 1e-6 s. Compiled loop (what the CLI runs); the interpreted DP54 (SciPy loop)
+    reports the same."""
+    d = spidersim.loads(FN.format(fn=fn, method=method))
+    with pytest.raises(IntegrationError) as ei:
+        d.simulate()                            # the compiled loop, as the CLI runs it
+    msg = str(ei.value)
+    assert "non-finite value just after t" in msg and "signal 'f.y' is [nan]" in msg, msg
+    assert ei.value.partial.t[-1] == pytest.approx(7 / 12, abs=1e-6)
+    if method == "DP54":
+        with pytest.raises(IntegrationError, match=r"non-finite value just after t[\s\S]*"
+                                                   r"signal 'f.y' is \[nan\]"):
+            d.simulate(jit=False)
+
+
+SERVO = """\
+blocks:
+  c: {{type: Constant, value: 1}}
+  x: {{type: Integrator}}
+connections: [c.y -> x.u]
+simulation: {{t_end: 0.1, method: DP54, rtol: {rtol}}}
+"""
+
+
+@pytest.mark.parametrize("rtol", ["1e-20", "1e-15", "2", "1e300"])
+def test_rtol_outside_its_range_is_refused(tmp_path, capsys, rtol):
+    """rtol below 1e-14 or above 1 is refused at the file's line with the valid range, by
+    load (so check, run and the service alike) and by simulate(rtol=...); 1e-14 and 1
+    themselves are accepted."""
+    with pytest.raises(DiagramError, match=r"simulation.rtol must be in \[1e-14, 1\]"):
+        spidersim.loads(SERVO.format(rtol=rtol))
+    f = tmp_path / "s.yaml"
+    f.write_text(SERVO.format(rtol=rtol))
+    assert main(["check", str(f)]) == 2
+    assert "s.yaml:5: simulation.rtol must be in [1e-14, 1]" in capsys.readouterr().err
+    d = spidersim.loads(SERVO.format(rtol="1e-6"))
+    with pytest.raises(DiagramError, match=r"rtol must be in"):
+        d.simulate(rtol=float(rtol), jit=False)
+    for ok in ("1e-14", "1"):
+        spidersim.loads(SERVO.format(rtol=ok))
