@@ -366,7 +366,15 @@ class SciPyLoop:
     def _step(self, solver):
         """One accepted step; fail on a solver failure or a stall."""
         t_old = solver.t
-        msg = solver.step()
+        try:
+            msg = solver.step()
+        except ValueError as exc:
+            # BDF and Radau factor their iteration matrix with LAPACK, which refuses inf and
+            # NaN ("array must not contain infs or NaNs"): derivatives turned non-finite
+            if "inf" not in str(exc) and "NaN" not in str(exc):
+                raise
+            self._fail("non-finite value (the step size shrank to round-off)", solver.t,
+                       solver.y)
         if solver.status == "failed":
             self._fail(msg or "solver failure", solver.t, solver.y)
         self.st["steps"] += 1
