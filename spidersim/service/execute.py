@@ -64,6 +64,28 @@ def run_job(task, report=None, out=None):
     """
     model = Model(task["model"], task["path"])
     d, t_end = prepare(model, task["request"])
+    t0 = time.perf_counter()
+    r, status, message = _simulate(model, d, t_end, task, report)
+    message = _cap_events(r, message)
+    wall = time.perf_counter() - t0
+    folder = out or tempfile.mkdtemp(prefix="spidersim-job-")
+    try:
+        message, plot_error = _write_files(model, d, r, task, folder, status, message)
+        res = {"status": status, "message": message, "plot_error": plot_error,
+               "t_reached": float(r.t[-1]) if len(r.t) else 0.0, "wall_time": wall,
+               "t_end": t_end}
+        if out is None:
+            res["files"] = _read_files(folder)
+        return res
+    finally:
+        if out is None:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _simulate(model, d, t_end, task, report):
+    """``(result, status, message)`` of the run: ``"ok"``, ``"interrupted"`` (the wall-time
+    limit, rows kept) or ``"failed"`` (an integration failure or the recording budget, rows
+    kept); ``report(t)`` every :data:`PROGRESS_EVERY` s of wall time."""
     last = [0.0]
 
     def progress(t):
@@ -72,11 +94,10 @@ def run_job(task, report=None, out=None):
             last[0] = now
             report(float(t))
 
-    status, message = "ok", ""
-    t0 = time.perf_counter()
     limit = task.get("wall_limit")
     deadline = None if limit is None else time.monotonic() + float(limit)
     should_stop = None if deadline is None else (lambda: time.monotonic() > deadline)
+    status, message = "ok", ""
     try:
         r = d.simulate(t_end=t_end, jit=task.get("jit", True), progress=progress,
                        should_stop=should_stop)
@@ -89,46 +110,54 @@ def run_job(task, report=None, out=None):
                                   "per job: serve --max-record-mb)")
     if status == "ok" and r.status == "interrupted":
         status, message = "interrupted", r.message
+    return r, status, message
+
+
+def _note(message, note):
+    return f"{message}; {note}" if message else note
+
+
+def _cap_events(r, message):
+    """At most :data:`MAX_EVENTS` events kept (the total in ``stats["events_total"]``)."""
     if len(r.events) > MAX_EVENTS:
         r.stats["events_total"] = len(r.events)
         r.events = r.events[:MAX_EVENTS]
-        note = (f"only the first {MAX_EVENTS} of {r.stats['events_total']} events are "
-                f"written")
-        message = f"{message}; {note}" if message else note
-    wall = time.perf_counter() - t0
-    folder = out or tempfile.mkdtemp(prefix="spidersim-job-")
-    try:
-        csv_max = int(MAX_CSV_MB * 1e6 / 24)
-        if not r.csv_written(csv_max):
-            note = (f"result.csv not written ({r.csv_values()} values, over the service's "
-                    f"{MAX_CSV_MB:g} MB for it): the data are in result.npz")
-            message = f"{message}; {note}" if message else note
-        r.save(folder, csv_max_values=csv_max)
-        meta = _meta(r, status, message)
-        plot_error = ""
-        if task["request"].get("plots", True) and len(r.t) > 1 and d.spec.plots:
-            from spidersim.plots import make_plots
-            try:
-                make_plots(r, d.spec.plots, os.path.join(folder, "plots"))
-            except Exception as exc:        # plots are a convenience: the data stand
-                plot_error = f"plots not drawn: {model.public_message(exc)}"
-        meta["plot_error"] = plot_error
-        with open(os.path.join(folder, "meta.json"), "w") as fh:
-            write_meta_json(fh, meta, r.events)
-        with open(os.path.join(folder, "signals.json"), "w") as fh:
-            json.dump({"units": meta["units"], "sizes": meta["sizes"]}, fh)
-        res = {"status": status, "message": message, "plot_error": plot_error,
-               "t_reached": float(r.t[-1]) if len(r.t) else 0.0, "wall_time": wall,
-               "t_end": t_end}
-        if out is None:
-            files = {}
-            for root, _dirs, names in os.walk(folder):
-                for n in names:
-                    p = os.path.join(root, n)
-                    with open(p, "rb") as fh:
-                        files[os.path.relpath(p, folder)] = fh.read()
-            res["files"] = files
-        return res
-    finally:
-        if out is None:
-            shutil.rmtree(folder, ignore_errors=True)
+        message = _note(message, f"only the first {MAX_EVENTS} of "
+                                 f"{r.stats['events_total']} events are written")
+    return message
+
+
+def _write_files(model, d, r, task, folder, status, message):
+    """The job's files in ``folder`` (data, reports, plots, meta.json, signals.json);
+    returns ``(message, plot_error)``."""
+    csv_max = int(MAX_CSV_MB * 1e6 / 24)
+    if not r.csv_written(csv_max):
+        message = _note(message, f"result.csv not written ({r.csv_values()} values, over the "
+                                 f"service's {MAX_CSV_MB:g} MB for it): the data are in "
+                                 f"result.npz")
+    r.save(folder, csv_max_values=csv_max)
+    meta = _meta(r, status, message)
+    plot_error = ""
+    if task["request"].get("plots", True) and len(r.t) > 1 and d.spec.plots:
+        from spidersim.plots import make_plots
+        try:
+            make_plots(r, d.spec.plots, os.path.join(folder, "plots"))
+        except Exception as exc:        # plots are a convenience: the data stand
+            plot_error = f"plots not drawn: {model.public_message(exc)}"
+    meta["plot_error"] = plot_error
+    with open(os.path.join(folder, "meta.json"), "w") as fh:
+        write_meta_json(fh, meta, r.events)
+    with open(os.path.join(folder, "signals.json"), "w") as fh:
+        json.dump({"units": meta["units"], "sizes": meta["sizes"]}, fh)
+    return message, plot_error
+
+
+def _read_files(folder):
+    """Every file under ``folder`` as ``{relative name: bytes}`` (a Dask worker's)."""
+    files = {}
+    for root, _dirs, names in os.walk(folder):
+        for n in names:
+            p = os.path.join(root, n)
+            with open(p, "rb") as fh:
+                files[os.path.relpath(p, folder)] = fh.read()
+    return files
