@@ -448,13 +448,14 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
     # of them has crossed. Applied at the earliest, a guard located a hair later was still
     # on its old side and fired again; grouped without chaining, a guard just beyond the
     # window could have crossed by the latest time and was never fired
-    grow = True
-    while grow:
+    for _ in range(nh - 1):              # at most nh - 1 extensions (none for one crossing)
         grow = False
         for j in range(nh):
             if t_ev < G[G_TIMES, j] <= t_ev + 2 * xtol:
                 t_ev = G[G_TIMES, j]
                 grow = True
+        if not grow:
+            break
     if t_ev < t_end_step:
         _dense(meth, t, h, x, x1, K, B, t_ev, xs)
     else:
