@@ -664,14 +664,17 @@ def _check_windows(d, raw_plots):
                                line=lines[k] if k < len(lines) else None)
     mg = d.microgravity
     if mg and mg.get("window") is not None and mg["window"][0] >= t_end:
-        raise DiagramError(f"microgravity: the window starts at {mg['window'][0]:g} s, not "
-                           f"before the end of the run (simulation.t_end = {t_end:g} s): no "
-                           f"verdict "
-                           f"could be given", file=d.file,
-                           line=getattr(d.spec.data, "line_of", lambda k: None)(
-                               "microgravity"))
+        raise _microgravity_error(d, f"the window starts at {mg['window'][0]:g} s, not before "
+                                     f"the end of the run (simulation.t_end = {t_end:g} s): "
+                                     f"no verdict could be given")
     if mg:
         _check_window_length(d, mg, t_end)
+
+
+def _microgravity_error(d, message):
+    """A :class:`DiagramError` ``microgravity: <message>`` at the section's line."""
+    return DiagramError(f"microgravity: {message}", file=d.file,
+                        line=getattr(d.spec.data, "line_of", lambda k: None)("microgravity"))
 
 
 def _check_window_length(d, mg, t_end):
@@ -691,12 +694,10 @@ def _check_window_length(d, mg, t_end):
     need = 2.0 / (hi - lo)
     if length < need * (1 - 1e-9):
         need_t = (math.ceil(need / oi - 1e-9) - 1) * oi if oi else need
-        raise DiagramError(f"microgravity: the window [{t0:g}, {t1:g}] s lasts {t1 - t0:g} s; "
-                           f"the widest band ({lo:.4g}-{hi:.4g} Hz) needs at least "
-                           f"{need_t:.4g} s (two frequency bins), and lower bands longer: no "
-                           f"band would be assessed", file=d.file,
-                           line=getattr(d.spec.data, "line_of", lambda k: None)(
-                               "microgravity"))
+        raise _microgravity_error(d, f"the window [{t0:g}, {t1:g}] s lasts {t1 - t0:g} s; "
+                                     f"the widest band ({lo:.4g}-{hi:.4g} Hz) needs at least "
+                                     f"{need_t:.4g} s (two frequency bins), and lower bands "
+                                     f"longer: no band would be assessed")
 
 
 def cmd_check(args):
