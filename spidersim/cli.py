@@ -536,30 +536,37 @@ def _valid_analysis_time(at, t_end):
 
 
 def _check_analysis(d, t_end):
-    """Every ``analysis`` entry has a loop or inputs and outputs, names signals of the
-    diagram and a valid ``at``."""
-    from .linreport import analysis_request
+    """Every ``analysis`` entry (:func:`_check_analysis_entry`)."""
     for name in d.spec.analysis:
-        lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
-        inputs, outputs, opened, at, loop = analysis_request(d, name)
-        if loop is None and not (inputs and outputs):
-            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
-                               f"'outputs' (at least one of each), got "
-                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
-                               file=d.file, line=lines(name))
-        for s_ in inputs + outputs + opened + ([loop] if loop is not None else []):
-            _check_analysis_signal(d, name, s_, lines(name))
-        if not _valid_analysis_time(at, t_end):
-            raise DiagramError(f"analysis '{name}': 'at' must be 'initial', 'trim', a "
-                               f"mapping or a time in [0, t_end] (0 or at least 1e-07 "
-                               f"s), got {at!r}", file=d.file,
-                               line=lines(name))
-        if isinstance(at, dict):
-            _check_trim_at(d, name, at, lines(name))
-        if loop is not None and (inputs or outputs):
-            raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
-                               f"'outputs', not both", file=d.file, line=lines(name))
-        _check_continuous(d, name, inputs, outputs, opened, loop, lines(name))
+        _check_analysis_entry(d, name, t_end)
+
+
+def _check_analysis_entry(d, name, t_end, check_at=True):
+    """The analysis entry ``name`` has a loop or inputs and outputs (not both), names
+    signals of the diagram, has a valid ``at`` (unless ``check_at`` is False: ``--at``
+    replaces it) and no sampled block on its path; returns
+    ``(inputs, outputs, open, at, loop)``."""
+    from .linreport import analysis_request
+    line = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)(name)
+    inputs, outputs, opened, at, loop = analysis_request(d, name)
+    if loop is None and not (inputs and outputs):
+        raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' and "
+                           f"'outputs' (at least one of each), got "
+                           f"{len(inputs)} input(s) and {len(outputs)} output(s)",
+                           file=d.file, line=line)
+    for s_ in inputs + outputs + opened + ([loop] if loop is not None else []):
+        _check_analysis_signal(d, name, s_, line)
+    if check_at and not _valid_analysis_time(at, t_end):
+        raise DiagramError(f"analysis '{name}': 'at' must be 'initial', 'trim', a "
+                           f"mapping or a time in [0, t_end] (0 or at least 1e-07 "
+                           f"s), got {at!r}", file=d.file, line=line)
+    if check_at and isinstance(at, dict):
+        _check_trim_at(d, name, at, line)
+    if loop is not None and (inputs or outputs):
+        raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
+                           f"'outputs', not both", file=d.file, line=line)
+    _check_continuous(d, name, inputs, outputs, opened, loop, line)
+    return inputs, outputs, opened, at, loop
 
 
 def _check_continuous(d, name, inputs, outputs, opened, loop, line=None):
@@ -775,36 +782,25 @@ def cmd_linearize(args):
 
 def _linearize_request(d, args, name):
     """``(inputs, outputs, opened, at, loop)`` of one linearization: the named analysis of
-    the file (``name``) or the command line's signals, ``--at`` applied."""
-    from .linreport import analysis_request, parse_at
+    the file (``name``, checked as ``check`` checks it) or the command line's signals,
+    ``--at`` applied."""
+    from .linreport import parse_at
     if name is not None:
-        inputs, outputs, opened, at, loop = analysis_request(d, name)
-        lines = getattr(d.spec.data.get("analysis"), "line_of", lambda k: None)
-        if loop is None and not (inputs and outputs):
-            raise DiagramError(f"analysis '{name}' needs a 'loop' signal, or 'inputs' "
-                               f"and 'outputs' (at least one of each), got "
-                               f"{len(inputs)} input(s) and {len(outputs)} output(s)",
-                               file=d.file, line=lines(name))
-        if loop is not None and (inputs or outputs):
-            raise DiagramError(f"analysis '{name}': give either 'loop' or 'inputs' and "
-                               f"'outputs', not both", file=d.file, line=lines(name))
+        inputs, outputs, opened, at, loop = _check_analysis_entry(
+            d, name, d.simulation["t_end"], check_at=args.at is None)
         if isinstance(at, str):
             at = parse_at(at)
-        if isinstance(at, dict) and args.at is None:
-            _check_trim_at(d, name, at, lines(name))
     else:
         inputs, outputs, opened = args.input or [], args.output or [], args.open or []
         at, loop = None, args.loop
+        if loop is not None or (inputs and outputs):
+            _check_continuous(d, None, inputs, outputs, opened, loop)
     if args.at is not None:
         at = parse_at(args.at)
         if not _valid_analysis_time(at, d.simulation["t_end"]):
             raise DiagramError(f"--at: the operating point's time must be in [0, t_end] "
                                f"= [0, {d.simulation['t_end']:g}] s (simulation.t_end), "
                                f"0 or at least 1e-07 s, got {args.at}", file=d.file)
-    if loop is not None or (inputs and outputs):
-        _check_continuous(d, name, inputs, outputs, opened, loop,
-                          getattr(d.spec.data.get("analysis"), "line_of",
-                                  lambda k: None)(name) if name else None)
     return inputs, outputs, opened, at, loop
 
 
