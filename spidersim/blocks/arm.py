@@ -312,6 +312,8 @@ class Arm(Block):
             raise ValueError(f"payload_inertia: principal moments {[I1, I2, I3]} break the "
                              f"triangle inequality (no rigid body has them)")
 
+    derives = ("P",)
+
     @classmethod
     def derive(cls, params):
         return {"P": _chain(params["model"]).P}
@@ -588,6 +590,8 @@ class CartesianLineIK(Block):
     def check(cls, params):
         unit_vector(params["direction"], "direction")
 
+    derives = ("P", "p0", "R0", "u")
+
     @classmethod
     def derive(cls, params):
         ch = _chain(params["model"])
@@ -646,6 +650,8 @@ class ForwardKinematics(Block):
                "rot": Port("1", size=9, feedthrough=("q",), doc="flange rotation, row-major")}
     scratch = {"ws": _ws_dim()}
 
+    derives = ("P",)
+
     @classmethod
     def derive(cls, params):
         return {"P": _chain(params["model"]).P}
@@ -671,6 +677,8 @@ class Jacobian(Block):
     outputs = {"J": Port("1", size=Dim("6 n", lambda p: 6 * _n(p)), feedthrough=("q",),
                          doc="Jacobian, row-major 6 x n")}
     scratch = {"ws": _ws_dim()}
+
+    derives = ("P",)
 
     @classmethod
     def derive(cls, params):

@@ -86,7 +86,9 @@ Contract for block implementers
    constraint force).
 7. The declarations are checked when the class is defined (``__init_subclass__``): every
    kernel argument must be a declared name or a reserved one (names computed by ``derive``
-   are taken from a call with the default parameters), a name may not be declared twice in
+   are taken from a call with the default parameters, or from ``derives`` when the class
+   declares them: a block whose ``derive`` reads files or compiles declares them, so that
+   defining the class does neither), a name may not be declared twice in
    different roles (an output may share its state's name), a ``derivative`` needs states, a
    ``guard`` needs events, ``partials`` takes at least one of its matrices and only those
    the block can have (``dfdx`` needs states, ...); a :class:`BlockDefinitionError` names
@@ -360,6 +362,8 @@ def _derived_names(cls):
     """Names ``cls.derive`` computes from the default parameters: an empty set when the
     class does not define ``derive``, None when they cannot be known (a required parameter,
     or ``derive`` fails on the defaults): then any kernel argument name is accepted."""
+    if cls.derives is not None:
+        return set(cls.derives)
     if "derive" not in {k for c in cls.__mro__ for k in vars(c)} or \
             cls.derive.__func__ is Block.derive.__func__:
         return set()
@@ -464,6 +468,11 @@ class Block:
     sample_period: str | None = None
     #: parameter -> value that removes the block's quantization (contract item 9)
     quantizer: dict = {}
+    #: the names ``derive`` returns, declared by a block whose ``derive`` is costly on the
+    #: defaults (the arm blocks read their model file and build the kinematic chain): the
+    #: definition check (contract item 7) takes them instead of calling ``derive``, and
+    #: :meth:`derived` refuses a ``derive`` that returns other names
+    derives: tuple | None = None
 
     def __init_subclass__(cls, abstract=False, **kw):
         super().__init_subclass__(**kw)
@@ -547,6 +556,15 @@ class Block:
     def derive(cls, params) -> dict:
         """Numeric parameters computed from the user's; passed to kernels by name."""
         return {}
+
+    @classmethod
+    def derived(cls, params) -> dict:
+        """``derive(params)``, its names checked against ``derives`` when declared."""
+        out = cls.derive(params)
+        if cls.derives is not None and set(out) != set(cls.derives):
+            raise _definition_error(cls, f"derive returned {sorted(out)}, the class declares "
+                                         f"derives = {sorted(cls.derives)}")
+        return out
 
     @classmethod
     def check(cls, params):

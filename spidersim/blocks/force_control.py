@@ -86,6 +86,8 @@ class HybridForceController(Block):
                              f"(position-controlled); this controller regulates forces "
                              f"along x y z only, not moments; got {s.tolist()}")
 
+    derives = ("P", "R0")
+
     @classmethod
     def derive(cls, params):
         ch = _chain(params["model"])

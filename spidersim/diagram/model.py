@@ -307,7 +307,7 @@ class Diagram:
         try:
             self.blocks[block].params = new
             merged = dict(new)
-            merged.update(bl.cls.derive(new))
+            merged.update(bl.cls.derived(new))
             bl.params = merged
             for pname, (a, b, _s) in bl.pslots.items():
                 if np.size(merged[pname]) != b - a:
@@ -393,6 +393,8 @@ class Diagram:
                 self._modules[jit] = (mod, None)
                 self._system(jit).warm_up()
 
+            if jit:
+                self._register_native_kernels()
             mod, key, _ = load_module(self.source(jit, jacobian), jit, check=warm_up)
             self._modules[jit] = (mod, key)
             self._compile_time = time.perf_counter() - t0
@@ -403,6 +405,17 @@ class Diagram:
             t0 = time.perf_counter()
             self._system(jit).warm_up_loop(method)
             self._compile_time += time.perf_counter() - t0
+
+    def _register_native_kernels(self):
+        """The multibody kernels called through C symbols (:mod:`spidersim.multibody.native`)
+        registered before machine code that calls them is compiled or loaded from the cache:
+        when a block's kernels call one (spidersim's import builds none of them)."""
+        from ..blocks.base import KERNELS
+        from ..multibody import native
+        classes = {bl.cls for bl in self.layout.blocks.values()}
+        kernels = [getattr(c, k) for c in classes for k in KERNELS if c.has_kernel(k)]
+        if native.calls_exported(kernels):
+            native.register_all()
 
     def _system(self, jit):
         mod, key = self._modules[jit]

@@ -353,7 +353,7 @@ def block_numbers(bp: BlockPorts, ps: PortSizes, pg: PortGraph, inst, n_g, n_mod
         modes[m] = Span(n_modes, n_modes + n)
         n_modes += n
     params = dict(bp.params)
-    params.update(bp.cls.derive(bp.params))
+    params.update(bp.cls.derived(bp.params))
     pslots, constants, n_p = param_slots(bp.cls, params, n_p)
     return (_Numbers(guards, sizes, MappingProxyType(modes), params, pslots, constants),
             guards.stop, n_modes, n_p)

@@ -111,3 +111,39 @@ def test_partials_kernel_accepted():
             dfdx[0, 0] = -1.0 / tau
             dfdu[0, 0] = 1.0 / tau
     assert REGISTRY.pop("_TestLag") is _Lag
+
+
+def test_declared_derives_replace_the_call_on_the_defaults():
+    """A block whose ``derive`` is costly on its defaults (the arm blocks read a model file
+    and build the kinematic chain) declares ``derives``: defining the class does not call
+    ``derive`` (here it would raise), the kernel arguments are checked against the declared
+    names (an undeclared one is refused), and :meth:`Block.derived` refuses a ``derive``
+    returning other names than declared."""
+    def derive(cls, params):
+        if params["k"] == 1.0:
+            raise RuntimeError("derive was called with the defaults")
+        return {"k2": 2 * params["k"]} if params["k"] > 0 else {"other": 0.0}
+
+    body = dict(parameters={"k": Param(1.0)}, inputs={"u": Port()},
+                outputs={"y": Port(feedthrough=("u",))}, derives=("k2",),
+                derive=classmethod(derive),
+                output=staticmethod(lambda t, u, k2, y: None))
+    cls = _define(**body)
+    assert REGISTRY.pop(cls.type_name) is cls
+    assert cls.derived({"k": 3.0}) == {"k2": 6.0}
+    with pytest.raises(BlockDefinitionError, match=r"derive returned \['other'\], the "
+                                                   r"class declares derives = \['k2'\]"):
+        cls.derived({"k": -1.0})
+    with pytest.raises(BlockDefinitionError, match=r"argument 'k3'"):
+        _define(**dict(body, output=staticmethod(lambda t, u, k3, y: None)))
+
+
+def test_the_arm_blocks_declare_what_derive_returns():
+    """The declared ``derives`` of the arm and force-control blocks are what their
+    ``derive`` returns with the default parameters (the check the definition skips)."""
+    from spidersim.blocks.base import _default_params
+    declared = [c for c in REGISTRY.values() if c.derives is not None]
+    assert {c.type_name for c in declared} >= {"Arm", "CartesianLineIK", "ForwardKinematics",
+                                               "Jacobian", "HybridForceController"}
+    for cls in declared:
+        assert set(cls.derived(_default_params(cls))) == set(cls.derives), cls.type_name
