@@ -28,7 +28,6 @@ losses are always taken from the power flow. With ``efficiency < 1`` the switch 
 ``tau_s w_l = 0`` is a discontinuity without an event; the default is 1 (lossless mesh,
 friction through LuGre).
 """
-import math
 
 from .base import Block, Event, Mode, Param, Port, State
 from .friction import LUGRE_PARAMS, lugre_rates_jit, lugre_slopes_jit

@@ -30,7 +30,6 @@ text itself is the structure key of the compile cache.
 """
 from __future__ import annotations
 
-import inspect
 import re
 import textwrap
 
@@ -268,7 +267,7 @@ class Generator:
         compiled functions of :mod:`spidersim.solver.newton` (reverse communication: they
         say when to evaluate). Only integers of the layout enter this text.
         """
-        lines = [f"@_jit", f"def _loop{lp.index}_res(t, x, sig, p, modes, r):",
+        lines = ["@_jit", f"def _loop{lp.index}_res(t, x, sig, p, modes, r):",
                  f'    """Residual of algebraic loop {lp.index}."""',
                  _borrow("x", "sig", "p", "modes", "r").rstrip("\n")]
         lines += [self.call(self.layout.blocks[path], "output") for path in lp.calls

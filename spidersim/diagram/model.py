@@ -604,7 +604,7 @@ class Diagram:
             lines.append("  algebraic loops: none")
         for lp in L.loops:
             lines.append(f"  algebraic loop {lp.index + 1}: {lp.walk}")
-            lines.append(f"    tear variables: " + ", ".join(
+            lines.append("    tear variables: " + ", ".join(
                 f"{p}.{q}" + (" (constraint)" if k == "constraint" else "")
                 for p, q, k in lp.tears) + f"; inner calls: {' -> '.join(lp.calls)}")
         return "\n".join(lines)

@@ -11,7 +11,8 @@ frequencies and margins from a SISO ``control.StateSpace``, through its minimal 
 form (:mod:`.siso`: states the pair cannot move or see removed structurally and by
 pole-zero cancellation on the eigenvalues, never through polynomial coefficients, which
 lose the zeros of a model whose poles spread over decades). The bandwidth is the first
-frequency where ``|G(jw)|`` falls 3 dB below ``|G(0)|``, for a negative DC gain as well; it
+frequency where ``|G(jw)|`` falls to ``|G(0)|/sqrt(2)`` (half power, -3.01 dB; python-control's
+``bandwidth()`` takes exactly -3 dB), for a negative DC gain as well; it
 is undefined (reported as ``None`` with the reason) when the DC gain is infinite (an
 integrator) or zero. Margins and crossovers follow ``control.margin``'s definitions.
 """

@@ -140,10 +140,12 @@ def test_declared_derives_replace_the_call_on_the_defaults():
 
 def test_the_arm_blocks_declare_what_derive_returns():
     """The declared ``derives`` of the arm and force-control blocks are what their
-    ``derive`` returns with the default parameters (the check the definition skips)."""
-    from spidersim.blocks.base import _default_params
+    ``derive`` returns (the check the definition skips; a mismatch raises in ``derived``),
+    with the defaults and a seven-joint ``q0`` where the block has one."""
     declared = [c for c in REGISTRY.values() if c.derives is not None]
     assert {c.type_name for c in declared} >= {"Arm", "CartesianLineIK", "ForwardKinematics",
                                                "Jacobian", "HybridForceController"}
     for cls in declared:
-        assert set(cls.derived(_default_params(cls))) == set(cls.derives), cls.type_name
+        user = {"q0": [0.0, 0.5, 0.0, -1.0, 0.0, 0.6, 0.0]} if "q0" in cls.parameters else {}
+        params = cls.validate_params(user)
+        assert set(cls.derive(params)) == set(cls.derives), cls.type_name
