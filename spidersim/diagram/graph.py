@@ -191,8 +191,7 @@ def jacobian_sparsity(layout: Layout):
     deps = port_state_deps(layout)
     pattern = np.zeros((layout.n_x, layout.n_x), dtype=bool)
     for bl in layout.blocks.values():
-        cols = block_columns(layout, deps, bl)
+        cols = np.fromiter(block_columns(layout, deps, bl), dtype=np.intp)
         for a, b in bl.states.values():
-            for c in cols:
-                pattern[a:b, c] = True
+            pattern[a:b, cols] = True
     return pattern

@@ -6,6 +6,7 @@ never recompile.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -493,8 +494,9 @@ class Diagram:
                     x_names.append((nm, a, b))
                     seen.add(nm)
         sig_names.sort(key=lambda r: r[1])
-        tables = (sig_names, x_names, jacobian_sparsity(L) if L.n_x else None,
-                  event_tables(L))
+        # the pattern is made when an implicit method first asks (n_x^2 booleans)
+        pattern = functools.cache(functools.partial(jacobian_sparsity, L)) if L.n_x else None
+        tables = (sig_names, x_names, pattern, event_tables(L))
         self._tables_cache = (L, tables)
         return tables
 

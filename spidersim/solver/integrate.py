@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import SpidersimError
 from . import record_budget
+from .dense_size import check_dense_size
 from .events import MIN_SPAN, STALL_STEP
 from .scipy_loop import SciPyLoop
 
@@ -160,6 +161,7 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         raise SpidersimError(f"output_interval must be in (0, {t_end - t0}], "
                              f"got {output_interval}")
     record_budget.check_planned(system.record_size, t0, t_end, max_step, output_interval)
+    check_dense_size(system.n_x, method)
     entry = getattr(system, "compiled_entry", None)
     if method in COMPILED and entry is not None:
         return _compiled_loop()(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,

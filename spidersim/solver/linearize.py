@@ -22,6 +22,9 @@ import math
 
 import numpy as np
 
+from ..errors import SpidersimError
+from . import dense_size
+
 STEP = 6e-6
 
 
@@ -29,6 +32,10 @@ def jacobians(evaluate, x0, u0):
     """``(A, B, C, D)`` of ``evaluate(x, u) -> (xdot, y)`` at ``(x0, u0)``."""
     x0 = np.asarray(x0, dtype=float)
     u0 = np.asarray(u0, dtype=float)
+    if len(x0) > dense_size.MAX_DENSE_STATES:
+        raise SpidersimError(f"linearization builds the {len(x0)} x {len(x0)} matrix A by "
+                             f"{2 * len(x0)} evaluations: at most "
+                             f"{dense_size.MAX_DENSE_STATES} states")
     f0, y0 = evaluate(x0, u0)
     nx, nu, ny = len(x0), len(u0), len(y0)
     A, C = np.zeros((nx, nx)), np.zeros((ny, nx))

@@ -63,6 +63,7 @@ from . import bdf, record_budget, rosenbrock
 from .result import EventLog, Result
 from .sysfn import entry_point
 from .events import zeno_message
+from .dense_size import check_dense_size
 from .loop_body import entry as loop_entry
 from .loop_state import (  # noqa: F401 (the loop's constants, re-exported)
     METHOD_DP54, METHOD_ROS34PW2, METHODS, DONE, ROWS_FULL, EVENTS_FULL, PAUSE,
@@ -124,6 +125,7 @@ class CompiledLoop:
     def __init__(self, entry, system, t0, t_end, rtol, atol, max_step, first_step,
                  output_interval, capacity=1024, method="DP54", jacobian="auto"):
         s = system
+        check_dense_size(s.n_x, method)       # before the n x n work arrays
         #: the system assembles df/dx itself (:mod:`spidersim.diagram.jacobian`)
         self.analytic = method in ("NDF", "ROS34PW2") and _use_analytic(s, jacobian)
         self.entry, self.system = entry, s

@@ -108,7 +108,18 @@ class CompiledSystem:
         Block paths flagged by ``time_events`` and ``(block, event, direction)`` per guard,
         from :func:`spidersim.diagram.codegen.event_tables`; the generated module holds only
         their lengths, never names.
+    jac_sparsity : ndarray or callable, optional
+        The pattern of contract item 7, or a function returning it, called on first use
+        (only the implicit methods read it: an explicit run of many states never builds
+        its n_x x n_x pattern).
     """
+
+    @property
+    def jac_sparsity(self):
+        """Contract item 7, made on first use when a function was given."""
+        if callable(self._jac_sparsity):
+            self._jac_sparsity = self._jac_sparsity()
+        return self._jac_sparsity
 
     def __init__(self, module, x0, p, modes0, n_sig, log, sig_names, x_names,
                  jac_sparsity=None, sig0=None, loops=(), tables=((), ()), shared=None):
@@ -131,7 +142,7 @@ class CompiledSystem:
         self.loops = list(loops)
         self.sig_names = sig_names
         self.x_names = x_names
-        self.jac_sparsity = jac_sparsity
+        self._jac_sparsity = jac_sparsity
         # names come from the layout, never from the generated text (security rule)
         self.timed = list(tables[0])
         self.event_table = list(tables[1])

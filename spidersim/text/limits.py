@@ -24,6 +24,7 @@ MAX_EXPR_DEPTH = 50
 #: elements of an evaluated vector or matrix parameter
 MAX_ARRAY_ELEMENTS = 1_000_000
 #: primitive blocks of one diagram after its subsystems are expanded (compile time and
-#: memory grow with them: 1,200 chained Gains compile in about 23 s and 1.5 GB; spider.yaml
-#: has 74); also stops a subsystem "fan-out bomb" (ten instances of ten instances of ...)
-MAX_BLOCKS = 5_000
+#: memory grow faster than the count: 1,200 chained Gains compile in about 23 s and 1.5 GB,
+#: 2,000 in 73 s and 3.7 GB, 5,000 did not fit in 4 GB; spider.yaml has 74); also stops a
+#: subsystem "fan-out bomb" (ten instances of ten instances of ...)
+MAX_BLOCKS = 2_000
