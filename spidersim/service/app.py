@@ -273,6 +273,12 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
             except Exception as exc:              # database busy: next time
                 print(f"spidersim serve: result clean-up failed: {exc}", flush=True)
 
+    def kept_data(job):
+        """A cancelled job that stopped cooperatively and wrote its files (signals.json is
+        written last); one that was killed has none."""
+        return job["state"] == "cancelled" and os.path.isfile(
+            os.path.join(store.job_dir(job["id"]), "signals.json"))
+
     def _files(job):
         folder = store.job_dir(job["id"])
         out = {"data": [], "plots": []}
@@ -290,7 +296,7 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         j["request"] = job["request"]
         j["fraction"] = min(1.0, job["progress"] / job["t_end"]) if job["t_end"] > 0 else 1.0
         j["expired"] = expired(job)
-        if job["state"] in ("done", "failed"):
+        if job["state"] in ("done", "failed") or kept_data(job):
             j["files"] = {"data": [], "plots": []} if j["expired"] else _files(job)
         return j
 
@@ -461,7 +467,9 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                                           "X-Accel-Buffering": "no"})
 
     def job_file(job, rel):
-        if job["state"] in ("queued", "running", "cancelled"):
+        if job["state"] in ("queued", "running") or (job["state"] == "cancelled"
+                                                     and not kept_data(job)
+                                                     and not expired(job)):
             raise HTTPException(409, f"job {job['id']} is {job['state']}: no results")
         if expired(job):
             raise HTTPException(410, f"the results of job {job['id']} were removed: this "

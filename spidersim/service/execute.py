@@ -48,24 +48,34 @@ def _meta(r, status, message):
                           else str(v)) for k, v in r.stats.items()}})
 
 
-def run_job(task, report=None, out=None):
+def run_job(task, report=None, out=None, cancel=None, stopped=None):
     """Run ``task`` = ``{"id", "model", "path", "request", "jit"}``.
 
     ``report(t)`` receives the simulated time reached every :data:`PROGRESS_EVERY` seconds.
     With ``task["wall_limit"]`` [s] the run stops (the loop's ``should_stop``) when that
-    much wall time has passed, status ``"interrupted"``, keeping its rows. A run stopped
+    much wall time has passed, status ``"interrupted"``, keeping its rows. With
+    ``cancel() -> bool`` (a flag check: the loop calls it every few steps) the run stops
+    when it turns true, status ``"cancelled"``, keeping its rows and writing its files as a
+    finished run's; true before the run begins: nothing is run or written, status
+    ``"cancelled"`` with ``t_reached`` None. ``stopped(t)`` is called once the
+    integration loop has returned (before the files are written), with the time reached. A run stopped
     at the recording budget (``SPIDERSIM_RECORD_LIMIT_MB``, which the service sets per
     worker) keeps its rows too, status ``"failed"``. At most :data:`MAX_EVENTS` events
     are written.
     With ``out`` the files are written there; without, they are returned as
     ``{"files": {relative name: bytes}}`` (a Dask worker's disk is not the server's).
-    Returns ``{"status": "ok" | "failed", "message", "t_reached", "wall_time", ...}``;
+    Returns ``{"status": "ok" | "failed" | "interrupted" | "cancelled", "message", "t_reached", "wall_time", ...}``;
     errors in the request raise :class:`~spidersim.errors.SpidersimError`.
     """
     model = Model(task["model"], task["path"])
     d, t_end = prepare(model, task["request"])
+    if cancel is not None and cancel():
+        return {"status": "cancelled", "message": "", "plot_error": "", "t_reached": None,
+                "wall_time": 0.0, "t_end": t_end}
     t0 = time.perf_counter()
-    r, status, message = _simulate(model, d, t_end, task, report)
+    r, status, message = _simulate(model, d, t_end, task, report, cancel)
+    if stopped is not None:
+        stopped(float(r.t[-1]) if len(r.t) else 0.0)
     message = _cap_events(r, message)
     wall = time.perf_counter() - t0
     folder = out or tempfile.mkdtemp(prefix="spidersim-job-")
@@ -82,10 +92,11 @@ def run_job(task, report=None, out=None):
             shutil.rmtree(folder, ignore_errors=True)
 
 
-def _simulate(model, d, t_end, task, report):
+def _simulate(model, d, t_end, task, report, cancel=None):
     """``(result, status, message)`` of the run: ``"ok"``, ``"interrupted"`` (the wall-time
-    limit, rows kept) or ``"failed"`` (an integration failure or the recording budget, rows
-    kept); ``report(t)`` every :data:`PROGRESS_EVERY` s of wall time."""
+    limit, rows kept), ``"cancelled"`` (``cancel()`` turned true, rows kept) or
+    ``"failed"`` (an integration failure or the recording budget, rows kept);
+    ``report(t)`` every :data:`PROGRESS_EVERY` s of wall time."""
     last = [0.0]
 
     def progress(t):
@@ -94,9 +105,7 @@ def _simulate(model, d, t_end, task, report):
             last[0] = now
             report(float(t))
 
-    limit = task.get("wall_limit")
-    deadline = None if limit is None else time.monotonic() + float(limit)
-    should_stop = None if deadline is None else (lambda: time.monotonic() > deadline)
+    should_stop = _stop_check(task.get("wall_limit"), cancel)
     status, message = "ok", ""
     try:
         r = d.simulate(t_end=t_end, jit=task.get("jit", True), progress=progress,
@@ -109,8 +118,23 @@ def _simulate(model, d, t_end, task, report):
                                   "or ask the service's administrator (its recording budget "
                                   "per job: serve --max-record-mb)")
     if status == "ok" and r.status == "interrupted":
-        status, message = "interrupted", r.message
+        if cancel is not None and cancel():
+            status, message = "cancelled", (f"cancelled at t = "
+                                           f"{float(r.t[-1]) if len(r.t) else 0.0:.9g} s")
+        else:
+            status, message = "interrupted", r.message
     return r, status, message
+
+
+def _stop_check(limit, cancel):
+    """The loop's ``should_stop``: true once ``limit`` s of wall time have passed from now
+    or ``cancel()`` is true (either may be None); None when neither applies."""
+    if limit is None:
+        return cancel
+    deadline = time.monotonic() + float(limit)
+    if cancel is None:
+        return lambda: time.monotonic() > deadline
+    return lambda: cancel() or time.monotonic() > deadline
 
 
 def _note(message, note):

@@ -2,13 +2,24 @@
 
 Local pool: ``workers`` slots, each a server thread owning one worker process (started with
 ``spawn``: no fork of a threaded server). A slot claims the oldest queued job from the store,
-sends it to its process and relays progress to the store. Every job runs in a process the
-server can kill: *cancel* terminates the process (a process pool cannot stop a running
-future), and so does the wall-time limit; a process that dies for any other reason fails its
-job with the exit status, and the slot starts a fresh process for the next job. The
-wall-time limit stops a run cooperatively first (the integration loop's ``should_stop``:
-the rows computed so far are saved, the job fails saying which limit) and kills the
-process only :data:`KILL_GRACE` seconds later. Workers ignore SIGINT and SIGTERM (a
+sends it to its process and relays progress to the store. Stopping a run is cooperative,
+with a kill as backup (a process pool cannot stop a running future; this one can):
+
+* *cancel* of a running job sets the slot's cancel flag (a byte of shared memory the worker
+  was started with; the worker is busy integrating and does not read its pipe). The
+  integration loop's ``should_stop`` reads it every few steps, the run stops, its rows so
+  far are written as a finished job's files and the job ends ``cancelled`` saying at what
+  simulated time. A worker that has not stopped its loop :data:`CANCEL_GRACE` seconds after
+  the cancel (still loading or compiling the model: a first run of a structure compiles
+  for up to tens of seconds, and compiling cannot be interrupted) is killed: no data, the
+  next job starts a fresh process. A run that has stopped gets :data:`KILL_GRACE` seconds
+  to write its files. A cancel that arrives before the run begins ends the job without
+  data and keeps the process. The slot clears the flag before each job.
+* the *wall-time limit* stops a run the same way (the rows so far are saved, the job fails
+  saying which limit) and kills the process only :data:`KILL_GRACE` seconds later.
+
+A process that dies for any other reason fails its job with the exit status, and the slot
+starts a fresh process for the next job. Workers ignore SIGINT and SIGTERM (a
 stop of the whole process group, as systemd does, is the server's to handle): once the
 server begins to stop no slot claims a job, queued jobs stay queued for the next start,
 and a job claimed at that moment goes back to the queue. Worker
@@ -24,6 +35,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -38,12 +50,16 @@ POLL = 0.2           # s between checks of cancel flags and process health
 #: s after the wall-time limit before a run that did not stop (or is still writing its
 #: files) is killed
 KILL_GRACE = 60.0
+#: s after a cancel before a run that has not stopped its integration loop (still loading
+#: or compiling its model) is killed
+CANCEL_GRACE = 3.0
 
 
-def _worker_main(conn, parent_pid, record_mb=None):
+def _worker_main(conn, parent_pid, record_mb=None, cancel_flag=None):
     """Entry point of a local worker process; ``record_mb``: its share of the recording
     budget (:mod:`spidersim.solver.record_budget`), so that the slots' runs together stay
-    within it."""
+    within it; ``cancel_flag``: the slot's shared byte, nonzero when the running job is
+    cancelled (read by the run's ``should_stop``)."""
     if record_mb is not None:
         from spidersim.solver import record_budget
         os.environ[record_budget.ENV] = f"{record_mb:.6g}"
@@ -63,8 +79,12 @@ def _worker_main(conn, parent_pid, record_mb=None):
                 os._exit(3)
             conn.send(("progress", t))
 
+        def stopped(t):                               # the loop has returned: say so
+            conn.send(("stopped", t))
+
+        cancel = None if cancel_flag is None else (lambda: cancel_flag.value != 0)
         try:
-            res = run_job(task, report, out=task["out"])
+            res = run_job(task, report, out=task["out"], cancel=cancel, stopped=stopped)
             conn.send(("done", res))
         except SpidersimError as exc:
             from .library import Model
@@ -72,6 +92,20 @@ def _worker_main(conn, parent_pid, record_mb=None):
         except Exception as exc:    # a bug: say so, keep the worker
             traceback.print_exc(file=sys.stderr)
             conn.send(("error", f"internal error: {type(exc).__name__}: {exc}"))
+
+
+def _cancel_overdue(now, t_cancel, t_stopped):
+    """Why a cancelled run is to be killed at ``now`` (monotonic s), or None: its loop has
+    not stopped :data:`CANCEL_GRACE` s after the cancel at ``t_cancel``, or it stopped at
+    ``t_stopped`` and has not written its files :data:`KILL_GRACE` s later."""
+    if t_cancel is None:
+        return None
+    if t_stopped is None and now - t_cancel > CANCEL_GRACE:
+        return (f"the run did not stop within {CANCEL_GRACE:g} s (its model was still being "
+                f"loaded or compiled): killed")
+    if t_stopped is not None and now - t_stopped > KILL_GRACE:
+        return f"its files were not written within {KILL_GRACE:g} s: killed"
+    return None
 
 
 def _died_message(code):
@@ -162,7 +196,14 @@ class Runner:
         msg = res.get("message") or ""
         if res.get("plot_error"):
             msg = (msg + "; " if msg else "") + res["plot_error"]
-        state = "done" if res["status"] == "ok" else "failed"
+        state = {"ok": "done", "cancelled": "cancelled"}.get(res["status"], "failed")
+        if res["status"] == "cancelled":      # stopped by a cancel, data kept (or none)
+            if res.get("t_reached") is None:
+                msg = "cancelled before its run began (no data)"
+            else:
+                msg = (f"cancelled while running: the run stopped at t = "
+                       f"{res['t_reached']:.9g} s; the data computed up to there are kept"
+                       + (f"; {res['plot_error']}" if res.get("plot_error") else ""))
         if res["status"] == "interrupted":    # stopped by the wall-time limit, data kept
             msg = (f"stopped: the wall-time limit of {self.job_timeout:g} s per job was "
                    f"reached at t = {res.get('t_reached', 0.0):.6g} s; the data computed "
@@ -185,15 +226,17 @@ class LocalRunner(Runner):
             self.record_mb = min(self.record_mb, float(self.job_record_mb))
 
     def _process(self, k):
+        """``(process, pipe, cancel flag)`` of slot ``k``, started if it is not alive."""
         p = self._procs[k]
         if p is None or not p[0].is_alive():
             parent, child = self._ctx.Pipe()
+            flag = self._ctx.RawValue("b", 0)      # shared byte: no lock, read every pause
             proc = self._ctx.Process(target=_worker_main,
-                                     args=(child, os.getpid(), self.record_mb),
+                                     args=(child, os.getpid(), self.record_mb, flag),
                                      daemon=True, name=f"spidersim-worker-{k}")
             proc.start()
             child.close()
-            self._procs[k] = (proc, parent)
+            self._procs[k] = (proc, parent, flag)
         return self._procs[k]
 
     def worker_pids(self):
@@ -213,12 +256,26 @@ class LocalRunner(Runner):
             if self._procs[k] is not None:
                 self._kill(k)
 
+    def _cancel_killed(self, k, jid, why):
+        """Kill slot ``k``'s process for a cancel; the job ends cancelled without data (any
+        file the run began to write is removed: a cancelled job's results are its
+        complete files or none)."""
+        if k is not None:
+            self._kill(k)
+        folder = self.store.job_dir(jid)
+        shutil.rmtree(folder, ignore_errors=True)
+        os.makedirs(folder, exist_ok=True)
+        self.store.finish(jid, "cancelled", f"cancelled while running: {why}, no data")
+
     def _run(self, k, job):
         jid = job["id"]
         os.makedirs(self.store.job_dir(jid), exist_ok=True)
-        proc, conn = self._process(k)
+        proc, conn, flag = self._process(k)
+        flag.value = 0                      # no stale cancel of an earlier job
         conn.send(self._task(job))
         t0 = time.monotonic()
+        t_cancel = None                     # when the cancel flag was set
+        t_stopped = None                    # when the worker said its loop had returned
         while True:
             try:
                 ready = conn.poll(POLL)
@@ -230,6 +287,9 @@ class LocalRunner(Runner):
                 kind, val = msg
                 if kind == "progress":
                     self.store.set_progress(jid, val)
+                    continue
+                if kind == "stopped":
+                    t_stopped = time.monotonic()
                     continue
                 if kind == "done":
                     self._finish_result(job, val)
@@ -244,15 +304,19 @@ class LocalRunner(Runner):
                 code = proc.exitcode
                 self._procs[k] = None
                 if self.store.cancel_requested(jid):
-                    self.store.finish(jid, "cancelled", "cancelled while running")
+                    self._cancel_killed(None, jid, "the worker process ended")
                 else:
                     self.store.finish(jid, "failed", _died_message(code))
                 return
-            if self.store.cancel_requested(jid):
-                self._kill(k)
-                self.store.finish(jid, "cancelled", "cancelled while running")
+            now = time.monotonic()
+            if t_cancel is None and self.store.cancel_requested(jid):
+                flag.value = 1              # the run stops at its loop's next pause
+                t_cancel = now
+            why = _cancel_overdue(now, t_cancel, t_stopped)
+            if why:
+                self._cancel_killed(k, jid, why)
                 return
-            if time.monotonic() - t0 > self.job_timeout + KILL_GRACE:
+            if now - t0 > self.job_timeout + KILL_GRACE:
                 self._kill(k)               # it did not stop at the limit: no data
                 self.store.finish(jid, "failed", f"stopped: the wall-time limit of "
                                   f"{self.job_timeout:g} s per job was reached (the run "

@@ -56,8 +56,13 @@ def test_the_share_is_handed_to_the_worker_process(monkeypatch):
         def close(self):
             pass
 
+    class _Flag:
+        def __init__(self, typecode, value):
+            self.value = value
+
     class _Ctx:
         Process = _Proc
+        RawValue = _Flag                  # the slot's cancel flag
 
         @staticmethod
         def Pipe():
@@ -67,6 +72,7 @@ def test_the_share_is_handed_to_the_worker_process(monkeypatch):
     r._process(0)
     (target, args), = started
     assert target is R._worker_main and args[2] == 300.0
+    assert args[3].value == 0             # the cancel flag, clear
 
 
 def test_the_services_budget_per_job_caps_the_share(monkeypatch):
