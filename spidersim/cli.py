@@ -1104,8 +1104,10 @@ def cmd_cache(args):
         print(f"spidersim: cache: removed {n} file(s) from {compiled.configured_dir()}")
         return 0
     i = compiled.info()
-    state = {True: "writable", False: "NOT writable (a temporary folder is used instead)",
-             None: "not created yet"}[i["usable"]]
+    why = i["usable"]
+    state = ("not created yet" if why is None else "writable, private" if why is True else
+             f"NOT used: it {why}; a private folder in the temporary directory is used "
+             f"instead")
     print(f"folder:  {i['folder']} ({state})\n"
           f"entries: {i['entries']} compiled diagram structure(s)\n"
           f"size:    {i['bytes'] / 1e6:.1f} MB\n"

@@ -6,19 +6,30 @@ cached module. numba's own cache (``cache=True``) then lives beside it, so that 
 of the same diagram structure loads machine code instead of compiling. Parameter values are
 not in the text: a new value never recompiles.
 
-The cache folder is ``$SPIDERSIM_CACHE``, else ``~/.cache/spidersim``; when it is not a
-writable folder a private temporary one is used for the process, with a warning. Every entry
-is verified before it is imported (its text, the hash written beside it and its key must
-agree): a truncated, emptied, appended or swapped entry is discarded and compiled again.
-``spidersim cache info`` and ``spidersim cache clear`` show and empty it.
+The cache folder is ``$SPIDERSIM_CACHE`` (``~`` expanded, made absolute), else
+``~/.cache/spidersim``. What is loaded from it becomes code in the process (the generated
+module; numba's index files are pickles), so the folder must be one only the user can
+write: a real folder (not a symbolic link) owned by the user and not writable by group or
+others, and so must numba's ``__pycache__`` in it; a folder spidersim creates is made
+``0700``. A folder that is not writable, or not private (a shared cache another user could
+plant files in), is not used: a private folder of the user's in the temporary directory
+(``spidersim-cache-<uid>``, checked the same way; else a fresh one removed at exit) is,
+with a one-line warning. Every entry is verified before it is imported (its text, the hash
+written beside it and its key must agree): a truncated, emptied, appended or swapped entry
+is discarded and compiled again; the module is compiled from the verified text itself,
+never from a ``.pyc`` beside it. Files are written under random names opened exclusively,
+then renamed. ``spidersim cache info`` and ``spidersim cache clear`` show and empty it.
 """
 from __future__ import annotations
 
 import hashlib
+import importlib.machinery
 import importlib.util
 import os
 import re
+import stat
 import sys
+import tempfile
 import time
 from functools import lru_cache
 
@@ -30,36 +41,99 @@ def _warn(msg):
     print(f"spidersim: cache: {msg}", file=sys.stderr)
 
 
-def _usable(d) -> bool:
+def _not_private(d) -> str:
+    """Why folder ``d`` is not the user's alone ('' when it is): a symbolic link, not a
+    folder, another owner, or writable by group or others."""
     try:
-        os.makedirs(d, exist_ok=True)
-        probe = os.path.join(d, f".probe-{os.getpid()}")
-        with open(probe, "w") as fh:
-            fh.write("ok")
-        os.remove(probe)
-        return True
+        st = os.lstat(d)
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symbolic link"
+    if not stat.S_ISDIR(st.st_mode):
+        return "is not a folder"
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return "belongs to another user"
+    if st.st_mode & 0o022:
+        return "can be written by other users"
+    return ""
+
+
+def _problem(d) -> str:
+    """Why ``d`` cannot be the cache ('' when it can): it is made (``0700``) if missing,
+    must be private (:func:`_not_private`, and its ``__pycache__`` if there) and writable
+    (a probe file under a random name, opened exclusively)."""
+    pyc = os.path.join(d, "__pycache__")
+    try:
+        os.makedirs(d, mode=0o700, exist_ok=True)
+        if d == _default_dir():
+            _tighten(d)          # made before spidersim made it private (umask 002)
+        if not _not_private(d):
+            if not os.path.lexists(pyc):
+                os.mkdir(pyc, 0o700)        # numba would make it with the umask's bits
+            _tighten(pyc)
     except OSError:
-        return False
+        return "is not a writable folder"
+    why = _not_private(d)
+    if not why and _not_private(pyc):
+        why = f"has a __pycache__ that {_not_private(pyc)}"
+    if why:
+        return why
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=d)
+        os.close(fd)
+        os.remove(probe)
+    except OSError:
+        return "is not a writable folder"
+    return ""
+
+
+def _tighten(d):
+    """Remove group and others' write permission from the user's own real folder ``d``
+    (spidersim's own folders: the default cache and ``__pycache__`` in a private one)."""
+    st = os.lstat(d)
+    if stat.S_ISDIR(st.st_mode) and (not hasattr(os, "getuid") or st.st_uid == os.getuid()) \
+            and st.st_mode & 0o022:
+        os.chmod(d, stat.S_IMODE(st.st_mode) & ~0o022)
+
+
+def _default_dir() -> str:
+    return os.path.join(os.path.expanduser("~"), ".cache", "spidersim")
 
 
 def configured_dir() -> str:
-    """The cache folder asked for: ``$SPIDERSIM_CACHE``, else ``~/.cache/spidersim``."""
-    return os.environ.get("SPIDERSIM_CACHE") or os.path.join(
-        os.path.expanduser("~"), ".cache", "spidersim")
+    """The cache folder asked for: ``$SPIDERSIM_CACHE`` (``~`` expanded, absolute; blank
+    means unset), else ``~/.cache/spidersim``."""
+    d = os.environ.get("SPIDERSIM_CACHE", "").strip()
+    return os.path.abspath(os.path.expanduser(d)) if d else _default_dir()
 
 
 def cache_dir() -> str:
-    """The cache folder in use: the configured one when it is a writable folder, else a
-    private temporary folder for this process (with a one-line warning)."""
+    """The cache folder in use: the configured one when it can be (:func:`_problem`), else
+    the user's private fallback folder (with a one-line warning, once per process)."""
     d = configured_dir()
-    if _usable(d):
+    why = _problem(d)
+    if not why:
         return d
     if not _FALLBACK:
-        import tempfile
-        _FALLBACK.append(tempfile.mkdtemp(prefix="spidersim-cache-"))
-        _warn(f"{d} is not a writable folder; compiling into {_FALLBACK[0]} for this run "
-              f"(set SPIDERSIM_CACHE to a writable folder to keep compiled code)")
+        _FALLBACK.append(_fallback_dir())
+        _warn(f"{d} {why}; compiling into {_FALLBACK[0]} instead (set SPIDERSIM_CACHE to a "
+              f"folder of your own that only you can write to keep compiled code there)")
     return _FALLBACK[0]
+
+
+def _fallback_dir() -> str:
+    """``<tmp>/spidersim-cache-<uid>`` when it is (or can be made) the user's private
+    folder, kept for later runs; else a fresh private folder removed at exit."""
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    d = os.path.join(tempfile.gettempdir(), f"spidersim-cache-{uid}")
+    if not _problem(d):
+        return d
+    import atexit
+    import shutil
+    d = tempfile.mkdtemp(prefix="spidersim-cache-")
+    atexit.register(shutil.rmtree, d, True)
+    return d
 
 
 @lru_cache(maxsize=1)
@@ -136,10 +210,17 @@ def _sha(text: str) -> str:
 
 
 def _write_atomic(path, text):
-    tmp = f"{path}.{os.getpid()}.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    """``text`` into ``path``: written to a new file of a random name opened exclusively
+    (never through a link planted under a predictable name), then renamed."""
+    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp",
+                               dir=os.path.dirname(path))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        _remove(tmp)
+        raise
 
 
 def _numba_files(folder, name):
@@ -199,7 +280,7 @@ def load_module(text: str, jit: bool, check=None):
     COUNTS["imported"] += 1
 
     def attempt():
-        mod = _import(name, path)
+        mod = _import(name, path, text)
         if check is not None:
             check(mod)
         return mod
@@ -266,8 +347,22 @@ def loop_cached(method="DP54") -> bool:
         return False
 
 
-def _import(name, path):
-    spec = importlib.util.spec_from_file_location(name, path)
+class _VerifiedSource(importlib.machinery.SourceFileLoader):
+    """Compiles the module from the text that was verified, never from a ``.pyc`` found
+    beside the file (one planted there would run instead of the checked source) and without
+    reading the file again."""
+
+    def __init__(self, name, path, text):
+        super().__init__(name, path)
+        self._text = text
+
+    def get_code(self, fullname):
+        return self.source_to_code(self._text.encode("utf-8"), self.path)
+
+
+def _import(name, path, text):
+    spec = importlib.util.spec_from_file_location(name, path,
+                                                  loader=_VerifiedSource(name, path, text))
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
     try:
@@ -289,7 +384,7 @@ def info() -> dict:
                     size += os.path.getsize(os.path.join(d, f))
                     entries += f.endswith(".py") and d == folder
     return {"folder": folder, "entries": entries, "bytes": size,
-            "usable": _usable(folder) if os.path.exists(folder) else None}
+            "usable": (_problem(folder) or True) if os.path.exists(folder) else None}
 
 
 def clear() -> int:
