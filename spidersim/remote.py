@@ -57,8 +57,8 @@ FINAL = ("done", "failed", "cancelled")
 REQUEST_TIMEOUT = 30.0
 #: bytes: the largest JSON answer (status, library, a signal, metadata) read
 MAX_JSON_BYTES = 64 * 2**20
-#: bytes: the largest data file (``result.npz``, ``result.csv``, ...) downloaded; the CSV of
-#: a job at the service's default recording budget (256 MB) is about 650 MB
+#: bytes: the largest data file (``result.npz``, ``result.csv``, ...) downloaded; the
+#: service writes at most 64 MB of CSV and about its recording budget (256 MB) of NPZ
 MAX_DATA_BYTES = 2**30
 #: bytes: the largest plot (PNG, GIF animation) downloaded
 MAX_PLOT_BYTES = 64 * 2**20
