@@ -95,6 +95,16 @@ class ParameterError(SpidersimError):
     """Unknown, missing, out-of-bounds or mis-shaped parameter, bad expression."""
 
 
+class ResultError(SpidersimError):
+    """A result that cannot be read: ``Result.load`` of a missing folder, of a file, of a
+    folder without ``result.npz`` or of a damaged one."""
+
+
+class SignalError(SpidersimError, KeyError):
+    """A signal a result does not hold, or a name that is not a text (``r[5]``,
+    ``r.plot(["nope"])``). A :class:`KeyError` too, as a missing mapping key is."""
+
+
 class WiringError(SpidersimError):
     """Unknown port, size mismatch, two sources into one input, unconnected input."""
 

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 import spidersim
-from spidersim import DiagramError, ParameterError, SpidersimError
+from spidersim import (AnalysisError, DiagramError, ParameterError, ResultError, SignalError,
+                       SpidersimError)
 
 SERVO = str(pathlib.Path(__file__).parents[1] / "diagrams" / "servo.yaml")
 C, K = 2.0, 4.0
@@ -42,6 +43,13 @@ def d():
 @pytest.fixture(scope="module")
 def r(d):
     return d.simulate(t_end=0.1, jit=False)
+
+
+@pytest.fixture
+def garbage(tmp_path):
+    """A folder whose result.npz starts as a zip file and is not one."""
+    (tmp_path / "result.npz").write_bytes(b"PK\x03\x04garbage")
+    return tmp_path
 
 
 def _sim(**kw):
@@ -96,6 +104,68 @@ CASES = [
      ["should_stop must be a function", "5 (int)"]),
     ("jit='no'", lambda d, r, p: d.simulate(t_end=0.1, jit="no"), DiagramError,
      ["jit must be True", "the string 'no'"]),
+    # results: names, plots, files
+    ("r[5]", lambda d, r, p: r[5], SignalError, ["named by a text 'block.port'", "5 (int)"]),
+    ("r[None]", lambda d, r, p: r[None], SignalError, ["'block.port'", "got None"]),
+    ("r['nope']", lambda d, r, p: r["x.yy"], SignalError,
+     ["no logged signal 'x.yy'", "did you mean x.y"]),
+    ("r.plot([])", lambda d, r, p: r.plot([]), SignalError,
+     ["plot: signals", "non-empty list", "a list of 0"]),
+    ("r.plot([5])", lambda d, r, p: r.plot([5]), SignalError, ["plot", "'block.port'", "5"]),
+    ("r.plot(5)", lambda d, r, p: r.plot(5), SignalError, ["plot: signals", "5 (int)"]),
+    ("r.plot('x.y[1]')", lambda d, r, p: r.plot("x.y[1]"), SignalError,
+     ["'x.y[1]'", "index out of range", "1 value(s)"]),
+    ("r.plot(['nope'])", lambda d, r, p: r.plot(["nope.y"]), SignalError,
+     ["no logged signal 'nope.y'"]),
+    ("r.save(None)", lambda d, r, p: r.save(None), ResultError,
+     ["Result.save: folder", "folder path", "got None"]),
+    ("Result.load(None)", lambda d, r, p: spidersim.Result.load(None), ResultError,
+     ["Result.load: folder", "folder path", "got None"]),
+    ("Result.load(missing)", lambda d, r, p: spidersim.Result.load(p / "none"), ResultError,
+     ["Result.load", "no such folder", "none"]),
+    ("Result.load(file)", lambda d, r, p: spidersim.Result.load(__file__), ResultError,
+     ["Result.load", "a file, not a results folder", "test_python_api_errors.py"]),
+    ("Result.load(empty folder)", lambda d, r, p: spidersim.Result.load(p), ResultError,
+     ["Result.load", "no result.npz in"]),
+    # linearize, loop_transfer, trim
+    ("linearize(5, 5)", lambda d, r, p: d.linearize(5, 5), AnalysisError,
+     ["linearize: inputs", "a signal name 'block.port' or a list of them", "5 (int)"]),
+    ("linearize(outputs={})", lambda d, r, p: d.linearize("r.y", {"x.y": 1}), AnalysisError,
+     ["linearize: outputs", "a mapping"]),
+    ("linearize(open=5)", lambda d, r, p: d.linearize("r.y", "x.y", open=5), AnalysisError,
+     ["linearize: open", "5 (int)"]),
+    ("linearize(at=-1)", lambda d, r, p: d.linearize("r.y", "x.y", at=-1), AnalysisError,
+     ["operating point at = -1", "time >= 0 s"]),
+    ("linearize(at=nan)", lambda d, r, p: d.linearize("r.y", "x.y", at=math.nan),
+     AnalysisError, ["at = nan", "time >= 0 s"]),
+    ("loop_transfer(5)", lambda d, r, p: d.loop_transfer(5), AnalysisError,
+     ["loop_transfer: signal", "one signal name", "5 (int)"]),
+    ("loop_transfer(list)", lambda d, r, p: d.loop_transfer(["g.y"]), AnalysisError,
+     ["loop_transfer: signal", "a list of 1"]),
+    ("spidersim.linearize(None)", lambda d, r, p: spidersim.linearize(None, ["a"], ["b"]),
+     AnalysisError, ["linearize: the first argument", "diagram", "got None"]),
+    ("spidersim.loop_transfer(None)", lambda d, r, p: spidersim.loop_transfer(None, "g.y"),
+     AnalysisError, ["loop_transfer: the first argument", "got None"]),
+    ("spidersim.trim('x')", lambda d, r, p: spidersim.trim("x"), AnalysisError,
+     ["trim: the first argument", "diagram", "the string 'x'"]),
+    ("trim(targets=5)", lambda d, r, p: d.trim(targets=5), AnalysisError,
+     ["trim: targets", "mapping", "5 (int)"]),
+    ("trim(targets={5: 1})", lambda d, r, p: d.trim(targets={5: 1}), AnalysisError,
+     ["trim: a target", "'block.port'", "5 (int)"]),
+    ("trim(target 'a')", lambda d, r, p: d.trim(targets={"x.y": "a"}), AnalysisError,
+     ["trim: target 'x.y'", "a number or a list of numbers", "the string 'a'"]),
+    ("trim(free_inputs=5)", lambda d, r, p: d.trim(free_inputs=5), AnalysisError,
+     ["trim: free_inputs", "5 (int)"]),
+    ("trim(derivatives=5)", lambda d, r, p: d.trim(derivatives=5), AnalysisError,
+     ["trim: derivatives", "state name", "5 (int)"]),
+    ("trim(x0='abc')", lambda d, r, p: d.trim(x0="abc"), AnalysisError,
+     ["trim: x0", "list of finite numbers", "the string 'abc'"]),
+    ("trim(x0=[nan])", lambda d, r, p: d.trim(x0=[math.nan]), AnalysisError,
+     ["trim: x0", "finite numbers", "a list of 1 [nan]"]),
+    ("trim(t='0')", lambda d, r, p: d.trim(t="0"), AnalysisError,
+     ["trim: t", "finite number", "the string '0'"]),
+    ("trim(tol=-1)", lambda d, r, p: d.trim(tol=-1), AnalysisError,
+     ["trim: tol", "finite number > 0", "-1 (int)"]),
 ]
 
 
@@ -111,6 +181,23 @@ def test_wrong_argument_is_a_spidersim_error_naming_it(d, r, tmp_path, call, exc
     msg = str(info.value)
     for w in words:
         assert w in msg, f"{w!r} not in {msg!r}"
+
+
+def test_damaged_result_npz_is_a_result_error(garbage):
+    """A result.npz that is not a zip (BadZipFile inside numpy) is a ResultError naming the
+    file and the cause."""
+    with pytest.raises(ResultError, match=r"cannot read .*result\.npz: not a result saved "
+                                          r"by Result\.save, or damaged \(BadZipFile"):
+        spidersim.Result.load(garbage)
+
+
+def test_signal_error_is_a_key_error_too(r):
+    """A missing signal stays a KeyError (code catching KeyError keeps working) and is a
+    SpidersimError whose text is the message, not its repr."""
+    with pytest.raises(KeyError) as info:
+        r["zzz.q"]
+    assert isinstance(info.value, SignalError)
+    assert str(info.value) == "no logged signal 'zzz.q'"
 
 
 @pytest.mark.parametrize("key, value, line", [
@@ -142,3 +229,34 @@ def test_valid_simulate_forms(d):
     assert r2.t[-1] == 0.25 and abs(r2["x.y"][-1] - C * (1 - math.exp(-K * 0.25))) < 1e-6
     d2 = spidersim.load(pathlib.Path(SERVO), set={"motor.R": np.float64(1.5)})
     assert d2.blocks["motor"].params["R"] == 1.5
+
+
+def test_valid_analysis_and_result_forms(d, tmp_path):
+    """One name where a list is expected, a tuple of names, NumPy scalars for times and
+    tolerances, a pathlib.Path folder: accepted, with the closed forms G(s) = k / (s + k),
+    |L(j k)| = 1 at the loop opened at g.y, the equilibrium x = c (or a target value) from
+    trim, one plotted line per named signal and a saved result read back unchanged."""
+    r = d.simulate(t_end=0.5, jit=False)
+    for ins, outs in ((("r.y",), "x.y"), ("r.y", ["x.y"])):
+        for G in (d.linearize(ins, outs, at=np.int64(0), open=(), jit=False),
+                  spidersim.linearize(d, ins, outs, jit=False)):
+            np.testing.assert_allclose([G.A[0, 0], G.B[0, 0] * G.C[0, 0], G.D[0, 0]],
+                                       [-K, K, 0.0], rtol=1e-6, atol=1e-8)
+    L = d.loop_transfer("g.y", at=np.float64(0.0), jit=False)
+    assert abs(abs(complex(L(1j * K))) - 1.0) < 1e-6
+    op = d.trim(derivatives="x.y", x0=(0.5,), t=np.float64(0.0), tol=np.float32(1e-9),
+                jit=False)
+    assert abs(op.x[0] - C) < 1e-9
+    op = d.trim(targets={"x.y": np.float64(1.5)}, derivatives=(), x0=np.array([0.2]),
+                jit=False)
+    assert abs(op.x[0] - 1.5) < 1e-9
+    import matplotlib.pyplot as plt
+    fig = r.plot("x.y")
+    assert [ln.get_label() for ln in fig.axes[0].lines] == ["x.y"]
+    plt.close(fig)
+    fig = r.plot(("x.y", "g.y"), one_panel=True)
+    assert [ln.get_label() for ln in fig.axes[0].lines] == ["x.y", "g.y"]
+    plt.close(fig)
+    r.save(tmp_path / "res")
+    back = spidersim.Result.load(tmp_path / "res")
+    np.testing.assert_array_equal(back["x.y"], r["x.y"])
