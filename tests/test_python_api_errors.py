@@ -260,3 +260,19 @@ def test_valid_analysis_and_result_forms(d, tmp_path):
     r.save(tmp_path / "res")
     back = spidersim.Result.load(tmp_path / "res")
     np.testing.assert_array_equal(back["x.y"], r["x.y"])
+
+
+def test_diagram_methods_mirror_the_analysis_functions():
+    """Diagram.linearize, loop_transfer and trim take exactly the arguments (names and
+    defaults) of the functions of spidersim.diagram.analysis they call, so that an unknown
+    keyword (d.trim(x=1)) is refused at the call, with Python's TypeError naming it."""
+    import inspect
+
+    from spidersim.diagram import analysis
+    for name in ("linearize", "loop_transfer", "trim"):
+        method = list(inspect.signature(getattr(spidersim.Diagram, name)).parameters.values())
+        func = list(inspect.signature(getattr(analysis, name)).parameters.values())
+        assert [(p.name, p.default) for p in method[1:]] == \
+            [(p.name, p.default) for p in func[1:]], name
+    with pytest.raises(TypeError, match="unexpected keyword argument 'x'"):
+        spidersim.loads(LAG).trim(x=1)

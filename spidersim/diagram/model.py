@@ -593,11 +593,14 @@ class Diagram:
         from .analysis import loop_transfer
         return loop_transfer(self, signal, at=at, jit=jit)
 
-    def trim(self, **kw):
+    def trim(self, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0,
+             jit=True, tol=1e-10):
         """Operating point with chosen derivatives zero and target signal values; see
-        :func:`spidersim.diagram.analysis.trim`."""
+        :func:`spidersim.diagram.analysis.trim` (the same arguments, so that an unknown
+        keyword is refused at the call)."""
         from .analysis import trim
-        return trim(self, **kw)
+        return trim(self, targets=targets, derivatives=derivatives, free_inputs=free_inputs,
+                    x0=x0, t=t, jit=jit, tol=tol)
 
     # ------------------------------------------------------------------ summary
     def inferred_parameter_units(self):
