@@ -14,11 +14,11 @@ from . import blocks  # noqa: E402,F401  (registers the block library)
 from .diagram.analysis import AnalysisError, OperatingPoint, linearize, loop_transfer, trim
 from .diagram.model import Diagram, load, loads
 from .errors import (AlgebraicLoopError, BlockTypeError, DiagramError, IntegrationError,
-                     ParameterError, SpidersimError, WiringError)
+                     ParameterError, ResultError, SignalError, SpidersimError, WiringError)
 from .solver.result import Result
 
 __version__ = "0.1.0"
 __all__ = ["Diagram", "load", "loads", "Result", "linearize", "loop_transfer", "trim",
            "OperatingPoint", "AnalysisError", "SpidersimError", "DiagramError",
            "BlockTypeError", "ParameterError", "WiringError", "AlgebraicLoopError",
-           "IntegrationError"]
+           "IntegrationError", "ResultError", "SignalError"]

@@ -22,6 +22,30 @@ def printable(text) -> str:
     return "".join(out)
 
 
+def described(v) -> str:
+    """What a Python argument of the wrong type is, for a message: ``None``, ``the boolean
+    True``, ``the string '1'``, ``a list of 2``, ``an array of shape (1,)``, ``a mapping``,
+    or its short repr with its type (``5 (int)``)."""
+    import numpy as np
+    if v is None:
+        return "None"
+    if isinstance(v, (bool, np.bool_)):
+        return f"the boolean {bool(v)!r}"
+    if isinstance(v, str):
+        return f"the string {printable(repr(v)[:60])}"
+    if isinstance(v, (bytes, bytearray)):
+        return f"the bytes {repr(bytes(v))[:60]}"
+    if isinstance(v, (list, tuple, set, frozenset)):
+        kind = {list: "list", tuple: "tuple", set: "set", frozenset: "set"}.get(type(v),
+                                                                             "sequence")
+        return f"a {kind} of {len(v)}" + (f" {printable(repr(v)[:60])}" if v else "")
+    if isinstance(v, dict):
+        return "a mapping"
+    if isinstance(v, np.ndarray):
+        return f"an array of shape {v.shape}"
+    return f"{printable(repr(v)[:60])} ({type(v).__name__})"
+
+
 class SpidersimError(Exception):
     """Base class of every error reported to users.
 
@@ -69,6 +93,16 @@ class BlockTypeError(DiagramError):
 
 class ParameterError(SpidersimError):
     """Unknown, missing, out-of-bounds or mis-shaped parameter, bad expression."""
+
+
+class ResultError(SpidersimError):
+    """A result that cannot be read: ``Result.load`` of a missing folder, of a file, of a
+    folder without ``result.npz`` or of a damaged one."""
+
+
+class SignalError(SpidersimError, KeyError):
+    """A signal a result does not hold, or a name that is not a text (``r[5]``,
+    ``r.plot(["nope"])``). A :class:`KeyError` too, as a missing mapping key is."""
 
 
 class WiringError(SpidersimError):

@@ -31,16 +31,18 @@ time ``T`` of a simulation (a number), an :class:`OperatingPoint` from :func:`tr
 """
 from __future__ import annotations
 
+import collections.abc
 import difflib
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import math
+import numbers
 
 import numpy as np
 
 from ..blocks.base import REGISTRY
-from ..errors import SpidersimError
+from ..errors import SpidersimError, described
 from ..solver.linearize import jacobians
 from .flatten import FlatConn, Instance
 
@@ -58,6 +60,29 @@ class OperatingPoint:
     modes: np.ndarray
     inputs: dict = field(default_factory=dict)
     residuals: dict = field(default_factory=dict)
+
+
+def _check_diagram(d, fn):
+    """``d`` is a loaded diagram (what :func:`spidersim.load` returns), else an
+    :class:`AnalysisError` naming ``fn``."""
+    from .graph import Layout
+    if not isinstance(getattr(d, "layout", None), Layout):
+        raise AnalysisError(f"{fn}: the first argument must be a diagram "
+                            f"(spidersim.load(file)), got {described(d)}")
+
+
+def _signal_names(v, what, d, kind="signal name 'block.port'"):
+    """The signal names of argument ``what``: a list or tuple of texts, or one text (a list
+    of one); None is none. Anything else (a number, a mapping, a list holding a number) is
+    an :class:`AnalysisError` naming the argument."""
+    if v is None:
+        return []
+    if isinstance(v, str):
+        return [v]
+    if not isinstance(v, (list, tuple)) or not all(isinstance(n, str) for n in v):
+        raise AnalysisError(f"{what} must be a {kind} or a list of them, got "
+                            f"{described(v)}", file=d.file)
+    return list(v)
 
 
 def _signal_ref(d, name):
@@ -479,7 +504,7 @@ def operating_point(d, at, jit=True):
         return at
     if isinstance(at, dict):
         return trim(d, jit=jit, **trim_request(at))
-    if at is None or at == "initial":
+    if at is None or (isinstance(at, str) and at == "initial"):
         system = d.compile(jit)
         x = system.x0.copy()
         modes = d.initial_modes()
@@ -490,7 +515,11 @@ def operating_point(d, at, jit=True):
             system.time_events(0.0, x, tol)
             system.initialize(0.0, x)
         return OperatingPoint(0.0, x, system.modes.copy())
-    if isinstance(at, (int, float)) and not isinstance(at, bool):
+    if isinstance(at, numbers.Real) and not isinstance(at, (bool, np.bool_)):
+        if not (math.isfinite(at) and at >= 0):
+            raise AnalysisError(f"the operating point at = {at!r} must be a time >= 0 s "
+                                f"(the state of a simulation to that time), None or "
+                                f"'initial'", file=d.file)
         if at == 0:
             return operating_point(d, None, jit)
         r = d.simulate(t_end=float(at), jit=jit)
@@ -503,6 +532,10 @@ def operating_point(d, at, jit=True):
 def linearize(d, inputs, outputs, at=None, open=(), jit=True):
     """Linear model of diagram ``d`` from ``inputs`` to ``outputs`` (signal names) at ``at``,
     with the connections named in ``open`` cut; a named ``control.StateSpace``."""
+    _check_diagram(d, "linearize")
+    inputs = _signal_names(inputs, "linearize: inputs", d)
+    outputs = _signal_names(outputs, "linearize: outputs", d)
+    open = _signal_names(open, "linearize: open", d)
     if not inputs or not outputs:
         raise AnalysisError("linearize needs at least one input and one output signal",
                             file=d.file)
@@ -524,6 +557,10 @@ def loop_transfer(d, signal, at=None, jit=True):
     """Loop transfer ``L`` at ``signal``: the loop opened there, ``L = -T`` where ``T`` is
     the transfer from the opening's input to its return (negative feedback: the closed loop
     is ``L / (1 + L)``)."""
+    _check_diagram(d, "loop_transfer")
+    if not isinstance(signal, str):
+        raise AnalysisError(f"loop_transfer: signal must be one signal name 'block.port', "
+                            f"got {described(signal)}", file=d.file)
     sys = linearize(d, [signal], [signal], at=at, open=[signal], jit=jit)
     import control
     D = np.asarray(sys.D, dtype=float)
@@ -588,13 +625,15 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     """
     from scipy.optimize import least_squares
 
+    _check_diagram(d, "trim")
     targets = trim_targets(d, targets)
-    if x0 is not None:
-        x0 = np.ravel(np.asarray(x0, dtype=float))
-        if x0.size != d.layout.n_x:
-            raise AnalysisError(f"trim: 'x0' has {x0.size} value(s), the diagram has "
-                                f"{d.layout.n_x} state(s)", file=d.file)
-    free_inputs = list(free_inputs)
+    if not (isinstance(derivatives, str) and derivatives == "all"):
+        derivatives = _signal_names(derivatives, "trim: derivatives ('all' or states)", d,
+                                    kind="state name 'block.state'")
+    free_inputs = _signal_names(free_inputs, "trim: free_inputs", d)
+    x0 = _trim_x0(d, x0)
+    t, tol = (_argument_number(d, v, f"trim: {k}", lo) for k, v, lo in
+              (("t", t, None), ("tol", tol, 0.0)))
     outs = list(targets)
     lin = Linearizer(d, free_inputs, outs, (), jit, linear=False) if free_inputs else None
     names = _state_names(d)
@@ -625,15 +664,57 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     return OperatingPoint(float(t), x, base.modes.copy(), _named_inputs(lin, u), resid)
 
 
+def _trim_x0(d, x0):
+    """``x0`` of :func:`trim`: None or one finite number per state, as a float array."""
+    if x0 is None:
+        return None
+    try:
+        if isinstance(x0, (str, bytes, dict)):
+            raise TypeError
+        arr = np.ravel(np.asarray(x0, dtype=float))
+        if not np.all(np.isfinite(arr)):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise AnalysisError(f"trim: x0 must be a list of finite numbers (one per state), got "
+                            f"{described(x0)}", file=d.file) from None
+    if arr.size != d.layout.n_x:
+        raise AnalysisError(f"trim: 'x0' has {arr.size} value(s), the diagram has "
+                            f"{d.layout.n_x} state(s)", file=d.file)
+    return arr
+
+
+def _argument_number(d, v, what, above=None):
+    """A Python argument that must be a finite real number (> ``above`` when given), as a
+    float; an :class:`AnalysisError` naming ``what`` otherwise."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not \
+            math.isfinite(v) or (above is not None and not v > above):
+        bound = f" > {above:g}" if above is not None else ""
+        raise AnalysisError(f"{what} must be a finite number{bound}, got {described(v)}",
+                            file=d.file)
+    return float(v)
+
+
 def trim_targets(d, targets):
     """``targets`` (signal name -> a number or a list) as arrays of the signals' sizes: a
     number for a signal of several elements holds for each; a list must have the signal's
     size (it was broadcast against it, or misaligned with the next target). Raises
     :class:`AnalysisError` naming the target."""
+    if targets is not None and not isinstance(targets, collections.abc.Mapping):
+        raise AnalysisError(f"trim: targets must be a mapping {{'block.port': value}}, got "
+                            f"{described(targets)}", file=d.file)
     out = {}
     for name, v in dict(targets or {}).items():
+        if not isinstance(name, str):
+            raise AnalysisError(f"trim: a target must be a signal name 'block.port', got "
+                                f"{described(name)}", file=d.file)
         size = _signal_ref(d, name)[4]
-        v = np.ravel(np.asarray(v, dtype=float))
+        try:
+            if isinstance(v, (str, bytes, dict)):
+                raise TypeError
+            v = np.ravel(np.asarray(v, dtype=float))
+        except (TypeError, ValueError):
+            raise AnalysisError(f"trim: target '{name}' must be a number or a list of "
+                                f"numbers, got {described(v)}", file=d.file) from None
         if v.size == 1:
             v = np.full(size, v[0])
         elif v.size != size:

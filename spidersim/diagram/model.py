@@ -6,14 +6,16 @@ never recompile.
 """
 from __future__ import annotations
 
+import collections.abc
 import functools
 import math
+import numbers
 import os
 import time
 
 import numpy as np
 
-from ..errors import DiagramError, ParameterError, SpidersimError
+from ..errors import DiagramError, ParameterError, SpidersimError, described
 from ..solver import CompiledSystem, integrate
 from ..solver.compiled import load_module
 from ..solver.integrate import COMPILED, STIFF
@@ -67,6 +69,46 @@ def check_rtol(rtol, what="simulation.rtol", file=None, line=None):
                            f"{lo:g} the error estimate is round-off: the steps shrink "
                            f"without meeting it; above {hi:g} a step may be all error)",
                            file=file, line=line)
+
+
+def sim_setting(key, v, what, file=None, line=None, text=True):
+    """A setting of the ``simulation`` section (``what`` names it in messages:
+    ``simulation.t_end`` for the file, ``t_end`` for an argument of ``simulate``) checked
+    and returned: ``method`` a name; the others (:data:`SIM_KEYS`) a finite number > 0 as a
+    float, ``rtol`` within :data:`RTOL_RANGE`. Booleans are refused (a YAML ``true`` is
+    not a time). With ``text`` (the file) a text is an expression (``2*0.5``); without it
+    (Python arguments) a text, a list or an array is refused, so that nothing is read
+    silently as something else, and ``max_step`` may be ``inf`` (no limit). Raises a
+    :class:`DiagramError` saying what was expected and what was found."""
+    if key == "method":
+        if not isinstance(v, str):
+            raise DiagramError(f"{what} must be a name, got {v!r}", file=file, line=line)
+        return v
+    from ..text.expr import ExprError, evaluate
+    shown = repr(v) if text else described(v)
+    if isinstance(v, (bool, np.bool_)):  # YAML true/false is not a time or a tolerance
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got the boolean "
+                           f"{bool(v)!r}", file=file, line=line)
+    try:
+        if not text and not (isinstance(v, numbers.Real) or (
+                isinstance(v, np.ndarray) and v.ndim == 0 and v.dtype.kind in "iuf")):
+            raise TypeError("not a real number")
+        val = evaluate(v, {}) if isinstance(v, str) else v
+        if isinstance(val, bool):
+            raise TypeError("boolean")
+        val = float(val)
+    except (ExprError, TypeError, ValueError, OverflowError):
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got {shown}",
+                           file=file, line=line) from None
+    if not val > 0:
+        raise DiagramError(f"{what} must be > 0, got {val:g}", file=file, line=line)
+    if not math.isfinite(val) and not (key == "max_step" and not text):
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be finite, got {shown}"
+                           + (" (a number beyond 1.8e308, such as 1e400, is infinite)"
+                              if text else ""), file=file, line=line)
+    if key == "rtol":
+        check_rtol(val, what=what, file=file, line=line)
+    return val
 
 
 def _positive_setting(sec, k, default, scope, err):
@@ -151,34 +193,8 @@ class Diagram:
 
     # ------------------------------------------------------------------ set-up
     def _sim_value(self, key, v):
-        line = self.spec.simulation_lines.get(key)
-        if key == "method":
-            if not isinstance(v, str):
-                raise DiagramError(f"simulation.method must be a name, got {v!r}",
-                                   file=self.file, line=line)
-            return v
-        from ..text.expr import ExprError, evaluate
-        if isinstance(v, bool):          # YAML true/false is not a time or a tolerance
-            raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be a number, got "
-                               f"the boolean {v!r}", file=self.file, line=line)
-        try:
-            val = evaluate(v, {}) if isinstance(v, str) else v
-            if isinstance(val, bool):
-                raise TypeError("boolean")
-            val = float(val)
-        except (ExprError, TypeError, ValueError, OverflowError):
-            raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be a number, got "
-                               f"{v!r}", file=self.file, line=line) from None
-        if not val > 0:
-            raise DiagramError(f"simulation.{key} must be > 0, got {val:g}", file=self.file,
-                               line=line)
-        if not math.isfinite(val):
-            raise DiagramError(f"simulation.{key} ({SIM_KEYS[key]}) must be finite, got "
-                               f"{v!r} (a number beyond 1.8e308, such as 1e400, is infinite)",
-                               file=self.file, line=line)
-        if key == "rtol":
-            check_rtol(val, file=self.file, line=line)
-        return val
+        return sim_setting(key, v, f"simulation.{key}", file=self.file,
+                           line=self.spec.simulation_lines.get(key))
 
     def _param_array(self):
         p = np.zeros(self.layout.n_p)
@@ -285,6 +301,9 @@ class Diagram:
         Structural parameters (integers, strings, sizes) need ``spidersim.load(...,
         set={path: value})`` instead.
         """
+        if not isinstance(path, str):
+            raise ParameterError(f"set: path must be a text 'block.param', got "
+                                 f"{described(path)}")
         block, _, name = path.rpartition(".")
         bl = self.layout.blocks.get(block)
         if bl is None:
@@ -514,13 +533,9 @@ class Diagram:
         Returns a :class:`~spidersim.solver.result.Result`; raises
         :class:`~spidersim.errors.IntegrationError` (with ``partial``) on failure.
         """
-        cfg = dict(self.simulation)
-        if rtol is not None:
-            check_rtol(rtol, what="rtol", file=self.file)
-        for k, v in (("t_end", t_end), ("method", method), ("rtol", rtol), ("atol", atol),
-                     ("max_step", max_step), ("output_interval", output_interval)):
-            if v is not None:
-                cfg[k] = v
+        cfg = self._run_settings(dict(t_end=t_end, method=method, rtol=rtol, atol=atol,
+                                      max_step=max_step, output_interval=output_interval),
+                                 jit, progress, should_stop)
         if cfg["max_step"] is None:
             cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
         self._ensure_compiled(jit, cfg["method"] in COMPILED and cfg["method"],
@@ -547,6 +562,26 @@ class Diagram:
         self._release(jit, system, modes0, sig0, gen)
         return result
 
+    def _run_settings(self, given, jit, progress, should_stop):
+        """The file's ``simulation`` settings with the arguments of :meth:`simulate` that
+        are not None in their place, each checked by :func:`sim_setting` (the rules and
+        messages of the file's section, a text refused); ``jit`` a boolean, ``progress``
+        and ``should_stop`` functions or None. A :class:`DiagramError` names the
+        argument."""
+        cfg = dict(self.simulation)
+        for k, v in given.items():
+            if v is not None:
+                cfg[k] = sim_setting(k, v, k, file=self.file, text=False)
+        if not isinstance(jit, bool):
+            raise DiagramError(f"jit must be True (compiled) or False (plain Python), got "
+                               f"{described(jit)}", file=self.file)
+        for name, f, sig in (("progress", progress, "progress(t)"),
+                             ("should_stop", should_stop, "should_stop() -> bool")):
+            if f is not None and not callable(f):
+                raise DiagramError(f"{name} must be a function {sig} or None, got "
+                                   f"{described(f)}", file=self.file)
+        return cfg
+
     # ------------------------------------------------------------------ analysis
     def linearize(self, inputs, outputs, at=None, open=(), jit=True):
         """Named ``control.StateSpace`` from ``inputs`` to ``outputs`` (signal names) at the
@@ -560,11 +595,14 @@ class Diagram:
         from .analysis import loop_transfer
         return loop_transfer(self, signal, at=at, jit=jit)
 
-    def trim(self, **kw):
+    def trim(self, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0,
+             jit=True, tol=1e-10):
         """Operating point with chosen derivatives zero and target signal values; see
-        :func:`spidersim.diagram.analysis.trim`."""
+        :func:`spidersim.diagram.analysis.trim` (the same arguments, so that an unknown
+        keyword is refused at the call)."""
         from .analysis import trim
-        return trim(self, **kw)
+        return trim(self, targets=targets, derivatives=derivatives, free_inputs=free_inputs,
+                    x0=x0, t=t, jit=jit, tol=tol)
 
     # ------------------------------------------------------------------ summary
     def inferred_parameter_units(self):
@@ -612,11 +650,52 @@ class Diagram:
         return "\n".join(lines)
 
 
+def _file_name(path, what):
+    """``path`` (a text, bytes or an ``os.PathLike``) as a text; anything else (None, a
+    number: an integer would be taken as an open file descriptor) is a
+    :class:`DiagramError` naming the argument ``what``."""
+    if not isinstance(path, (str, bytes, os.PathLike)):
+        raise DiagramError(f"{what} must be a file path (a str or a pathlib.Path), got "
+                           f"{described(path)}")
+    return os.fsdecode(os.fspath(path))
+
+
+def _overrides(set_, fn):
+    """The ``set`` argument of :func:`load` and :func:`loads` (``fn``): None or a mapping of
+    texts ``block.param`` (or a top-level parameter) to values; a
+    :class:`ParameterError` otherwise (a text ``"motor.R=1"`` is the command line's form)."""
+    if set_ is None:
+        return None
+    if not isinstance(set_, collections.abc.Mapping):
+        raise ParameterError(f"{fn}: set must be a mapping {{'block.param': value}}, got "
+                             f"{described(set_)}")
+    for k in set_:
+        if not isinstance(k, str):
+            raise ParameterError(f"{fn}: the keys of set are parameter paths "
+                                 f"'block.param', got {described(k)}")
+    return dict(set_)
+
+
 def load(path, set=None) -> Diagram:
-    """Load a diagram file. ``set`` maps dotted parameter paths to values (or expressions)."""
-    return Diagram(parse_file(path), set)
+    """Load a diagram file. ``set`` maps dotted parameter paths to values (or expressions).
+
+    ``path``: a str, bytes or pathlib.Path; ``set``: a mapping ``{"block.param": value}``.
+    Anything else is a :class:`~spidersim.errors.SpidersimError` naming the argument.
+    """
+    path, overrides = _file_name(path, "load: path"), _overrides(set, "load")
+    return Diagram(parse_file(path), overrides)
 
 
 def loads(text, set=None, file="<string>") -> Diagram:
-    """Load a diagram from YAML text (subsystem paths relative to the current directory)."""
-    return Diagram(parse_text(text, file), set)
+    """Load a diagram from YAML text (subsystem paths relative to the current directory).
+
+    ``text``: a str (bytes are refused: decode them); ``set`` as for :func:`load`;
+    ``file``: the name errors give the text.
+    """
+    if not isinstance(text, str):
+        hint = " (decode bytes first: text.decode('utf-8'))" if isinstance(
+            text, (bytes, bytearray)) else ""
+        raise DiagramError(f"loads: text must be the YAML text of a diagram (a str), got "
+                           f"{described(text)}{hint}")
+    file, overrides = _file_name(file, "loads: file"), _overrides(set, "loads")
+    return Diagram(parse_text(text, file), overrides)

@@ -11,6 +11,7 @@ import zipfile
 
 import numpy as np
 
+from ..errors import ResultError, SignalError, described
 from ..outputs import write_atomic  # noqa: F401 (also imported from here)
 
 
@@ -55,11 +56,14 @@ class Result:
         return name in self._slices
 
     def __getitem__(self, name):
+        if not isinstance(name, str):
+            raise SignalError(f"a signal is named by a text 'block.port', got "
+                              f"{described(name)}")
         if name not in self._slices:
             import difflib
             near = difflib.get_close_matches(name, self.names, n=3)
             hint = f"; did you mean {', '.join(near)}?" if near else ""
-            raise KeyError(f"no logged signal '{name}'{hint}")
+            raise SignalError(f"no logged signal '{name}'{hint}")
         a, b = self._slices[name]
         col = self._data[:, a:b]
         return col[:, 0] if b - a == 1 else col
@@ -73,8 +77,8 @@ class Result:
         per unit (or one panel); returns the matplotlib Figure. For notebooks and scripts:
         the current matplotlib backend is used (nothing is written)."""
         import matplotlib.pyplot as plt
-        signals = list(signals) if signals is not None else self.names[:8]
         from ..plots import split_signal
+        signals = self._plot_signals(signals)
         units = []
         for s_ in signals:
             u = self.units.get(split_signal(s_)[0], "1")
@@ -106,6 +110,29 @@ class Result:
         if title:
             axes[0].set_title(title)
         return fig
+
+    def _plot_signals(self, signals):
+        """The ``signals`` argument of :meth:`plot` as a list of logged names (``name`` or
+        ``name[i]``): None is every logged signal (up to 8), a text one signal, else a
+        non-empty list or tuple of texts; a :class:`SignalError` names what is wrong."""
+        from ..plots import split_signal
+        if signals is None:
+            return self.names[:8]
+        if isinstance(signals, str):
+            signals = [signals]
+        if not isinstance(signals, (list, tuple)) or not signals:
+            raise SignalError(f"plot: signals must be a signal name or a non-empty list of "
+                              f"them (None: every logged signal), got {described(signals)}")
+        for s_ in signals:
+            if not isinstance(s_, str):
+                raise SignalError(f"plot: a signal is named by a text 'block.port', got "
+                                  f"{described(s_)}")
+            name, idx = split_signal(s_)
+            size = self[name].shape[1] if self[name].ndim > 1 else 1
+            if idx is not None and not 0 <= idx < size:
+                raise SignalError(f"plot: '{s_}': index out of range (the signal has "
+                                  f"{size} value(s))")
+        return list(signals)
 
     def to_dataframe(self):
         """A pandas DataFrame indexed by time, one column per element (``name[i]`` for
@@ -151,6 +178,7 @@ class Result:
         a full disk or a crash leaves either the complete file or none (an OSError names the
         file; the temporary is removed).
         """
+        folder = _folder_name(folder, "Result.save: folder")
         if csv_max_values is not None:
             self.csv_max_values = csv_max_values
         os.makedirs(folder, exist_ok=True)
@@ -236,8 +264,31 @@ class Result:
 
     @classmethod
     def load(cls, folder):
-        """The result a ``save(folder)`` wrote (``result.npz`` with its metadata)."""
-        with np.load(os.path.join(folder, "result.npz"), allow_pickle=False) as z:
+        """The result a ``save(folder)`` wrote (``result.npz`` with its metadata).
+
+        A :class:`~spidersim.errors.ResultError` when ``folder`` is not a folder path, does
+        not exist, is a file, holds no ``result.npz``, or that file is not one
+        :meth:`save` wrote (damaged, truncated, another NPZ)."""
+        folder = _folder_name(folder, "Result.load: folder")
+        path = os.path.join(folder, "result.npz")
+        if not os.path.isdir(folder):
+            what = ("a file, not a results folder" if os.path.exists(folder) else
+                    "no such folder")
+            raise ResultError(f"Result.load: {what}: {folder}")
+        if not os.path.isfile(path):
+            raise ResultError(f"Result.load: no result.npz in {folder} (the folder of a "
+                              f"run or of Result.save)")
+        try:
+            return cls._read_npz(path)
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as exc:
+            # json's and UnicodeDecodeError are ValueErrors
+            raise ResultError(f"Result.load: cannot read {path}: not a result saved by "
+                              f"Result.save, or damaged ({type(exc).__name__}: "
+                              f"{str(exc)[:200]})") from None
+
+    @classmethod
+    def _read_npz(cls, path):
+        with np.load(path, allow_pickle=False) as z:
             raw = z["__meta__"]         # UTF-8 bytes; a NumPy string in older files
             meta = json.loads(raw.tobytes().decode("utf-8") if raw.dtype == np.uint8
                               else str(raw))
@@ -349,6 +400,15 @@ class EventLog(collections.abc.Sequence):
 
     def __repr__(self):
         return f"EventLog({len(self)} events: {self[:3]}{' ...' if len(self) > 3 else ''})"
+
+
+def _folder_name(folder, what):
+    """``folder`` (a text, bytes or an ``os.PathLike``) as a text; anything else is a
+    :class:`ResultError` naming the argument ``what``."""
+    if not isinstance(folder, (str, bytes, os.PathLike)):
+        raise ResultError(f"{what} must be a folder path (a str or a pathlib.Path), got "
+                          f"{described(folder)}")
+    return os.fsdecode(os.fspath(folder))
 
 
 def finite_json(v):
