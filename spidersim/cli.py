@@ -892,10 +892,11 @@ def cmd_run_remote(args):
     from .remote import Client
     c = Client(args.remote, args.token or os.environ.get("SPIDERSIM_TOKEN"))
     name = os.path.splitext(os.path.basename(args.file))[0]
-    job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
-                   plots=not args.no_plots)
-    print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
-    st = c.wait(job, timeout=args.timeout)
+    with c.deadline(args.timeout):   # submit and wait together; each download request
+        job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
+                       plots=not args.no_plots)          # keeps its own time limit
+        print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
+        st = c.wait(job, timeout=args.timeout)
     out = args.out or os.path.join("results", safe_stem(name))
     paths = c.download(job, out)
     print(f"spidersim: {st['state']}: t = {st['progress']:g} / {st['t_end']:g} s"
