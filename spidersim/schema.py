@@ -29,6 +29,8 @@ CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
 SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54", "ROS34PW2", "NDF"]
 REDUCERS = ["max", "min", "absmax", "final", "initial", "mean", "rms", "integral"]
 
+#: a text; a number is taken as its text (as the loader does: ``name: 2024``)
+_TEXT = {"type": ["string", "number"]}
 #: ``{value: 2.5, unit: mm}``: a value with its unit, converted to the declared one
 _QUANTITY = {"type": "object", "required": ["value", "unit"], "additionalProperties": False,
              "properties": {"value": {"$ref": "#/$defs/value"},
@@ -155,11 +157,13 @@ def schema() -> dict:
     defs["block"] = block
     plot = {"type": "object", "required": ["signals"], "additionalProperties": False,
             "properties": {
-                "title": {"type": "string"},
+                "title": _TEXT,
                 "signals": {"type": "array", "minItems": 1, "items": {"type": "string"},
                             "description": "logged signals: block.port or block.port[i]"},
                 "kind": {"enum": list(PLOT_KINDS)},
-                "file": {"type": "string", "pattern": r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$",
+                "file": {"type": "string",
+                         "pattern": r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\.([Pp][Nn][Gg]|[Ss][Vv][Gg]|"
+                                    r"[Pp][Dd][Ff]|[Gg][Ii][Ff])$",
                          "description": "bare file name in the results folder: .png, .svg, "
                                         ".pdf (.gif for animations)"},
                 "t_min": {"type": "number"}, "t_max": {"type": "number"},
@@ -179,9 +183,9 @@ def schema() -> dict:
         "description": "A spidersim block diagram (YAML). See the README's YAML reference.",
         "type": "object", "required": ["blocks"], "additionalProperties": False,
         "properties": {
-            "name": {"type": "string", "description": "display name; names the results "
-                                                      "folder (letters, digits, - and _)"},
-            "description": {"type": "string"},
+            "name": dict(_TEXT, description="display name; names the results folder "
+                                            "(letters, digits, - and _)"),
+            "description": _TEXT,
             "parameters": {"type": "object", "propertyNames": {"pattern": NAME},
                            "additionalProperties": {"$ref": "#/$defs/value"},
                            "description": "name: value or expression of earlier ones"},
@@ -225,7 +229,7 @@ def schema() -> dict:
                             "type": "object", "required": ["signal"],
                             "properties": {"signal": {"type": "string"},
                                            "reduce": {"enum": REDUCERS},
-                                           "unit": {"type": "string"}}}},
+                                           "unit": _TEXT}}},
             "commands": {"type": "object", "propertyNames": {"pattern": NAME},
                          "additionalProperties": {"type": "object"},
                          "description": "named commands of the remote service"},

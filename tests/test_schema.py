@@ -76,6 +76,8 @@ MALFORMED = [
     (_with(["log"], "everything"), "log neither all nor a list"),
     (_with(["metrics"], {"m": {"signal": "g.y", "reduce": "median"}}), "unknown reducer"),
     (_with(["blocks", "w"], {"type": "WrenchSensor", "frame": "tool"}), "choice not allowed"),
+    (_with(["plots"], [{"signals": ["g.y"], "file": "volts.txt"}]), "plot file extension"),
+    (_with(["plots"], [{"signals": ["g.y"], "file": "volts"}]), "plot file without extension"),
 ]
 
 
@@ -89,3 +91,24 @@ def test_subsystem_types_are_not_constrained():
     """A type that is not a library block is a subsystem type: its parameters are free."""
     d = _with(["blocks", "j1"], {"type": "joint", "q0": 0.3, "anything": [1, 2]})
     assert VALIDATOR.is_valid(d)
+
+
+ACCEPTED_BY_BOTH = [
+    (_with(["name"], 2024), "number as the name"),
+    (_with(["description"], 7), "number as the description"),
+    (_with(["plots"], [{"signals": ["g.y"], "title": 5}]), "number as a plot title"),
+    (_with(["metrics"], {"m": {"signal": "g.y", "reduce": "max", "unit": 1}}),
+     "number as a metric unit"),
+    (_with(["plots"], [{"signals": ["g.y"], "file": "Volts.PNG"}]), "upper-case extension"),
+]
+
+
+@pytest.mark.parametrize("data,why", ACCEPTED_BY_BOTH, ids=[m[1] for m in ACCEPTED_BY_BOTH])
+def test_schema_accepts_what_the_loader_accepts(data, why, tmp_path, capsys):
+    """An editor must not flag a valid diagram: a number where the loader takes a text
+    ("a number is taken as its text") passes both (a hostile-input review found the schema
+    refusing them)."""
+    path = tmp_path / "d.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert VALIDATOR.is_valid(data), why
+    assert main(["check", str(path)]) == 0, capsys.readouterr().err
