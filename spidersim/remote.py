@@ -517,10 +517,11 @@ class Client:
 
     def result(self, job):
         """The job's :class:`~spidersim.Result` (also for a failed run: the data up to the
-        failure, ``status == "failed"`` and the message)."""
+        failure, ``status == "failed"`` and the message; and for a run cancelled while
+        running: the data up to where it stopped, ``status == "cancelled"``)."""
         st = self.status(job)
         data = st.get("files", {}).get("data", [])
-        if st["state"] not in ("done", "failed") or "result.npz" not in data:
+        if st["state"] not in ("done", "failed", "cancelled") or "result.npz" not in data:
             raise RemoteError(f"job {job} is {st['state']}"
                               + (f": {st['message']}" if st["message"] else "")
                               + "; it has no result")

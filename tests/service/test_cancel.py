@@ -80,6 +80,10 @@ def test_cancel_mid_run_keeps_the_data_and_the_worker(one_slot, models_dir):
     assert np.array_equal(sig["t"], t[::sig["stride"]])
     assert np.array_equal(sig["values"], y[::sig["stride"]])
     assert http.get(f"/jobs/{job}/result.json").json()["status"] == "cancelled"
+    from spidersim.remote import Client          # the Python client reads it too
+    rc = Client(srv.url, srv.tok).result(job)
+    assert rc.status == "cancelled" and np.array_equal(rc.t, t)
+    assert np.array_equal(rc["sys.y"], y.reshape(rc["sys.y"].shape))
 
     slow = os.path.join(models_dir[1], "slow.yaml")
     ref = spidersim.load(slow).simulate(t_end=float(t[-1]))
