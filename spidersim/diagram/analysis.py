@@ -43,6 +43,7 @@ import numpy as np
 
 from ..blocks.base import REGISTRY
 from ..errors import SpidersimError, described
+from ..solver import dense_size
 from ..solver.linearize import jacobians
 from .flatten import FlatConn, Instance
 
@@ -626,6 +627,9 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     from scipy.optimize import least_squares
 
     _check_diagram(d, "trim")
+    if d.layout.n_x > dense_size.MAX_DENSE_STATES:     # least_squares' dense Jacobian
+        raise AnalysisError(f"trim solves with a dense {d.layout.n_x}-column Jacobian: at "
+                            f"most {dense_size.MAX_DENSE_STATES} states")
     targets = trim_targets(d, targets)
     if not (isinstance(derivatives, str) and derivatives == "all"):
         derivatives = _signal_names(derivatives, "trim: derivatives ('all' or states)", d,

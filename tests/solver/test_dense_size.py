@@ -93,3 +93,9 @@ def test_linearization_refuses_before_its_matrix():
     with pytest.raises(SpidersimError, match=r"4001 x 4001 matrix A .* at most 4000 states"):
         jacobians(evaluate, np.zeros(I.MAX_DENSE_STATES + 1), np.zeros(1))
     assert calls == []
+
+
+def test_trim_refuses_before_its_dense_jacobian():
+    d = _wide(I.MAX_DENSE_STATES + 1)
+    with pytest.raises(spidersim.AnalysisError, match=r"4001-column Jacobian: at most 4000"):
+        spidersim.trim(d, jit=False)
