@@ -1102,17 +1102,21 @@ def cmd_cache(args):
     from .solver import compiled
     if args.action == "clear":
         n = compiled.clear()
-        print(f"spidersim: cache: removed {n} file(s) from {compiled.configured_dir()}")
+        fb = compiled.fallback_path()
+        print(f"spidersim: cache: removed {n} file(s) from {compiled.configured_dir()}"
+              + (f" and {fb}" if os.path.isdir(fb) else ""))
         return 0
     i = compiled.info()
     why = i["usable"]
     state = ("not created yet" if why is None else "writable, private" if why is True else
              f"NOT used: it {why}; a private folder in the temporary directory is used "
              f"instead")
+    fallback = (f"in use:  {i['fallback']} ({i['fallback_entries']} structure(s), "
+                f"{i['fallback_bytes'] / 1e6:.1f} MB)\n" if "fallback" in i else "")
     print(f"folder:  {i['folder']} ({state})\n"
           f"entries: {i['entries']} compiled diagram structure(s)\n"
-          f"size:    {i['bytes'] / 1e6:.1f} MB\n"
-          f"set SPIDERSIM_CACHE to move it; 'spidersim cache clear' empties it")
+          f"size:    {i['bytes'] / 1e6:.1f} MB\n" + fallback +
+          "set SPIDERSIM_CACHE to move it; 'spidersim cache clear' empties it")
     return 0
 
 

@@ -29,6 +29,17 @@ CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
 SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54", "ROS34PW2", "NDF"]
 REDUCERS = ["max", "min", "absmax", "final", "initial", "mean", "rms", "integral"]
 
+#: plot file extensions (either case), as :func:`spidersim.plots.check_plot_file`
+_FIGURE_EXT = "[Pp][Nn][Gg]|[Ss][Vv][Gg]|[Pp][Dd][Ff]"
+_GIF = "[Gg][Ii][Ff]"
+
+
+def _plot_file(ext):
+    """A bare file name of at most 121 characters ending in one of ``ext`` (a regex
+    alternation), as the loader's ``_PLOT_FILE`` and extension check."""
+    return rf"^(?=.{{1,121}}$)[A-Za-z0-9_][A-Za-z0-9_.-]*\.({ext})$"
+
+
 #: a text; a number is taken as its text (as the loader does: ``name: 2024``)
 _TEXT = {"type": ["string", "number"]}
 #: ``{value: 2.5, unit: mm}``: a value with its unit, converted to the declared one
@@ -161,9 +172,7 @@ def schema() -> dict:
                 "signals": {"type": "array", "minItems": 1, "items": {"type": "string"},
                             "description": "logged signals: block.port or block.port[i]"},
                 "kind": {"enum": list(PLOT_KINDS)},
-                "file": {"type": "string",
-                         "pattern": r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\.([Pp][Nn][Gg]|[Ss][Vv][Gg]|"
-                                    r"[Pp][Dd][Ff]|[Gg][Ii][Ff])$",
+                "file": {"type": "string", "pattern": _plot_file(_FIGURE_EXT + "|" + _GIF),
                          "description": "bare file name in the results folder: .png, .svg, "
                                         ".pdf (.gif for animations)"},
                 "t_min": {"type": "number"}, "t_max": {"type": "number"},
@@ -174,6 +183,10 @@ def schema() -> dict:
                 "fps": {"type": "number", "exclusiveMinimum": 0},
                 "trace": {"type": "boolean"}}}
     assert set(plot["properties"]) == set(PLOT_KEYS), "plot keys out of date"
+    # as the loader: an animation writes a GIF, the other kinds a figure
+    plot["if"] = {"properties": {"kind": {"const": "animation"}}, "required": ["kind"]}
+    plot["then"] = {"properties": {"file": {"pattern": _plot_file(_GIF)}}}
+    plot["else"] = {"properties": {"file": {"pattern": _plot_file(_FIGURE_EXT)}}}
     signal_list = {"anyOf": [{"type": "string"}, {"type": "array",
                                                   "items": {"type": "string"}}]}
     return {

@@ -104,6 +104,9 @@ CASES = [
      ["should_stop must be a function", "5 (int)"]),
     ("jit='no'", lambda d, r, p: d.simulate(t_end=0.1, jit="no"), DiagramError,
      ["jit must be True", "the string 'no'"]),
+    ("linearize(jit='no')", lambda d, r, p: d.linearize("r.y", "x.y", jit="no"),
+     DiagramError, ["jit must be True", "the string 'no'"]),
+    ("trim(jit=1)", lambda d, r, p: d.trim(jit=1), DiagramError, ["jit must be True", "1"]),
     # results: names, plots, files
     ("r[5]", lambda d, r, p: r[5], SignalError, ["named by a text 'block.port'", "5 (int)"]),
     ("r[None]", lambda d, r, p: r[None], SignalError, ["'block.port'", "got None"]),
@@ -218,14 +221,15 @@ def test_simulate_arguments_follow_the_simulation_section(d, key, value, line):
 
 
 def test_valid_simulate_forms(d):
-    """NumPy scalars and ints where floats are expected, math.inf as max_step (no limit),
+    """NumPy scalars and ints where floats are expected (a NumPy boolean for jit), math.inf
+    as max_step (no limit),
     a pathlib.Path and a NumPy value in load's set: accepted, and the run is the closed form
     of the lag x' = k (c - x): x(t) = c (1 - exp(-k t)) on the requested output grid."""
     r = d.simulate(t_end=1, output_interval=np.float32(0.25), rtol=np.float64(1e-9),
                    atol=np.float32(1e-11), max_step=math.inf, jit=False)
     np.testing.assert_allclose(r.t, [0, 0.25, 0.5, 0.75, 1.0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(r["x.y"], C * (1 - np.exp(-K * r.t)), rtol=0, atol=1e-7)
-    r2 = d.simulate(t_end=np.float32(0.25), max_step=np.int64(1), jit=False)
+    r2 = d.simulate(t_end=np.float32(0.25), max_step=np.int64(1), jit=np.False_)
     assert r2.t[-1] == 0.25 and abs(r2["x.y"][-1] - C * (1 - math.exp(-K * 0.25))) < 1e-6
     d2 = spidersim.load(pathlib.Path(SERVO), set={"motor.R": np.float64(1.5)})
     assert d2.blocks["motor"].params["R"] == 1.5

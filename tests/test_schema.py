@@ -78,6 +78,10 @@ MALFORMED = [
     (_with(["blocks", "w"], {"type": "WrenchSensor", "frame": "tool"}), "choice not allowed"),
     (_with(["plots"], [{"signals": ["g.y"], "file": "volts.txt"}]), "plot file extension"),
     (_with(["plots"], [{"signals": ["g.y"], "file": "volts"}]), "plot file without extension"),
+    (_with(["plots"], [{"signals": ["g.y"], "file": "volts.gif"}]), "gif for a line plot"),
+    (_with(["plots"], [{"signals": ["g.y"], "kind": "animation", "file": "arm.png"}]),
+     "png for an animation"),
+    (_with(["plots"], [{"signals": ["g.y"], "file": "v" * 118 + ".png"}]), "name too long"),
 ]
 
 
@@ -100,6 +104,7 @@ ACCEPTED_BY_BOTH = [
     (_with(["metrics"], {"m": {"signal": "g.y", "reduce": "max", "unit": 1}}),
      "number as a metric unit"),
     (_with(["plots"], [{"signals": ["g.y"], "file": "Volts.PNG"}]), "upper-case extension"),
+    (_with(["plots"], [{"signals": ["g.y"], "file": "v" * 117 + ".png"}]), "longest name"),
 ]
 
 

@@ -396,6 +396,7 @@ class Diagram:
         allow (``system.analytic_jacobian``; what the stiff methods use): a module made
         without it is made again with it (a superset, kept for later calls).
         """
+        jit = check_jit(jit, self.file)
         self._ensure_compiled(jit, loop, jacobian)
         return self._system(jit)
 
@@ -413,8 +414,6 @@ class Diagram:
                 self._modules[jit] = (mod, None)
                 self._system(jit).warm_up()
 
-            if jit:
-                self._register_native_kernels()
             mod, key, _ = load_module(self.source(jit, jacobian), jit, check=warm_up)
             self._modules[jit] = (mod, key)
             self._compile_time = time.perf_counter() - t0
@@ -425,17 +424,6 @@ class Diagram:
             t0 = time.perf_counter()
             self._system(jit).warm_up_loop(method)
             self._compile_time += time.perf_counter() - t0
-
-    def _register_native_kernels(self):
-        """The multibody kernels called through C symbols (:mod:`spidersim.multibody.native`)
-        registered before machine code that calls them is compiled or loaded from the cache:
-        when a block's kernels call one (spidersim's import builds none of them)."""
-        from ..blocks.base import KERNELS
-        from ..multibody import native
-        classes = {bl.cls for bl in self.layout.blocks.values()}
-        kernels = [getattr(c, k) for c in classes for k in KERNELS if c.has_kernel(k)]
-        if native.calls_exported(kernels):
-            native.register_all()
 
     def _system(self, jit):
         mod, key = self._modules[jit]
@@ -572,9 +560,7 @@ class Diagram:
         for k, v in given.items():
             if v is not None:
                 cfg[k] = sim_setting(k, v, k, file=self.file, text=False)
-        if not isinstance(jit, bool):
-            raise DiagramError(f"jit must be True (compiled) or False (plain Python), got "
-                               f"{described(jit)}", file=self.file)
+        check_jit(jit, self.file)
         for name, f, sig in (("progress", progress, "progress(t)"),
                              ("should_stop", should_stop, "should_stop() -> bool")):
             if f is not None and not callable(f):
@@ -658,6 +644,15 @@ def _file_name(path, what):
         raise DiagramError(f"{what} must be a file path (a str or a pathlib.Path), got "
                            f"{described(path)}")
     return os.fsdecode(os.fspath(path))
+
+
+def check_jit(jit, file=None) -> bool:
+    """``jit`` as a bool (a numpy boolean too); a :class:`DiagramError` for anything else
+    (a text ``"no"`` would be true)."""
+    if not isinstance(jit, (bool, np.bool_)):
+        raise DiagramError(f"jit must be True (compiled) or False (plain Python), got "
+                           f"{described(jit)}", file=file)
+    return bool(jit)
 
 
 def _overrides(set_, fn):

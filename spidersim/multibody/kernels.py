@@ -576,68 +576,47 @@ forward_dynamics = jit_kernel(forward_dynamics)
 _mass_matrix_linked = mass_matrix   # the jitted kernel, before _c_kernels rebinds the name
 
 
-# the jitted kernels under names the C wrappers below call (the public names are rebound to
-# the exported wrappers, which compiled code calls through their C symbols)
-_cholesky_solve_jit, _impact_projection_jit = cholesky_solve, impact_projection
-_forward_dynamics_jit = forward_dynamics
-
-
 # The arm's event kernels (and what they share with the Chain and the force control) are
-# called through C symbols (see .native): compiled once, they are no longer linked into,
+# called through C symbols (see .native): compiled once here, they are no longer linked into,
 # and optimised again with, every caller. Each wrapper takes the data pointer and the shape
-# of every array (.native.c_signature) and is built on first need (not at import).
-# forward_dynamics is exported too (a new diagram's compile 1 s shorter, spider.yaml 2-4 %
-# slower: see .native); flange_jacobian, small, stays linked; forward_dynamics calls the
-# linked mass_matrix (_mass_matrix_linked).
-def _c_kernel(kinds):
-    from .native import c_signature
-    return cfunc(c_signature(kinds), cache=True, nogil=True, error_model="numpy")
+# of every array (.native.c_signature). forward_dynamics is exported too (a new diagram's
+# compile 1 s shorter, spider.yaml 2-4 % slower: see .native); flange_jacobian, small,
+# stays linked; forward_dynamics calls the linked mass_matrix (_mass_matrix_linked).
+def _c_kernels():
+    from .native import c_signature, exported
 
+    def c_kernel(kinds):
+        return cfunc(c_signature(kinds), cache=True, nogil=True, error_model="numpy")
 
-def _cholesky_solve_c():
-    @_c_kernel("211")
+    @c_kernel("211")
     def cholesky_solve_c(M, r_M, c_M, b, n_b, x, n_x):
-        _cholesky_solve_jit(carray(M, (r_M, c_M)), carray(b, n_b), carray(x, n_x))
-    return cholesky_solve_c
+        cholesky_solve(carray(M, (r_M, c_M)), carray(b, n_b), carray(x, n_x))
 
-
-def _mass_matrix_c():
-    @_c_kernel("121211")
+    @c_kernel("121211")
     def mass_matrix_c(q, n_q, P, r_P, c_P, ws, n_ws, M, r_M, c_M, tmp, n_tmp, base, n_base):
-        _mass_matrix_linked(carray(q, n_q), carray(P, (r_P, c_P)), carray(ws, n_ws),
-                            carray(M, (r_M, c_M)), carray(tmp, n_tmp), carray(base, n_base))
-    return mass_matrix_c
+        mass_matrix(carray(q, n_q), carray(P, (r_P, c_P)), carray(ws, n_ws),
+                    carray(M, (r_M, c_M)), carray(tmp, n_tmp), carray(base, n_base))
 
-
-def _impact_projection_c():
-    @_c_kernel("i112111111")
+    @c_kernel("i112111111")
     def impact_projection_c(n, qd, n_qd, c, n_c, M, r_M, c_M, J, n_J, Jc, n_Jc, Y, n_Y, A,
                             n_A, r, n_r, x, n_x):
-        _impact_projection_jit(n, carray(qd, n_qd), carray(c, n_c), carray(M, (r_M, c_M)),
-                               carray(J, n_J), carray(Jc, n_Jc), carray(Y, n_Y),
-                               carray(A, n_A), carray(r, n_r), carray(x, n_x))
-    return impact_projection_c
+        impact_projection(n, carray(qd, n_qd), carray(c, n_c), carray(M, (r_M, c_M)),
+                          carray(J, n_J), carray(Jc, n_Jc), carray(Y, n_Y), carray(A, n_A),
+                          carray(r, n_r), carray(x, n_x))
 
-
-def _forward_dynamics_c():
-    @_c_kernel("1111112121111")
+    @c_kernel("1111112121111")
     def forward_dynamics_c(q, n_q, qd, n_qd, tau, n_tau, g, n_g, f_ext, n_f, tau_r, n_r, P,
                            r_P, c_P, ws, n_ws, M, r_M, c_M, tmp, n_tmp, base, n_base, qdd,
                            n_qdd, key, n_key):
-        _forward_dynamics_jit(carray(q, n_q), carray(qd, n_qd), carray(tau, n_tau),
-                              carray(g, n_g), carray(f_ext, n_f), carray(tau_r, n_r),
-                              carray(P, (r_P, c_P)), carray(ws, n_ws), carray(M, (r_M, c_M)),
-                              carray(tmp, n_tmp), carray(base, n_base), carray(qdd, n_qdd),
-                              carray(key, n_key))
-    return forward_dynamics_c
+        forward_dynamics(carray(q, n_q), carray(qd, n_qd), carray(tau, n_tau), carray(g, n_g),
+                         carray(f_ext, n_f), carray(tau_r, n_r), carray(P, (r_P, c_P)),
+                         carray(ws, n_ws), carray(M, (r_M, c_M)), carray(tmp, n_tmp),
+                         carray(base, n_base), carray(qdd, n_qdd), carray(key, n_key))
+
+    return (exported(cholesky_solve, cholesky_solve_c, "211"),
+            exported(mass_matrix, mass_matrix_c, "121211"),
+            exported(impact_projection, impact_projection_c, "i112111111"),
+            exported(forward_dynamics, forward_dynamics_c, "1111112121111"))
 
 
-def _export():
-    from .native import exported
-    return (exported(cholesky_solve, _cholesky_solve_c, "211"),
-            exported(mass_matrix, _mass_matrix_c, "121211"),
-            exported(impact_projection, _impact_projection_c, "i112111111"),
-            exported(forward_dynamics, _forward_dynamics_c, "1111112121111"))
-
-
-cholesky_solve, mass_matrix, impact_projection, forward_dynamics = _export()
+cholesky_solve, mass_matrix, impact_projection, forward_dynamics = _c_kernels()

@@ -13,12 +13,7 @@ IR lines of ``spider.yaml``'s ``outputs`` and 3,300 more in its event kernel.
 * the kernel is compiled once as a C-callable function (:func:`numba.cfunc`, cached on disk
   with spidersim) whose arguments are the data pointers and shapes of its arrays; its
   address is registered under the symbol with LLVM (:func:`llvmlite.binding.add_symbol`)
-  on first need, before any code that calls it is compiled or loaded: when numba types a
-  call of it (the overload below), and before a diagram whose blocks call it is compiled
-  or loaded from the cache (:func:`register_all`, called by the diagram layer when
-  :func:`calls_exported` finds a call in the blocks' kernels). Importing spidersim compiles
-  and loads nothing (a first ``spidersim --help`` after installing took 14 s when the C
-  functions were built at import);
+  when its module is imported, before any code that calls it can be compiled or loaded;
 * a compiled caller contains one ``call`` of the external symbol (resolved when its machine
   code is loaded, from numba's cache too), so its module no longer grows with the kernel;
 * the call is one direct call, but the caller can no longer be optimised together with the
@@ -41,8 +36,6 @@ jitted kernel as before (linked in), so nothing breaks for an unusual caller. Fr
 wrapper calls the jitted kernel.
 """
 from __future__ import annotations
-
-from types import ModuleType
 
 import llvmlite.binding as llvm
 from llvmlite import ir
@@ -117,78 +110,16 @@ def _symbol_call(symbol, kinds):
     return call
 
 
-#: symbol -> function building the C function (numba.cfunc), in registration order
-_MAKERS: dict = {}
-#: symbol -> the built C function (kept alive: LLVM holds its address)
-_BUILT: dict = {}
-
-
-def _ensure(symbol):
-    """Build the C function of ``symbol`` (compiled, or loaded from numba's cache) and
-    register its address with LLVM, once."""
-    if symbol not in _BUILT:
-        c_function = _MAKERS[symbol]()
-        llvm.add_symbol(symbol, c_function.address)
-        _BUILT[symbol] = c_function
-
-
-def register_all():
-    """Register every exported kernel's symbol: before compiling or loading (from numba's
-    cache) machine code that may call one of them."""
-    for symbol in list(_MAKERS):
-        _ensure(symbol)
-
-
-def calls_exported(functions) -> bool:
-    """Whether any of ``functions`` (Python functions or numba dispatchers) calls an
-    exported kernel, directly or through the functions and dispatchers it names as globals
-    (followed transitively): a diagram of such blocks needs :func:`register_all` first."""
-    stack, seen = list(functions), set()
-    while stack:
-        item = stack.pop()
-        fn = getattr(item, "py_func", item)
-        if fn is None or id(fn) in seen or not hasattr(fn, "__code__"):
-            continue
-        seen.add(id(fn))
-        names = _global_names(fn.__code__)
-        values = [fn.__globals__.get(name) for name in names]
-        # ``K.mass_matrix``: the attributes of a module named as a global
-        values += [getattr(m, name, None) for m in values if isinstance(m, ModuleType)
-                   for name in names]
-        for value in values:
-            if getattr(value, "symbol", None) in _MAKERS:
-                return True
-            if hasattr(value, "py_func") or hasattr(value, "__code__"):
-                stack.append(value)
-    return False
-
-
-def _global_names(code):
-    """The global names a code object and the code objects nested in it use."""
-    names = set(code.co_names)
-    for const in code.co_consts:
-        if hasattr(const, "co_names"):
-            names |= _global_names(const)
-    return names
-
-
-def exported(jitted, make_c_function, kinds):
+def exported(jitted, c_function, kinds):
     """``jitted`` (a numba dispatcher) as a function that compiled callers call through the
-    C symbol ``spidersim_mb_<name>`` of its cfunc wrapper (signature :func:`c_signature` of
-    ``kinds``), which ``make_c_function()`` builds when first needed; see the module
-    docstring."""
+    C symbol ``spidersim_mb_<name>`` of ``c_function`` (its cfunc wrapper, signature
+    :func:`c_signature` of ``kinds``), registered here; see the module docstring."""
     name = jitted.py_func.__name__
     symbol = f"spidersim_mb_{name}"
-    _MAKERS[symbol] = make_c_function
+    llvm.add_symbol(symbol, c_function.address)
     call = _symbol_call(symbol, kinds)
 
-    needs_symbols = []         # whether ``jitted`` itself calls an exported kernel
-
     def public(*args):
-        if not needs_symbols:
-            needs_symbols.append(calls_exported([jitted]))
-        if needs_symbols[0]:
-            register_all()     # its machine code, maybe from the cache, calls their symbols
         return jitted(*args)
 
     public.__name__ = public.__qualname__ = name
@@ -200,8 +131,6 @@ def exported(jitted, make_c_function, kinds):
     @overload(public, jit_options={"error_model": "numpy"})
     def _overload(*args):
         if _matches(args, kinds):
-            _ensure(symbol)
-
             def through_symbol(*args):
                 call(args)
             return through_symbol

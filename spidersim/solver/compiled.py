@@ -122,11 +122,16 @@ def cache_dir() -> str:
     return _FALLBACK[0]
 
 
+def fallback_path() -> str:
+    """``<tmp>/spidersim-cache-<uid>``: the user's fallback cache folder."""
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    return os.path.join(tempfile.gettempdir(), f"spidersim-cache-{uid}")
+
+
 def _fallback_dir() -> str:
     """``<tmp>/spidersim-cache-<uid>`` when it is (or can be made) the user's private
     folder, kept for later runs; else a fresh private folder removed at exit."""
-    uid = os.getuid() if hasattr(os, "getuid") else "user"
-    d = os.path.join(tempfile.gettempdir(), f"spidersim-cache-{uid}")
+    d = fallback_path()
     if not _problem(d):
         return d
     import atexit
@@ -376,6 +381,18 @@ def _import(name, path, text):
 def info() -> dict:
     """Folder, number of compiled diagram structures and bytes used by the cache."""
     folder = configured_dir()
+    entries, size = _count(folder)
+    out = {"folder": folder, "entries": entries, "bytes": size,
+           "usable": (_problem(folder) or True) if os.path.exists(folder) else None}
+    if isinstance(out["usable"], str):            # the fallback is in use instead
+        fb = fallback_path()
+        out["fallback"] = fb
+        out["fallback_entries"], out["fallback_bytes"] = _count(fb)
+    return out
+
+
+def _count(folder):
+    """Compiled structures and bytes of spidersim's files in ``folder``."""
     entries, size = 0, 0
     if os.path.isdir(folder):
         for d, _, files in os.walk(folder):
@@ -383,17 +400,19 @@ def info() -> dict:
                 if f.startswith(PREFIX):
                     size += os.path.getsize(os.path.join(d, f))
                     entries += f.endswith(".py") and d == folder
-    return {"folder": folder, "entries": entries, "bytes": size,
-            "usable": (_problem(folder) or True) if os.path.exists(folder) else None}
+    return entries, size
 
 
 def clear() -> int:
     """Remove every cache file spidersim wrote (:data:`_ENTRY_FILE`: a file merely named
     ``spidersim_gen_...`` by someone else stays) and nothing else; return how many were
-    removed."""
-    folder = configured_dir()
+    removed. The user's fallback folder (used while the configured one cannot be) is
+    emptied too."""
+    folders = [configured_dir()]
+    if os.path.isdir(fallback_path()) and not _not_private(fallback_path()):
+        folders.append(fallback_path())
     n = 0
-    for d in (folder, os.path.join(folder, "__pycache__")):
+    for d in [f for folder in folders for f in (folder, os.path.join(folder, "__pycache__"))]:
         if not os.path.isdir(d):
             continue
         for f in os.listdir(d):

@@ -139,7 +139,8 @@ def test_cache_info_and_clear(tmp_path, pristine):
     cache = _copy(pristine, tmp_path / "cache")
     keep = cache / "mine.txt"
     keep.write_text("not spidersim's")
-    env = dict(os.environ, SPIDERSIM_CACHE=str(cache))
+    # TMPDIR: the user's fallback folder (cleared too) is the test's own
+    env = dict(os.environ, SPIDERSIM_CACHE=str(cache), TMPDIR=str(tmp_path))
     info = subprocess.run([sys.executable, "-m", "spidersim.cli", "cache", "info"],
                           capture_output=True, text=True, env=env)
     assert info.returncode == 0 and "entries: 1 " in info.stdout
@@ -340,6 +341,7 @@ def test_clear_removes_only_cache_entries(tmp_path, monkeypatch):
     ``spidersim_gen_notmine.txt``)."""
     from spidersim.solver import compiled
     monkeypatch.setenv("SPIDERSIM_CACHE", str(tmp_path))
+    monkeypatch.setattr(compiled, "fallback_path", lambda: str(tmp_path / "no_fallback"))
     key = "0123456789abcdef0123"
     (tmp_path / "__pycache__").mkdir()
     ours = [tmp_path / f"spidersim_gen_{key}.py", tmp_path / f"spidersim_gen_{key}.sha256",

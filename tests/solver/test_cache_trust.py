@@ -135,3 +135,24 @@ def test_pycache_of_a_private_folder_is_made_private(own):
     os.chmod(own / "__pycache__", 0o777)
     assert compiled.cache_dir() == str(own)
     assert (os.stat(own / "__pycache__").st_mode & 0o777) == 0o755
+
+
+def test_the_fallback_in_use_is_shown_and_cleared(own, tmp_path, monkeypatch, capsys):
+    """While the configured folder cannot be used, ``cache info`` names the fallback in use
+    with its entries and ``cache clear`` empties it (a broken entry there could not be
+    cleared)."""
+    from spidersim.cli import main
+    monkeypatch.setattr(compiled.tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    own.mkdir(mode=0o700)
+    os.chmod(own, 0o777)
+    compiled.load_module(TEXT, jit=False)
+    fb = compiled.fallback_path()
+    assert any(f.startswith(compiled.PREFIX) for f in os.listdir(fb))
+    capsys.readouterr()
+    assert main(["cache", "info"]) == 0
+    out = capsys.readouterr().out
+    assert f"in use:  {fb} (1 structure(s)" in out and "can be written by other users" in out
+    assert main(["cache", "clear"]) == 0
+    assert f"and {fb}" in capsys.readouterr().out
+    assert not any(f.startswith(compiled.PREFIX) for f in os.listdir(fb))
