@@ -1,4 +1,5 @@
 """Zero-crossing events, time events and sampled blocks."""
+import math
 import os
 
 import control as ct
@@ -376,3 +377,29 @@ connections:
     exact = sum(np.sin(2 * np.pi * k * Ts) * Ts for k in range(n))
     assert abs(r["i.y"][-1] - exact) < 1e-9
     assert r.t[-1] == t_end
+
+
+_BALL_HALF = """
+blocks:
+  b: {type: MassOnStop, e: 0.5, v_rest: %s, x0: 1}
+simulation: {t_end: %s}
+"""
+
+
+@pytest.mark.parametrize("method", ["LSODA", "RK45", "BDF"])
+def test_scipy_steppers_keep_the_ball_on_its_stop(method):
+    """LSODA (the default method) let a ball bouncing with e = 0.5 fall through its stop
+    after 20 impacts, exit 0 (a hostile review, session 12): a step retried shorter (a
+    landing unseen inside a step) restarted from LSODA's dense output at the step's start,
+    x = -1e-21, so the guard began on its firing side and the next landing went unseen.
+    Now the ball comes to rest on the stop near the accumulation time 3 t1 (LSODA's
+    tolerances decide the last few flights of 1e-13 m), and with ``v_rest = 0`` the Zeno
+    accumulation is chattering as on the other engines."""
+    t1 = math.sqrt(2 / 9.81)
+    r = spidersim.loads(_BALL_HALF % (1e-7, 1.5)).simulate(method=method, jit=False)
+    assert r["b.x"][-1] == 0.0 and r["b.v"][-1] == 0.0
+    assert r["b.x"].min() > -1e-9
+    impacts = [t for t, _b, ev in r.events if ev == "impact"]
+    assert len(impacts) >= 15 and abs(impacts[-1] - 3 * t1) < 5e-4
+    with pytest.raises(IntegrationError, match="chattering"):
+        spidersim.loads(_BALL_HALF % (0, 3)).simulate(method=method, jit=False)
