@@ -25,13 +25,35 @@ LUGRE_PARAMS = {
 }
 
 
+def check_levels(params, z0=0.0):
+    """The friction levels of a LuGre model (raise ``ValueError``): ``T_s >= T_c``, and
+    ``T_c > 0`` unless both are 0. With ``T_c = 0 < T_s`` the level ``g(v)`` falls to 0 at
+    speed (it underflows: 0.07 exp(-900) at v = 30 v_s), where the bristle equation
+    ``dz/dt = v - sigma0 |v| z / g`` has no finite solution (it was taken as ``dz/dt = v``:
+    the bristles became a spring winding up without bound, 2,403 N.m instead of D v). Both
+    0: no Coulomb and Stribeck friction, the bristles stay at ``z = 0`` (``z0`` must be 0)
+    and only the viscous ``D v`` remains."""
+    T_c, T_s = params["T_c"], params["T_s"]
+    if T_s < T_c:
+        raise ValueError(f"T_s ({T_s}) must not be below T_c ({T_c})")
+    if T_c == 0.0 and T_s > 0.0:
+        raise ValueError(f"T_c = 0 with T_s = {T_s}: the friction level g(v) falls to 0 at "
+                         f"speed, where the LuGre bristle equation has no solution; give "
+                         f"T_c > 0 (a small Coulomb level), or T_c = T_s = 0 for viscous "
+                         f"friction D only")
+    if T_c == 0.0 and z0 != 0.0:
+        raise ValueError(f"z0 = {z0} with T_c = T_s = 0: without Coulomb and Stribeck "
+                         f"friction the bristles carry nothing (z0 must be 0)")
+
+
 def lugre_rates(v, z, T_c, T_s, v_s, delta, sigma0, sigma1, D):
     """``(dz/dt, tau_f)`` of the LuGre model (``delta = 2``, the usual Gaussian
     Stribeck curve, as ``r * r``: correctly rounded, where ``pow`` is within 0.52 ulp;
     cheaper)."""
     r = abs(v / v_s)
     g = T_c + (T_s - T_c) * math.exp(-(r * r if delta == 2.0 else r ** delta))
-    dz = v - sigma0 * abs(v) * z / g if g > 0.0 else v
+    # g = 0 only with T_c = T_s = 0 (check_levels): no bristle friction, z stays 0
+    dz = v - sigma0 * abs(v) * z / g if g > 0.0 else 0.0
     return dz, sigma0 * z + sigma1 * dz + D * v
 
 
@@ -50,7 +72,7 @@ def lugre_slopes(v, z, T_c, T_s, v_s, delta, sigma0):
     e = math.exp(-(r * r if delta == 2.0 else r ** delta))
     g = T_c + (T_s - T_c) * e
     if not g > 0.0:
-        return 0.0, 1.0
+        return 0.0, 0.0
     sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
     dg = 0.0
     if v != 0.0:
@@ -73,8 +95,7 @@ class LuGre(Block):
 
     @classmethod
     def check(cls, params):
-        if params["T_s"] < params["T_c"]:
-            raise ValueError(f"T_s ({params['T_s']}) must not be below T_c ({params['T_c']})")
+        check_levels(params, params["z0"])
 
     @staticmethod
     def output(t, z, v, T_c, T_s, v_s, delta, sigma0, sigma1, D, tau):
@@ -97,7 +118,7 @@ class LuGre(Block):
             dtau/dz = sigma0 + sigma1 d(dz/dt)/dz,  dtau/dv = sigma1 d(dz/dt)/dv + D
 
         (``r = |v / v_s|``; at ``v = 0`` the kink of ``|v|`` is taken with ``sgn(0) = 0``;
-        with ``g = 0``, ``dz/dt = v``).
+        with ``g = 0`` (``T_c = T_s = 0``), ``dz/dt = 0``).
         """
         a, b = lugre_slopes_jit(v[0], z[0], T_c, T_s, v_s, delta, sigma0)
         dfdx[0, 0] = a

@@ -30,7 +30,7 @@ friction through LuGre).
 """
 
 from .base import Block, Event, Mode, Param, Port, State
-from .friction import LUGRE_PARAMS, lugre_rates_jit, lugre_slopes_jit
+from .friction import LUGRE_PARAMS, check_levels, lugre_rates_jit, lugre_slopes_jit
 
 
 def three_slope(phi, K1, K2, K3, T1, T2):
@@ -120,8 +120,8 @@ class HarmonicDrive(Block):
     def check(cls, params):
         if params["T2"] <= params["T1"]:
             raise ValueError(f"T2 ({params['T2']}) must exceed T1 ({params['T1']})")
-        if params["T_s"] < params["T_c"]:
-            raise ValueError(f"T_s ({params['T_s']}) must not be below T_c ({params['T_c']})")
+        if params["friction"]:
+            check_levels(params)
 
     @classmethod
     def derive(cls, params):
