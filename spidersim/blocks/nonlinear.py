@@ -9,6 +9,8 @@ corner inside a step is then left to the step-size control).
 Every mode block also has an ``initialize`` kernel: at the start and after every event
 (a step input may jump past a corner) it sets the mode from the current input.
 """
+import numpy as np
+
 from .base import Block, Event, Mode, Param, Port
 
 _ZC = Param(True, kind="bool", doc="switch modes at the corners by zero-crossing events")
@@ -76,9 +78,12 @@ class Saturation(_Corners):
 
     @classmethod
     def check(cls, params):
-        if params["lower"] > params["upper"]:
-            raise ValueError(f"lower ({params['lower']}) must not exceed upper "
-                             f"({params['upper']})")
+        # equal limits: both corner guards fire at one instant and the mode ended linear
+        # (y = u past the limit under LSODA); the output would be a constant anyway
+        if np.any(np.asarray(params["lower"]) >= np.asarray(params["upper"])):
+            raise ValueError(f"lower ({params['lower']}) must be below upper "
+                             f"({params['upper']}); equal limits hold the output at one "
+                             f"value: use a Constant")
 
     @staticmethod
     def output(t, lower, upper, zero_crossing, u, m, y):
@@ -125,8 +130,11 @@ class DeadZone(_Corners):
 
     @classmethod
     def check(cls, params):
-        if params["start"] > params["end"]:
-            raise ValueError(f"start ({params['start']}) must not exceed end ({params['end']})")
+        # a zone of width 0 is no dead zone (y = u); both edge guards at one point gave
+        # y = 0 for every u
+        if np.any(np.asarray(params["start"]) >= np.asarray(params["end"])):
+            raise ValueError(f"start ({params['start']}) must be below end ({params['end']}); "
+                             f"a zone of width 0 is no dead zone (y = u)")
 
     @staticmethod
     def output(t, start, end, zero_crossing, u, m, y):
