@@ -228,6 +228,7 @@ class _Problem:
             return False
         unit = (product ** -1) ** (1.0 / p_total) if p_total != 1 else product ** -1
         v = unknown[0][0]
+        _refuse_scaled_number(v, unit, target, rule, inst)
         self.c.bind(v, unit, U.text(unit), f"{_describe(v)} inferred [{U.text(unit)}] "
                     f"from '{target[2]} = {rule}' of block '{inst.path}'")
         return True
@@ -262,6 +263,33 @@ class _Problem:
             b = self.c.get(v)
             out[v] = b[1] if b is not None else UNKNOWN
         return out
+
+
+def _scale_of_number(unit):
+    """The factor of a compound unit that is a pure number (``rad/deg``: 57.3,
+    ``mN.m/(N.m)``: 0.001), else None (a unit of a dimension, a single unit such as ``deg``
+    or ``%``, or a factor of 1 such as ``rad/rad``)."""
+    if len(getattr(unit, "_units", {})) < 2:
+        return None
+    try:
+        f = U.factor(unit, U.DIMENSIONLESS)
+    except U.UnitError:
+        return None
+    return None if abs(f - 1.0) <= 1e-12 else f
+
+
+def _refuse_scaled_number(v, unit, target, rule, inst):
+    """A free variable may not be inferred as a scaled pure number: a Constant 1 before a
+    Gain of 90 deg into a port in rad was given [rad/deg] and the port got 90 rad (the
+    user's 1 read as 1 rad/deg = 57.3) where pi/2 was meant."""
+    f = _scale_of_number(unit)
+    if f is not None:
+        raise UnitMismatchError(
+            f"{_describe(v)} would have to be [{U.text(unit)}], a pure number scaled by "
+            f"{f:.6g}, for '{target[2]} = {rule}' of block '{inst.path}' to hold: give its "
+            f"unit explicitly ({{value: ..., unit: ...}}), or the other terms in matching "
+            f"units (e.g. an angle gain in rad)", file=inst.file, line=inst.line,
+            block=inst.path)
 
 
 def infer_units(flat) -> dict:

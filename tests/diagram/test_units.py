@@ -221,3 +221,28 @@ def test_results_plots_and_csv_carry_inferred_units(tmp_path):
     assert "ref.y [rad]" in header and "pos.y [rad/s]" in header
     back = spidersim.Result.load(str(tmp_path))
     assert back.units["e_w.y"] == "rad/s"
+
+
+_GAIN_DEG = """
+blocks:
+  one: {type: Constant, value: 1}
+  k: {type: Gain, k: {value: %s, unit: %s}}
+  %s
+connections:
+  - one.y -> k.u
+  - k.y -> %s
+simulation: {t_end: 0.1}
+"""
+
+
+def test_a_free_signal_is_not_inferred_as_a_scaled_number():
+    """A Constant 1 before a Gain of 90 deg into a port in rad was inferred [rad/deg] and
+    the port read 90 rad, exit 0 (a hostile review, session 12): refused at the Gain's line,
+    naming the scale; the gain in rad gives pi/2 rad."""
+    res = "res: {type: Resolver, bits: 0}"
+    with pytest.raises(UnitMismatchError, match=r"k\.u would have to be \[rad/deg\], a pure "
+                                                r"number scaled by 57\.2958"):
+        spidersim.loads(_GAIN_DEG % (90, "deg", res, "res.theta"))
+    r = spidersim.loads(_GAIN_DEG % (math.pi / 2, "rad", res, "res.theta")).simulate(
+        jit=False)
+    assert r["res.theta_m"][-1] == pytest.approx(math.pi / 2, rel=1e-12)
