@@ -260,7 +260,7 @@ def cmd_run(args):
     if getattr(args, "show", False):
         _show(r, d)
     s = r.stats
-    print(f"spidersim: done: t = {s['t_reached']:g} s, {s['steps']} steps, "
+    print(f"spidersim: done: t = {s['t_reached']:.10g} s, {s['steps']} steps, "
           f"{s['rhs_calls']} RHS calls, "
           + (f"{s['wall_time']:.3f} s" if s['wall_time'] >= 0.1 else
              f"{1e3 * s['wall_time']:.2f} ms") + " integration")

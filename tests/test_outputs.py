@@ -312,3 +312,17 @@ def test_empty_out_and_dotdot_out(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "results").exists()
     assert main(["run", str(path), "--out", "x/../y", "--no-jit", "--no-plots"]) == 0
     assert (tmp_path / "y" / "result.npz").exists() and not (tmp_path / "x").exists()
+
+
+def test_report_and_summary_keep_the_digits_of_the_times(tmp_path, capsys):
+    """t_end 1.0000001 was printed as 1 in report.txt and in the CLI's last line (a hostile
+    review, session 12); both now keep the digits (report.json and result.csv did)."""
+    path = tmp_path / "d.yaml"
+    path.write_text("blocks:\n  c: {type: Constant, value: 1}\n"
+                    "simulation: {t_end: 1.0000001, rtol: 1.5e-7}\nlog: [c.y]\n")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-plots"]) == 0
+    cap = capsys.readouterr()
+    assert "done: t = 1.0000001 s" in cap.out + cap.err
+    text = (tmp_path / "o" / "report.txt").read_text()
+    assert "t_end: 1.0000001\n" in text and "t_reached: 1.0000001\n" in text
+    assert "rtol: 1.5e-07\n" in text

@@ -313,10 +313,13 @@ class Result:
                 "rhs_calls", "newton_iterations", "jacobian_calls", "lu_decompositions",
                 "time_events", "events", "samples", "compile_time", "from_cache", "wall_time",
                 "jit", "structure_key"]
+        exact = ("rtol", "atol", "max_step", "t_end", "t_reached")   # as given: 1.0000001
         for k in keys:
             if k in s:
                 v = s[k]
-                lines.append(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}")
+                if isinstance(v, float):
+                    v = repr(v) if k in exact else f"{v:.6g}"
+                lines.append(f"{k}: {v}")
         for k, v in self.provenance.items():
             if isinstance(v, dict):
                 lines += [f"{k}:"] + [f"  {a}: {b}" for a, b in v.items()]
