@@ -183,12 +183,21 @@ class StateSpace(Block):
     partials = staticmethod(_ss_partials)
 
 
+def numerator(params):
+    """The numerator without its leading zeros (at least one coefficient): ``[0, 1]`` over
+    ``[1, 1]`` is strictly proper, with no direct feedthrough (it was taken as biproper: a
+    false algebraic loop solved by Newton)."""
+    num = np.atleast_1d(np.asarray(params["num"], dtype=float))
+    nz = np.flatnonzero(num)
+    return num[nz[0]:] if nz.size else num[-1:]
+
+
 class TransferFunction(Block):
     """SISO transfer function ``Y(s)/U(s) = num(s)/den(s)``, coefficients in descending
     powers of s, realised in controllable canonical form (zero initial state).
 
-    It must be proper (``len(num) <= len(den)``); it has direct feedthrough when
-    ``len(num) == len(den)``.
+    It must be proper (degree of num <= degree of den, leading zeros of ``num`` not
+    counted: ``[0, 0, 1]`` is 1); it has direct feedthrough when the degrees are equal.
     """
 
     category = "continuous"
@@ -197,14 +206,14 @@ class TransferFunction(Block):
         "den": Param(unit="*", doc="denominator coefficients, highest power first", shape="*"),
     }
     inputs = {"u": Port("*", doc="input")}
-    outputs = {"y": Port("*", feedthrough=lambda p: ("u",) if len(p["num"]) == len(p["den"])
-                         else (), doc="output")}
+    outputs = {"y": Port("*", doc="output", feedthrough=lambda p: (
+        ("u",) if len(numerator(p)) == len(p["den"]) else ()))}
     states = {"x": State("*", size=Dim("len(den) - 1", lambda p: len(p["den"]) - 1),
                          doc="controllable canonical state")}
 
     @classmethod
     def check(cls, params):
-        num, den = params["num"], params["den"]
+        num, den = numerator(params), params["den"]
         if den[0] == 0:
             raise ValueError("the leading coefficient of 'den' must not be 0")
         if len(num) > len(den):
@@ -217,7 +226,7 @@ class TransferFunction(Block):
         den = params["den"] / params["den"][0]
         n = len(den) - 1
         num = np.zeros(n + 1)
-        num[n + 1 - len(params["num"]):] = params["num"] / params["den"][0]
+        num[n + 1 - len(numerator(params)):] = numerator(params) / params["den"][0]
         A = np.zeros((n, n))
         if n:
             A[0, :] = -den[1:]

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .base import Block, Dim, Mode, Param, Port
+from .continuous import numerator
 
 _TS = Param(doc="sample period", unit="s", gt=0.0)
 _OFF = Param(0.0, "s", "time of the first sample", ge=0.0)
@@ -89,14 +90,15 @@ class DiscreteTransferFunction(_Sampled):
     def check(cls, params):
         if params["den"][0] == 0:
             raise ValueError("the leading coefficient of 'den' must not be 0")
-        if len(params["num"]) > len(params["den"]):
+        if len(numerator(params)) > len(params["den"]):     # leading zeros not counted
             raise ValueError("improper (non-causal) transfer function: num is longer than den")
 
     @classmethod
     def derive(cls, params):
         den = params["den"] / params["den"][0]
         b = np.zeros(len(den))
-        b[len(den) - len(params["num"]):] = params["num"] / params["den"][0]
+        num = numerator(params)
+        b[len(den) - len(num):] = num / params["den"][0]
         return {"a_n": den, "b_n": b}
 
     @staticmethod

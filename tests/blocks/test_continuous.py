@@ -276,3 +276,38 @@ def test_limited_integrator_rejects_x0_outside():
     with pytest.raises(ParameterError, match="x0"):
         spidersim.loads("blocks:\n  li: {type: LimitedIntegrator, x0: 2}\n"
                         "  c: {type: Constant}\nconnections:\n  - c.y -> li.u\n")
+
+
+def test_transfer_function_numerator_leading_zeros_do_not_count():
+    """``num: [0, 0, 1]`` over ``[1, 1]`` is 1/(s+1) (it was refused as improper), and
+    ``num: [0, 1]`` is strictly proper: unity feedback around it is no algebraic loop (it
+    was taken as biproper, a false loop solved by Newton in 93 iterations); a hostile
+    review, session 12. Closed forms: 1 - exp(-t), and 0.5 (1 - exp(-2 t)) closed-loop."""
+    import math
+    import spidersim
+    r = spidersim.loads("""
+blocks:
+  r: {type: Step}
+  g: {type: TransferFunction, num: [0, 0, 1], den: [1, 1]}
+connections:
+  - r.y -> g.u
+simulation: {t_end: 1, rtol: 1e-10, atol: 1e-12}
+log: [g.y]
+""").simulate(jit=False)
+    assert r["g.y"][-1] == pytest.approx(1 - math.exp(-1), rel=1e-8)
+    d = spidersim.loads("""
+blocks:
+  r: {type: Step}
+  e: {type: Sum, signs: "+-"}
+  g: {type: TransferFunction, num: [0, 1], den: [1, 1]}
+connections:
+  - r.y -> e.u1
+  - g.y -> e.u2
+  - e.y -> g.u
+simulation: {t_end: 1, rtol: 1e-10, atol: 1e-12}
+log: [g.y]
+""")
+    assert not d.layout.loops
+    r = d.simulate(jit=False)
+    assert r.stats["newton_iterations"] == 0
+    assert r["g.y"][-1] == pytest.approx(0.5 * (1 - math.exp(-2)), rel=1e-8)
