@@ -207,3 +207,24 @@ def test_compile_progress_says_what_happens(tmp_path):
     assert "compiled in" in first.stderr and "from the cache" not in first.stderr
     assert "loading compiled code from the cache" in second.stderr
     assert "loaded from the cache in" in second.stderr
+
+
+def test_a_long_explicit_run_suggests_a_stiff_method(tmp_path, capsys, monkeypatch):
+    """An explicit method that needs very many steps says the diagram may be stiff and
+    names the stiff methods (a DC motor with L = 1e-8 H took 60 million DP54 steps without
+    a word; a hostile review, session 12); a short run says nothing. The threshold is
+    lowered here so that a small stiff lag (time constant 1e-5 s) reaches it quickly."""
+    from spidersim import cli
+    monkeypatch.setattr(cli, "STIFF_HINT_STEPS", 2_000)
+    path = tmp_path / "stiff.yaml"
+    path.write_text("blocks:\n  u: {type: Step}\n  f: {type: TransferFunction, num: [1], "
+                    "den: [1e-5, 1]}\n  s: {type: TransferFunction, num: [1], den: [1, 1]}\n"
+                    "connections:\n  - u.y -> f.u\n  - f.y -> s.u\n"
+                    "simulation: {t_end: 1, method: DP54}\nlog: [s.y]\n")
+    for method, noted in (("DP54", True), ("NDF", False)):
+        assert cli.main(["run", str(path), "--method", method, "--no-plots", "--out",
+                         str(tmp_path / method)]) == 0
+        err = capsys.readouterr().err
+        assert ("if the diagram is stiff" in err) == noted, err
+        if noted:
+            assert "--method NDF" in err
