@@ -84,8 +84,15 @@ def sim_setting(key, v, what, file=None, line=None, text=True):
         if not isinstance(v, str):
             raise DiagramError(f"{what} must be a name, got {v!r}", file=file, line=line)
         return v
+    if type(v) is float or type(v) is int:      # the common case, checked in a few ns
+        val = float(v)
+        if val > 0 and (math.isfinite(val) or (key == "max_step" and not text)) and (
+                key != "rtol" or RTOL_RANGE[0] <= val <= RTOL_RANGE[1]):
+            return val                           # else the checks below say what is wrong
     from ..text.expr import ExprError, evaluate
-    shown = repr(v) if text else described(v)
+
+    def shown():            # only on the way to an error: simulate() checks every call
+        return repr(v) if text else described(v)
     if isinstance(v, (bool, np.bool_)):  # YAML true/false is not a time or a tolerance
         raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got the boolean "
                            f"{bool(v)!r}", file=file, line=line)
@@ -98,12 +105,12 @@ def sim_setting(key, v, what, file=None, line=None, text=True):
             raise TypeError("boolean")
         val = float(val)
     except (ExprError, TypeError, ValueError, OverflowError):
-        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got {shown}",
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got {shown()}",
                            file=file, line=line) from None
     if not val > 0:
         raise DiagramError(f"{what} must be > 0, got {val:g}", file=file, line=line)
     if not math.isfinite(val) and not (key == "max_step" and not text):
-        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be finite, got {shown}"
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be finite, got {shown()}"
                            + (" (a number beyond 1.8e308, such as 1e400, is infinite)"
                               if text else ""), file=file, line=line)
     if key == "rtol":
