@@ -629,7 +629,7 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     _check_diagram(d, "trim")
     if d.layout.n_x > dense_size.MAX_DENSE_STATES:     # least_squares' dense Jacobian
         raise AnalysisError(f"trim solves with a dense {d.layout.n_x}-column Jacobian: at "
-                            f"most {dense_size.MAX_DENSE_STATES} states")
+                            f"most {dense_size.MAX_DENSE_STATES} states", file=d.file)
     targets = trim_targets(d, targets)
     if not (isinstance(derivatives, str) and derivatives == "all"):
         derivatives = _signal_names(derivatives, "trim: derivatives ('all' or states)", d,
