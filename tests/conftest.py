@@ -42,6 +42,8 @@ HEAVY = (
     "test_sweep.py",
     "test_readme.py",
     "service/test_api.py",
+    "service/test_cancel.py",                # a server, a 14 s compile cancelled
+    "multibody/test_native_import.py",       # fresh processes: an arm diagram, user code
     "solver/test_events.py",
     "hostile/test_corpus.py",
     "test_interrupt.py",
