@@ -326,3 +326,26 @@ def test_report_and_summary_keep_the_digits_of_the_times(tmp_path, capsys):
     text = (tmp_path / "o" / "report.txt").read_text()
     assert "t_end: 1.0000001\n" in text and "t_reached: 1.0000001\n" in text
     assert "rtol: 1.5e-07\n" in text
+
+
+def test_report_counts_events_by_block_and_kind(tmp_path, capsys):
+    """A sampled block logs every sample (spider.yaml: 140,011 events, all controller
+    samples in the first 20 shown): report.txt counts the events per block and kind, most
+    frequent first, so the step's one event is visible beside 101 samples."""
+    path = tmp_path / "d.yaml"
+    path.write_text("blocks:\n  s: {type: Step, t_step: 0.55}\n"
+                    "  h: {type: ZeroOrderHold, Ts: 0.01}\nconnections:\n  - s.y -> h.u\n"
+                    "simulation: {t_end: 1}\nlog: [h.y]\n")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-plots"]) == 0
+    text = (tmp_path / "o" / "report.txt").read_text()
+    line = [ln for ln in text.splitlines() if ln.startswith("events by block and kind")]
+    assert line == ["events by block and kind (2): h time 101, s time 1"], text
+
+
+def test_event_counts_of_a_list_and_of_the_compiled_log_agree():
+    from spidersim.solver.result import EventLog, event_counts
+    entries = [(0.0, "h", "time"), (0.1, "s", "time"), (0.1, "h", "time"), (0.2, "b", "impact")]
+    log = EventLog(np.array([e[0] for e in entries]), np.array([0, 1, 0, 2]),
+                   ["h", "s", "b"], ["time", "time", "impact"])
+    expect = [(("h", "time"), 2), (("b", "impact"), 1), (("s", "time"), 1)]
+    assert event_counts(entries) == expect and event_counts(log) == expect

@@ -332,6 +332,11 @@ class Result:
         if self.files:
             lines.append(f"files of this run: {', '.join(self.files)}")
         if self.events:
+            counts = event_counts(self.events)
+            shown = ", ".join(f"{blk} {ev} {n}" for (blk, ev), n in counts[:12])
+            more = f", and {len(counts) - 12} more" if len(counts) > 12 else ""
+            # a sampled block logs every sample: the counts show what else happened
+            lines.append(f"events by block and kind ({len(counts)}): {shown}{more}")
             lines.append(f"event log ({len(self.events)}, first 20):")
             lines += [f"  t = {t:.9g} s  {blk}  {ev}" for t, blk, ev in self.events[:20]]
         return "\n".join(lines) + "\n"
@@ -347,6 +352,20 @@ CSV_BLOCK = 1 << 12
 CSV_MAX_VALUES = 10_000_000
 #: events of a log converted to text (or to tuples) at a time
 EVENT_BLOCK = 1 << 12
+
+
+def event_counts(events):
+    """``[((block, event), count), ...]`` of an event log, most frequent first (ties by
+    name); from the log's arrays when it is an :class:`EventLog` (one count per kind of
+    event: no per-event work or memory beyond the log itself)."""
+    if isinstance(events, EventLog):
+        n = np.bincount(events.code, minlength=len(events.blocks))
+        pairs = [((events.blocks[c], events.kinds[c]), int(n[c]))
+                 for c in np.flatnonzero(n)]
+    else:
+        pairs = list(collections.Counter((blk, ev) for _t, blk, ev in events).items())
+    pairs.sort(key=lambda p: (-p[1], p[0]))
+    return pairs
 
 
 class EventLog(collections.abc.Sequence):
