@@ -173,6 +173,11 @@ def save_figure(fig, path, dpi=110):
     return path
 
 
+#: a bare file name in a results folder: letters, digits, ``_ - .``, not starting with a
+#: dot or a dash, at most 121 characters (plots' ``file:``, the service's routes, the
+#: remote client's downloads)
+BARE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
+
 #: extensions of the files a run writes (the only ones :func:`remove_stale` removes)
 _RESULT_EXT = (".npz", ".csv", ".txt", ".json", ".png", ".svg", ".pdf", ".gif")
 

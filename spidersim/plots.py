@@ -41,7 +41,7 @@ import re
 import numpy as np
 
 from .errors import DiagramError
-from .outputs import atomic_path
+from .outputs import BARE_NAME, atomic_path
 
 def _pyplot():
     """``matplotlib.pyplot``, imported when a figure is drawn (about 0.3 s): checking plot
@@ -79,7 +79,6 @@ def signal_values(result, s):
 
 
 #: plot file names: a bare name inside the output folder, with a known extension
-_PLOT_FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
 PLOT_EXTENSIONS = (".png", ".svg", ".pdf")
 
 
@@ -87,7 +86,7 @@ def check_plot_file(name, kind, what, file=None, line=None):
     """A plot's ``file:`` must be a bare file name (no folder, no ``..``) with an extension
     matplotlib writes (.png, .svg, .pdf; .gif for animations); raise DiagramError."""
     exts = (".gif",) if kind == "animation" else PLOT_EXTENSIONS
-    if not isinstance(name, str) or not _PLOT_FILE.match(name) or ".." in name:
+    if not isinstance(name, str) or not BARE_NAME.match(name) or ".." in name:
         raise DiagramError(f"{what}: 'file' must be a bare file name inside the output "
                            f"folder (letters, digits, _ - .; no folder separators, no '..'), "
                            f"got {name!r}", file=file, line=line)

@@ -49,6 +49,7 @@ from urllib.parse import quote
 import numpy as np
 
 from .errors import SpidersimError, printable
+from .outputs import BARE_NAME
 from .solver.result import Result
 
 FINAL = ("done", "failed", "cancelled")
@@ -74,7 +75,6 @@ DATA_FILES = {"result.npz": "npz", "result.csv": "csv", "report.txt": "txt",
 PLOT_SUFFIXES = (".png", ".gif")
 
 _CHUNK = 2**16
-_FILE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")    # the service's rule
 _JOB_ID = re.compile(r"[A-Za-z0-9_-]{1,128}\Z")
 _STATE = re.compile(r"[a-z_]{1,32}\Z")
 
@@ -564,7 +564,7 @@ class Client:
         out, seen = [], set()
         for kind, names in (("data", data), ("plot", plots)):
             for name in names:
-                bare = isinstance(name, str) and _FILE_NAME.match(name) is not None
+                bare = isinstance(name, str) and BARE_NAME.match(name) is not None
                 if not bare or name in seen:
                     raise RemoteError(
                         f"{url}: the service at {self.url} names a {kind} file "

@@ -36,7 +36,7 @@ _GIF = "[Gg][Ii][Ff]"
 
 def _plot_file(ext):
     """A bare file name of at most 121 characters ending in one of ``ext`` (a regex
-    alternation), as the loader's ``_PLOT_FILE`` and extension check."""
+    alternation), as the loader's ``outputs.BARE_NAME`` and extension check."""
     return rf"^(?=.{{1,121}}$)[A-Za-z0-9_][A-Za-z0-9_.-]*\.({ext})$"
 
 

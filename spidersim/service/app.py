@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 import spidersim
 from spidersim.errors import SpidersimError
+from spidersim.outputs import BARE_NAME
 from spidersim.text.yamlio import lone_surrogate
 
 from .commands import prepare
@@ -43,7 +44,6 @@ from .library import BadName, Library, UnknownModel
 from .store import KeyReused, Store, TooManyJobs
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
-_FILE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,120}\Z")
 
 
 class Limits(BaseModel):
@@ -529,7 +529,7 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
     @app.get("/jobs/{job_id}/plots/{file}")
     def job_plot(job_id: str, file: str, u: User):
         job = own_job(job_id, u)
-        if not _FILE.match(file) or not file.endswith((".png", ".gif")):
+        if not BARE_NAME.match(file) or not file.endswith((".png", ".gif")):
             raise HTTPException(404, f"no plot '{file}'")
         return FileResponse(job_file(job, os.path.join("plots", file)))
 
