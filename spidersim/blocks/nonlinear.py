@@ -221,7 +221,7 @@ class Switch(Block):
               "u2": Port("*", doc="control input"),
               "u3": Port("@y", size=None, doc="passed while u2 < threshold")}
     outputs = {"y": Port("*", size="@u1", feedthrough=("u1", "u2", "u3"), doc="selected input")}
-    modes = {"first": Mode(doc="1 while u1 is passed")}
+    modes = {"first": Mode(initial=1.0, doc="1 while u1 is passed")}
     events = {"switch": Event(0, "u2 crosses the threshold")}
 
     @classmethod
@@ -249,7 +249,14 @@ class Switch(Block):
 
     @staticmethod
     def initialize(t, threshold, u2, first):
-        first[0] = 1.0 if u2[0] >= threshold else 0.0
+        """The side of the threshold ``u2`` is on; exactly on it the current mode is kept:
+        ``u1`` at the start (the initial mode, as ``u2 >= threshold`` says), and after a
+        crossing the side the event chose (``u2`` sits on the threshold at a located
+        crossing: re-deciding there by ``>=`` undid every downward switch)."""
+        if u2[0] > threshold:
+            first[0] = 1.0
+        elif u2[0] < threshold:
+            first[0] = 0.0
 
     @staticmethod
     def guard(t, threshold, u2, zc):

@@ -43,19 +43,53 @@ def zeno_message(block, name, t):
             f"block a rest mode or threshold, or stop the run earlier")
 
 
+#: values of a guard's arming (the loops' ``armed`` arrays): a guard that starts a step
+#: exactly at zero fires when it leaves zero to a side it is armed for. ARMED: either side
+#: (the start, and once the guard has been nonzero); DISARMED: neither (a guard of a block
+#: whose own event has just fired, not the guard that fired); ARMED_UP / ARMED_DOWN: only
+#: back to the side it came from (the guard that fired, left on zero by its crossing: moving
+#: on the way it crossed is the same crossing, turning back is a new one, as in a sliding
+#: mode where the switched output drives the input straight back)
+ARMED, DISARMED, ARMED_UP, ARMED_DOWN = 1.0, 0.0, 2.0, -2.0
+
+
+@njit_borrowed
+def rearm_after(direction_fired):
+    """The arming of a guard that has just fired in ``direction_fired`` (+1 rising, -1
+    falling; 0: it did not fire, only its block did): back the way it came, or neither."""
+    if direction_fired > 0.0:
+        return ARMED_DOWN
+    if direction_fired < 0.0:
+        return ARMED_UP
+    return DISARMED
+
+
+@njit_borrowed
+def leaves_armed(armed, b):
+    """Whether a guard at zero with arming ``armed`` fires by leaving zero to ``b``'s side."""
+    if armed == ARMED:
+        return True
+    if b > 0.0:
+        return armed == ARMED_UP
+    if b < 0.0:
+        return armed == ARMED_DOWN
+    return False
+
+
 @njit_borrowed
 def crossings(g_old, g_new, direction, armed, out):
     """Indices of the guards that crossed into ``out`` (ascending); returns how many.
 
     A guard that starts the step exactly at zero crosses when it leaves zero in the allowed
-    direction, unless it is not ``armed`` (nonzero): a guard zeroed by its own block's event
-    has to leave zero before it can fire again.
+    direction to a side it is armed for (:data:`ARMED`: a guard zeroed by its own block's
+    event has to leave zero before it can fire again, except back the way it came).
     """
     k = 0
     for i in range(g_old.size):
         a, b, d = g_old[i], g_new[i], direction[i]
-        up = (a < 0.0 and b >= 0.0) or (a == 0.0 and armed[i] and b > 0.0)
-        down = (a > 0.0 and b <= 0.0) or (a == 0.0 and armed[i] and b < 0.0)
+        z = a == 0.0 and leaves_armed(armed[i], b)
+        up = (a < 0.0 and b >= 0.0) or (z and b > 0.0)
+        down = (a > 0.0 and b <= 0.0) or (z and b < 0.0)
         if (d >= 0.0 and up) or (d <= 0.0 and down):
             out[k] = i
             k += 1
@@ -66,8 +100,9 @@ def crossings(g_old, g_new, direction, armed, out):
 def left_zero_unseen(g_old, g_new, direction, armed, g_probe):
     """The first guard that returned to its firing side unseen within a step, or -1.
 
-    A guard that had not left zero (``armed`` 0, exactly zero at the step start) and ends
-    the step on its firing side is a candidate: it may have left zero the other way and come
+    A guard exactly at zero at the step start that ends the step on its firing side
+    without firing (:func:`leaves_armed` false: it had not left zero since its block's
+    event) is a candidate: it may have left zero the other way and come
     back (a ball bouncing off the floor and landing again inside one step), a crossing that
     :func:`crossings` cannot see. ``g_probe`` holds the guards a short Euler step along
     ``f(t, x)`` after the start: a candidate that is there on the other side of zero did
@@ -78,7 +113,7 @@ def left_zero_unseen(g_old, g_new, direction, armed, g_probe):
     """
     for i in range(g_old.size):
         b, d, q = g_new[i], direction[i], g_probe[i]
-        if g_old[i] == 0.0 and armed[i] == 0.0 and b != 0.0 and (
+        if g_old[i] == 0.0 and not leaves_armed(armed[i], b) and b != 0.0 and (
                 d == 0.0 or (b > 0.0) == (d > 0.0)) and q != 0.0 and (q > 0.0) != (b > 0.0):
             return i
     return -1
@@ -90,7 +125,7 @@ def zero_start_candidates(g_old, g_new, direction, armed):
     test before the probe is evaluated."""
     for i in range(g_old.size):
         b, d = g_new[i], direction[i]
-        if g_old[i] == 0.0 and armed[i] == 0.0 and b != 0.0 and (
+        if g_old[i] == 0.0 and not leaves_armed(armed[i], b) and b != 0.0 and (
                 d == 0.0 or (b > 0.0) == (d > 0.0)):
             return True
     return False
@@ -100,7 +135,7 @@ def crossed(g_old, g_new, direction, armed=None):
     """Array of the guards that crossed zero in the allowed direction over a step (see
     :func:`crossings`); ``armed`` defaults to none armed."""
     if armed is None:
-        armed = np.zeros(len(g_old), dtype=np.bool_)
+        armed = np.full(len(g_old), DISARMED)
     out = np.empty(len(g_old), dtype=np.int64)
     return out[:crossings(np.asarray(g_old, float), np.asarray(g_new, float),
                           np.asarray(direction, float), armed, out)]
@@ -124,11 +159,17 @@ def locate(gfun, t_a, t_b, g_a, xtol):
         # crossing is at t_a, within round-off
         return t_a
     r = brentq(gfun, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
-    for _ in range(8):
+    # the far side: a few nudges of xtol, then growing ones (a guard fed by an algebraic loop
+    # solved to its tolerance from a warm start stays on its old side a little past the
+    # root; falling back to t_b put such an event up to a whole step late)
+    dr = xtol
+    for k in range(LOCATE_MAX_ITER):
         g = gfun(r)
         if g == 0.0 or np.sign(g) != np.sign(g_a) or r >= t_b:
             return r
-        r = min(t_b, r + xtol)
+        r = min(t_b, r + dr)
+        if k >= 7:
+            dr *= 2.0
     return t_b
 
 

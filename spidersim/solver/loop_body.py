@@ -25,6 +25,7 @@ from .loop_state import (  # noqa: F401
     CHATTER_COUNT, DONE, EVENTS_FULL, FAIL_CHATTER, FAIL_NONFINITE, FAIL_SETTLE,
     FAIL_SMALL_STEP, FAIL_STALL, FAIL_START, FAIL_TIME_EVENTS, FAIL_ZENO, F_ATOL, F_CHATTER_WINDOW,
     F_DT, F_FIRST, F_H, F_MAXSTEP, F_RTOL, F_T, F_T0, F_TEND, F_TFAIL, G_ARMED, G_BEFORE,
+    G_FIRED,
     G_NEW, G_NONE, G_OLD, G_TIMES, G_TMP, I_BLOCK, I_EVENTS, I_FRESH, I_GRID, I_NEW_STEPS,
     I_NFEV, I_NG, I_OVERFLOW, I_REJECTED, I_ROWS, I_SEGMENTS, I_STARTED, I_STEPS, I_TIMED,
     I_TINY, I_METHOD, I_NJAC, I_NLU, I_JAGE, F_HLU, F_JAC_MAX_AGE, F_JAC_REJECTIONS,
@@ -196,6 +197,7 @@ def _settle(fn, t, x, G, g_dir, g_block, bmask, ev_t, ev_i, ist,
                 if G[G_TMP, i] != G[G_BEFORE, i] else 1.0
             _sf.apply_event(fn, t, x, sig, p, modes, i, d)
             _log(ev_t, ev_i, ist, t, i, KIND_STATE, int(d))
+            G[G_FIRED, i] = d
         for j in range(m):
             bmask[g_block[hit[j]]] = 1
         _sf.initialize(fn, t, x, sig, p, modes)
@@ -467,6 +469,7 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
         _row(fn, t_ev, xs, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)
     _sf.guards(fn, t_ev, xs, sig, p, modes, G[G_BEFORE])
     bmask[:] = 0
+    G[G_FIRED, :ng] = 0.0
     window = fst[F_CHATTER_WINDOW]
     for j in range(nh):
         if G[G_TIMES, j] > t_ev:
@@ -476,6 +479,7 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
             if G[G_NEW, i] != G[G_OLD, i] else 1.0
         _sf.apply_event(fn, t_ev, xs, sig, p, modes, i, d)
         _log(ev_t, ev_i, ist, t_ev, i, KIND_STATE, int(d))
+        G[G_FIRED, i] = d
         b = g_block[i]
         c = int(chat[b, CHATTER_COUNT])
         if c >= CHATTER_COUNT - 1:      # the 50th most recent event of this block
@@ -494,8 +498,9 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
     code = _settle(fn, t_ev, xs, G, g_dir, g_block, bmask, ev_t,
                   ev_i, ist, hit, sig, p, modes)
     for i in range(ng):                  # blocks that fired: their guards must leave zero
-        if bmask[g_block[i]]:
-            G[G_ARMED, i] = 0.0
+        if bmask[g_block[i]]:            # (a guard that fired may turn back at once)
+            G[G_ARMED, i] = _events.rearm_after(G[G_FIRED, i])
+        G[G_FIRED, i] = 0.0
     return t_ev, code
 
 

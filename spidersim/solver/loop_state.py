@@ -37,8 +37,10 @@ F_JAC_MAX_AGE, F_JAC_REJECTIONS, F_HOLD_MAX = 12, 13, 14
 F_HCAP = 15
 N_FST = 16
 # rows of the guard work array ``G``
-G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE = range(7)
-N_G_ROWS = 7
+# (G_ARMED: :data:`spidersim.solver.events.ARMED` and its kin; G_FIRED: the direction a guard
+# fired in at the event instant being applied, 0 if it did not)
+G_OLD, G_NEW, G_TMP, G_ARMED, G_BEFORE, G_TIMES, G_NONE, G_FIRED = range(8)
+N_G_ROWS = 8
 # columns of the event log ``ev_i``: guard or timed-block index, kind, direction
 KIND_STATE, KIND_TIME = 0, 1
 

@@ -28,9 +28,9 @@ import time
 import numpy as np
 
 from ..errors import AlgebraicLoopError, IntegrationError
-from .events import (CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT, STALL_STEP,
+from .events import (ARMED, CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT, STALL_STEP,
                      UNSEEN_PROBE, UNSEEN_STEP, crossed, crossings, left_zero_unseen, locate,
-                     zeno_message, zero_start_candidates)
+                     rearm_after, zeno_message, zero_start_candidates)
 from . import record_budget
 from .result import Result
 
@@ -133,7 +133,7 @@ class SciPyLoop:
         self.tiny = 0                  # consecutive stalled steps
         n_g = self.n_g = system.n_g
         self.directions = np.array([d for _, _, d in system.event_table], dtype=float)
-        self.armed = np.ones(n_g, dtype=bool)
+        self.armed = np.full(n_g, ARMED)      # events.ARMED and its kin, per guard
         self.h_cap = None                 # max_step of the next segment's first solver
         self.armed_all = True
         self.hit_buf = np.empty(max(1, n_g), dtype=np.int64)
@@ -206,7 +206,7 @@ class SciPyLoop:
                     f"time events keep firing at t = {t:.9g} s without time advancing "
                     f"(blocks: {', '.join(fired) or 'none'})", partial=self._partial())
         if n:
-            self._settle(t, x, g_before, timed_blocks)
+            self._settle(t, x, g_before, timed_blocks, {})
 
     # -- state events -------------------------------------------------------------------
 
@@ -245,15 +245,17 @@ class SciPyLoop:
         disarm the blocks that fired."""
         s = self.system
         g_before = s.guards(t_ev, x_ev)
+        directions = {}                # guard -> the direction it fired in
         for i in sorted(now):
             block, name, _d = s.event_table[i]
-            s.apply_event(t_ev, x_ev, int(i), np.sign(g_new[i] - g_old[i]) or 1.0)
+            directions[i] = np.sign(g_new[i] - g_old[i]) or 1.0
+            s.apply_event(t_ev, x_ev, int(i), directions[i])
             self._log([(float(t_ev), block, name)])
             self._chatter(block, name, t_ev, x_ev)
         s.initialize(t_ev, x_ev)
         fired = {s.event_table[i][0] for i in now}
-        self._settle(t_ev, x_ev, g_before, fired)
-        self._disarm(fired)
+        self._settle(t_ev, x_ev, g_before, fired, directions)
+        self._disarm(fired, directions)
 
     def _state_events(self, solver, t_old, g_old, g_new):
         """Locate and apply the earliest crossing of the last step; return the event's
@@ -284,20 +286,22 @@ class SciPyLoop:
         self._apply(now, t_ev, x_ev, g_old, g_new)
         return t_ev, x_ev
 
-    def _disarm(self, blocks):
-        """Guards of blocks that have just fired must leave zero before firing again."""
+    def _disarm(self, blocks, directions):
+        """Guards of blocks that have just fired must leave zero before firing again; a
+        guard that fired (``directions``: guard -> the direction it fired in) may fire at
+        once back the way it came (:func:`.events.rearm_after`)."""
         for i, (blk, _n, _d) in enumerate(self.system.event_table):
             if blk in blocks:
-                self.armed[i] = False
+                self.armed[i] = rearm_after(directions.get(i, 0.0))
                 self.armed_all = False
 
     def _rearm(self, g):
         """A disarmed guard is armed again once it has left zero."""
         if not self.armed_all:
-            self.armed |= g != 0.0
-            self.armed_all = bool(self.armed.all())
+            self.armed[g != 0.0] = ARMED
+            self.armed_all = bool((self.armed == ARMED).all())
 
-    def _settle(self, t, x, g_before, fired_blocks):
+    def _settle(self, t, x, g_before, fired_blocks, directions):
         """Fire the crossings caused by a jump at an event instant: a guard of another block
         that was on one side just before the event and is on the other just after it (a
         step input that jumps past a corner). Guards of blocks whose own event has just
@@ -314,7 +318,8 @@ class SciPyLoop:
                 return
             for i in hits:
                 block, name, _d = s.event_table[i]
-                s.apply_event(t, x, int(i), np.sign(g_after[i] - g_before[i]) or 1.0)
+                directions[i] = np.sign(g_after[i] - g_before[i]) or 1.0
+                s.apply_event(t, x, int(i), directions[i])
                 self._log([(float(t), block, name)])
                 fired_blocks.add(block)
             s.initialize(t, x)
@@ -470,6 +475,8 @@ class SciPyLoop:
         if self.h_cap is not None:                 # retrying an unseen return: shorter
             kw = dict(kw, max_step=min(kw.get("max_step", np.inf), self.h_cap))
             self.h_cap = None
+        if kw.get("first_step") is not None and kw["first_step"] > t_seg - t:
+            kw = dict(kw, first_step=t_seg - t)    # SciPy refuses one beyond the segment
         try:
             solver = self.cls(s.rhs, t, x, t_seg, **kw)
         except ValueError as exc:
@@ -536,6 +543,10 @@ class SciPyLoop:
                 interrupted = True
                 break
             if outcome in ("event", "retry"):
+                if t >= self.t_end and s.next_time(t) <= t + _tol(t):
+                    # a state event exactly at t_end: the time events due there still fire
+                    self._fire_due(t, x)
+                    self._record_at(t, x)
                 continue
             if t >= self.t_end and s.next_time(t) > t + _tol(t):
                 break
