@@ -22,6 +22,8 @@ import pytest
 import spidersim
 from spidersim.service.runner import CANCEL_GRACE, _dask_names, _dask_task
 
+from spidersim.service.store import Store
+
 from .conftest import Server, add_user, wait_state
 
 
@@ -57,12 +59,14 @@ def _npz(http, job):
 
 
 def test_cancel_and_wall_time_limit_keep_the_data_on_dask(tmp_path, models_dir, cluster):
+    from distributed import Client
     """(a) a slow run cancelled part-way ends 'cancelled' within CANCEL_GRACE (stopped by
     the Event, not given up), saying at what simulated time; result.npz ends there and its
     rows equal a local interpreted run to that time; (b) the next job runs to its end on
     the same single-threaded worker (the cancelled task is not still running); (c) a slow
     run past --job-timeout 5 fails saying so, with its rows up to the progress reached and
-    meta.json saying 'interrupted'."""
+    meta.json saying 'interrupted'; (d) a server stop fails the running job without data
+    (as the local pool's) and its task stops on the cluster (its cancel Event set)."""
     data = tmp_path / "data"
     srv = Server(data, models_dir, ["--scheduler", cluster.scheduler_address, "--no-jit",
                                     "--max-t-end", "1000", "--job-timeout", "5"])
@@ -107,8 +111,17 @@ def test_cancel_and_wall_time_limit_keep_the_data_on_dask(tmp_path, models_dir, 
         t, _ = _npz(http, lim)
         assert t[-1] == jl["progress"]
         assert http.get(f"/jobs/{lim}/result.json").json()["status"] == "interrupted"
+
+        last = http.post("/jobs", json={"model": "slow", "t_end": 900}).json()["id"]
+        assert _wait_progress(http, last)["state"] == "running"
     finally:
         srv.stop()
+    assert Store(str(data)).get_job(last)["message"] == "server stopped while running"
+    t_stop = time.time()
+    with Client(cluster.scheduler_address) as c:     # the task stopped on the cluster too:
+        assert c.submit(abs, -1, pure=False).result(timeout=20) == 1   # its thread is free
+    print(f"worker thread free {time.time() - t_stop:.2f} s after the server stopped")
+    assert time.time() - t_stop < 1.5               # not at its own 5 s limit (> 3 s later)
 
 
 def test_limit_event_stops_the_task_and_it_clears_its_state(cluster, models_dir):
