@@ -32,7 +32,7 @@ task that returns the files' bytes; progress goes through a ``distributed.Variab
 Dask cannot stop a running task from outside, so stopping is cooperative as in the local pool,
 through two ``distributed.Event`` named after the job (:func:`_dask_names`) that the task's
 ``should_stop`` reads at most every :data:`STOP_READ` s (a round trip each time the loop
-asks made runs 50-200 times slower):
+asks made runs 50-300 times slower):
 
 * *cancel* sets the job's cancel Event; the run stops, returns its rows so far as files, the
   runner writes them and the job ends ``cancelled`` saying at what simulated time. A run
