@@ -48,7 +48,7 @@ def _meta(r, status, message):
                           else str(v)) for k, v in r.stats.items()}})
 
 
-def run_job(task, report=None, out=None, cancel=None, stopped=None):
+def run_job(task, report=None, out=None, cancel=None, stopped=None, limit=None):
     """Run ``task`` = ``{"id", "model", "path", "request", "jit"}``.
 
     ``report(t)`` receives the simulated time reached every :data:`PROGRESS_EVERY` seconds.
@@ -57,7 +57,10 @@ def run_job(task, report=None, out=None, cancel=None, stopped=None):
     ``cancel() -> bool`` (a flag check: the loop calls it every few steps) the run stops
     when it turns true, status ``"cancelled"``, keeping its rows and writing its files as a
     finished run's; true before the run begins: nothing is run or written, status
-    ``"cancelled"`` with ``t_reached`` None. ``stopped(t)`` is called once the
+    ``"cancelled"`` with ``t_reached`` None. ``limit() -> bool``: a wall-time limit counted
+    elsewhere (the Dask runner's, from the job's submission; read as ``cancel``): when it
+    turns true the run stops as at ``task["wall_limit"]``, status ``"interrupted"``.
+    ``stopped(t)`` is called once the
     integration loop has returned (before the files are written), with the time reached. A run stopped
     at the recording budget (``SPIDERSIM_RECORD_LIMIT_MB``, which the service sets per
     worker) keeps its rows too, status ``"failed"``. At most :data:`MAX_EVENTS` events
@@ -73,7 +76,7 @@ def run_job(task, report=None, out=None, cancel=None, stopped=None):
         return {"status": "cancelled", "message": "", "plot_error": "", "t_reached": None,
                 "wall_time": 0.0, "t_end": t_end}
     t0 = time.perf_counter()
-    r, status, message = _simulate(model, d, t_end, task, report, cancel)
+    r, status, message = _simulate(model, d, t_end, task, report, cancel, limit)
     if stopped is not None:
         stopped(float(r.t[-1]) if len(r.t) else 0.0)
     message = _cap_events(r, message)
@@ -92,9 +95,9 @@ def run_job(task, report=None, out=None, cancel=None, stopped=None):
             shutil.rmtree(folder, ignore_errors=True)
 
 
-def _simulate(model, d, t_end, task, report, cancel=None):
+def _simulate(model, d, t_end, task, report, cancel=None, limit=None):
     """``(result, status, message)`` of the run: ``"ok"``, ``"interrupted"`` (the wall-time
-    limit, rows kept), ``"cancelled"`` (``cancel()`` turned true, rows kept) or
+    limit, its own or ``limit()``, rows kept), ``"cancelled"`` (``cancel()`` turned true, rows kept) or
     ``"failed"`` (an integration failure or the recording budget, rows kept);
     ``report(t)`` every :data:`PROGRESS_EVERY` s of wall time."""
     last = [0.0]
@@ -105,7 +108,7 @@ def _simulate(model, d, t_end, task, report, cancel=None):
             last[0] = now
             report(float(t))
 
-    should_stop = _stop_check(task.get("wall_limit"), cancel)
+    should_stop = _stop_check(task.get("wall_limit"), _either(cancel, limit))
     status, message = "ok", ""
     try:
         r = d.simulate(t_end=t_end, jit=task.get("jit", True), progress=progress,
@@ -135,6 +138,13 @@ def _stop_check(limit, cancel):
     if cancel is None:
         return lambda: time.monotonic() > deadline
     return lambda: cancel() or time.monotonic() > deadline
+
+
+def _either(a, b):
+    """``() -> bool``, true when ``a()`` or ``b()`` is (either may be None; None if both)."""
+    if a is None or b is None:
+        return a if b is None else b
+    return lambda: a() or b()
 
 
 def _note(message, note):

@@ -29,7 +29,24 @@ server's end of its pipe closes or its parent changes (server killed).
 
 Dask (``--scheduler ADDR``): the same :func:`~spidersim.service.execute.run_job` runs as a Dask
 task that returns the files' bytes; progress goes through a ``distributed.Variable`` per job.
-Dask cannot stop a running task: cancel marks the job cancelled and drops its result.
+Dask cannot stop a running task from outside, so stopping is cooperative as in the local pool,
+through two ``distributed.Event`` named after the job (:func:`_dask_names`) that the task's
+``should_stop`` reads at most every :data:`STOP_READ` s (a round trip each time the loop
+asks made runs 50-300 times slower):
+
+* *cancel* sets the job's cancel Event; the run stops, returns its rows so far as files, the
+  runner writes them and the job ends ``cancelled`` saying at what simulated time. A run
+  whose loop has not stopped :data:`CANCEL_GRACE` s later (the task not begun yet, or still
+  loading or compiling its model) is given up: its future is cancelled, the job ends
+  cancelled without data; a task already running goes on until it reaches its loop, finds
+  the Event set and stops (holding its worker thread until then).
+* the *wall-time limit* (counted from the submission) sets the limit Event: the rows so far
+  come back, the job fails saying which limit, as in the local pool; the task is given up
+  (no data) only :data:`KILL_GRACE` s later.
+* a server stop gives the running tasks up (the job fails, no data, as a killed worker's)
+  with their cancel Event set, so that they stop on the cluster too.
+
+A task removes its Events and Variable from the scheduler when it ends.
 """
 from __future__ import annotations
 
@@ -53,6 +70,10 @@ KILL_GRACE = 60.0
 #: s after a cancel before a run that has not stopped its integration loop (still loading
 #: or compiling its model) is killed
 CANCEL_GRACE = 3.0
+#: s of wall time between two reads of a Dask job's stop Events by its run
+STOP_READ = 0.3
+STOPPED = "stopped"  # the Dask task's progress Variable, once its loop has returned
+GIVEN_UP = object()  # a Dask job finished without its task's result
 
 
 def _worker_main(conn, parent_pid, record_mb=None, cancel_flag=None):
@@ -95,16 +116,16 @@ def _worker_main(conn, parent_pid, record_mb=None, cancel_flag=None):
 
 
 def _cancel_overdue(now, t_cancel, t_stopped):
-    """Why a cancelled run is to be killed at ``now`` (monotonic s), or None: its loop has
-    not stopped :data:`CANCEL_GRACE` s after the cancel at ``t_cancel``, or it stopped at
-    ``t_stopped`` and has not written its files :data:`KILL_GRACE` s later."""
+    """Which grace a cancelled run has overrun at ``now`` (monotonic s), or None:
+    ``"stop"``, its loop has not stopped :data:`CANCEL_GRACE` s after the cancel at
+    ``t_cancel``; ``"write"``, it stopped at ``t_stopped`` and has not written its files
+    :data:`KILL_GRACE` s later."""
     if t_cancel is None:
         return None
     if t_stopped is None and now - t_cancel > CANCEL_GRACE:
-        return (f"the run did not stop within {CANCEL_GRACE:g} s (its model was still being "
-                f"loaded or compiled): killed")
+        return "stop"
     if t_stopped is not None and now - t_stopped > KILL_GRACE:
-        return f"its files were not written within {KILL_GRACE:g} s: killed"
+        return "write"
     return None
 
 
@@ -214,6 +235,11 @@ class Runner:
 class LocalRunner(Runner):
     """Worker processes on this machine, one per slot."""
 
+    #: why a cancelled run was killed, by :func:`_cancel_overdue`'s answer
+    OVERDUE = {"stop": f"the run did not stop within {CANCEL_GRACE:g} s (its model was "
+                       f"still being loaded or compiled): killed",
+               "write": f"its files were not written within {KILL_GRACE:g} s: killed"}
+
     def __init__(self, store, library, workers=2, **kw):
         super().__init__(store, library, workers, **kw)
         self._ctx = mp.get_context("spawn")
@@ -314,7 +340,7 @@ class LocalRunner(Runner):
                 t_cancel = now
             why = _cancel_overdue(now, t_cancel, t_stopped)
             if why:
-                self._cancel_killed(k, jid, why)
+                self._cancel_killed(k, jid, self.OVERDUE[why])
                 return
             if now - t0 > self.job_timeout + KILL_GRACE:
                 self._kill(k)               # it did not stop at the limit: no data
@@ -324,19 +350,78 @@ class LocalRunner(Runner):
                 return
 
 
-def _dask_task(task):
-    """``run_job`` on a Dask worker; progress through a Variable named after the job."""
-    from distributed import Variable
-    var = Variable(f"spidersim-progress-{task['id']}")
+def _dask_names(jid):
+    """Names of a Dask job's shared state on the scheduler: ``progress`` (a
+    ``distributed.Variable`` the task sets: the time reached, then ``[STOPPED, t]`` once its
+    loop has returned), ``cancel`` and ``limit`` (two ``distributed.Event`` the runner
+    sets to stop the run: a cancel, the wall-time limit)."""
+    return {k: f"spidersim-{k}-{jid}" for k in ("progress", "cancel", "limit")}
 
-    def report(t):
-        var.set(t)
-    res = run_job(task, report, out=None)
-    return res
+
+def _event_reader(event, every=STOP_READ):
+    """``() -> bool``: whether ``event`` (a ``distributed.Event``) is set, asked of the
+    scheduler at most every ``every`` s of wall time (the loop asks every few steps: a
+    network round trip each would slow it) and true from the first answer that says so. A
+    read that fails counts as not set (the run goes on)."""
+    state = {"next": 0.0, "set": False}
+
+    def read():
+        now = time.monotonic()
+        if not state["set"] and now >= state["next"]:
+            state["next"] = now + every
+            try:
+                state["set"] = bool(event.is_set())
+            except Exception:
+                pass
+        return state["set"]
+    return read
+
+
+def _dask_task(task):
+    """``run_job`` on a Dask worker: progress and the loop's stop through the job's
+    :func:`_dask_names` (its ``should_stop`` reads the cancel and limit Events); the job's
+    state on the scheduler is removed when the task ends (a task the runner gave up on is
+    still running and stops at the Event it finds set)."""
+    from distributed import Event, Variable
+    names = _dask_names(task["id"])
+    var = Variable(names["progress"])
+    cancel, limit = Event(names["cancel"]), Event(names["limit"])
+    try:
+        return run_job(task, var.set, out=None, cancel=_event_reader(cancel),
+                       limit=_event_reader(limit),
+                       stopped=lambda t: var.set([STOPPED, t]))
+    finally:
+        _dask_clear(var, cancel, limit)
+
+
+def _give_up(fut, cancel):
+    """Drop a Dask job's result: set its cancel Event (a running task cannot be stopped
+    from outside; it stops at its next read of the Event) and cancel its future."""
+    try:
+        cancel.set()
+    except Exception:
+        pass
+    fut.cancel()
+
+
+def _dask_clear(var, *events):
+    """Remove a job's Variable and Events from the scheduler (best effort)."""
+    for f in [var.delete] + [e.clear for e in events]:
+        try:
+            f()
+        except Exception:
+            pass
 
 
 class DaskRunner(Runner):
     """Jobs as tasks on an existing Dask cluster (the one sweeps use)."""
+
+    #: why a cancelled run's result was dropped, by :func:`_cancel_overdue`'s answer
+    OVERDUE = {"stop": f"the Dask task did not stop its run within {CANCEL_GRACE:g} s (not "
+                       f"begun yet, or its model was still being loaded or compiled): "
+                       f"its result is dropped",
+               "write": f"its files did not come back within {KILL_GRACE:g} s: its result "
+                        f"is dropped"}
 
     def __init__(self, store, library, scheduler, slots=None, **kw):
         from distributed import Client
@@ -358,56 +443,104 @@ class DaskRunner(Runner):
             pass
 
     def _run(self, k, job):
-        from distributed import Variable
-        from distributed import TimeoutError as DTimeout
+        from distributed import Event, Variable
         jid = job["id"]
         task = self._task(job)
         task["out"] = None
+        names = _dask_names(jid)
+        var = Variable(names["progress"], client=self.client)
+        cancel = Event(names["cancel"], client=self.client)
+        limit = Event(names["limit"], client=self.client)
         fut = self.client.submit(_dask_task, task, key=f"spidersim-{jid}", pure=False)
-        var = Variable(f"spidersim-progress-{jid}", client=self.client)
-        t0 = time.monotonic()
         try:
-            while True:
-                try:
-                    res = fut.result(timeout=POLL * 5)
-                    break
-                except DTimeout:
-                    pass
-                except SpidersimError as exc:
-                    self.store.finish(jid, "failed",
-                                      self.library.models[job["model"]].public_message(exc))
-                    return
-                except Exception as exc:
-                    self.store.finish(jid, "failed", f"Dask task failed: "
-                                      f"{type(exc).__name__}: {exc}")
-                    return
-                try:
-                    self.store.set_progress(jid, var.get(timeout=0.01))
-                except Exception:
-                    pass
-                if self._stopping or self.store.cancel_requested(jid):
-                    fut.cancel()
-                    self.store.finish(jid, "cancelled" if not self._stopping else "failed",
-                                      "cancelled while running (the Dask task runs to its "
-                                      "end; its result is dropped)" if not self._stopping
-                                      else "server stopped while running")
-                    return
-                if time.monotonic() - t0 > self.job_timeout:
-                    fut.cancel()
-                    self.store.finish(jid, "failed", f"stopped: the wall-time limit of "
-                                      f"{self.job_timeout:g} s per job was reached")
-                    return
-        finally:
+            res = self._await(job, fut, var, cancel, limit)
+        except BaseException:
+            _give_up(fut, cancel)
+            raise
+        if res is GIVEN_UP:                 # it stops at its Event and clears it when it ends
+            return
+        _dask_clear(var, cancel, limit)
+        if res is None:                     # finished in the store already
+            return
+        self._write_files(jid, res.pop("files", {}))
+        self._finish_result(job, res)
+
+    def _await(self, job, fut, var, cancel, limit):
+        """The task's result; None once the job is finished in the store because the task
+        failed; :data:`GIVEN_UP` once it is finished because the server stops or the run
+        did not return in time after a cancel or the wall-time limit (the future is
+        cancelled, the cancel Event set: a running task stops at it). A cancel or the
+        limit sets the job's Event and waits for the run to return its data, with the
+        local pool's graces (:func:`_cancel_overdue`; the limit's :data:`KILL_GRACE`)."""
+        from distributed import TimeoutError as DTimeout
+        jid = job["id"]
+        t0 = time.monotonic()
+        t_cancel = t_stopped = None
+        limited = False
+        while True:
             try:
-                var.delete()
-            except Exception:
+                return fut.result(timeout=POLL)
+            except DTimeout:
                 pass
+            except SpidersimError as exc:
+                self.store.finish(jid, "failed",
+                                  self.library.models[job["model"]].public_message(exc))
+                return None
+            except Exception as exc:
+                self.store.finish(jid, "failed", f"Dask task failed: "
+                                  f"{type(exc).__name__}: {exc}")
+                return None
+            t = self._progress(jid, var)
+            if t is not None and t_stopped is None:
+                t_stopped = time.monotonic()
+            now = time.monotonic()
+            if self._stopping:              # no data, as the local pool's killed worker
+                _give_up(fut, cancel)
+                self.store.finish(jid, "failed", "server stopped while running")
+                return GIVEN_UP
+            if t_cancel is None and self.store.cancel_requested(jid):
+                cancel.set()                # the run stops at its next read of the Event
+                t_cancel = now
+            why = _cancel_overdue(now, t_cancel, t_stopped)
+            if why:
+                _give_up(fut, cancel)
+                self.store.finish(jid, "cancelled",
+                                  f"cancelled while running: {self.OVERDUE[why]}, no data")
+                return GIVEN_UP
+            if not limited and now - t0 > self.job_timeout:
+                limit.set()
+                limited = True
+            if now - t0 > self.job_timeout + KILL_GRACE:
+                _give_up(fut, cancel)
+                self.store.finish(jid, "failed", f"stopped: the wall-time limit of "
+                                  f"{self.job_timeout:g} s per job was reached (the Dask "
+                                  f"task did not return within {KILL_GRACE:g} s: its "
+                                  f"result is dropped, no data)")
+                return GIVEN_UP
+
+    def _progress(self, jid, var):
+        """Relay the task's progress to the store; the time its loop stopped at once it
+        says so, else None."""
+        try:
+            val = var.get(timeout=0.01)
+        except Exception:
+            return None
+        if isinstance(val, (list, tuple)) and len(val) == 2 and val[0] == STOPPED:
+            return float(val[1])
+        try:
+            self.store.set_progress(jid, float(val))
+        except (TypeError, ValueError):
+            pass
+        return None
+
+    def _write_files(self, jid, files):
+        """The files a Dask task returned (``{relative name: bytes}``) into the job's
+        folder (a name that would leave it is skipped)."""
         out = self.store.job_dir(jid)
-        for rel, data in res.pop("files", {}).items():
+        for rel, data in files.items():
             p = os.path.normpath(os.path.join(out, rel))
             if not p.startswith(out + os.sep):
                 continue
             os.makedirs(os.path.dirname(p), exist_ok=True)
             with open(p, "wb") as fh:
                 fh.write(data)
-        self._finish_result(job, res)
