@@ -95,18 +95,35 @@ def test_deleting_a_job_frees_its_space_and_its_results_are_gone(tmp_path):
 
 def test_expired_jobs_no_longer_count(tmp_path):
     """A job finished longer ago than keep_days stops counting at once (before the sweeper
-    removes its files), and the sweep sets its bytes to 0."""
+    removes its files: it runs every tenth of keep_days, at most every 10 min), and the
+    sweep marks it expired with 0 bytes."""
     with app(tmp_path, max_user_mb=1.0, max_record_mb=0.2) as (c, store):
         jid = finished_job(store, 900_000)
         assert c.post("/jobs", json=BODY).status_code == 507
-    with sqlite3.connect(store.path) as db:
-        db.execute("UPDATE jobs SET finished = ? WHERE id = ?", (time.time() - 2.1 * 86400,
-                                                                   jid))
-    with app(tmp_path, max_user_mb=1.0, max_record_mb=0.2, keep_days=2) as (c, store):
-        assert store.get_job(jid)["expired"] and store.get_job(jid)["bytes"] == 0
+        with sqlite3.connect(store.path) as db:
+            db.execute("UPDATE jobs SET finished = ? WHERE id = ?",
+                       (time.time() - 7.01 * 86400, jid))
+        assert os.path.isdir(store.job_dir(jid))             # not swept yet
         assert c.post("/jobs", json=BODY).status_code == 202
-    with app(tmp_path, max_user_mb=1.0, max_record_mb=0.2, keep_days=3) as (c, store):
+    with app(tmp_path, max_user_mb=1.0, max_record_mb=0.2, keep_days=7) as (c, store):
+        assert store.get_job(jid)["expired"] and store.get_job(jid)["bytes"] == 0
+        assert not os.path.exists(store.job_dir(jid))
+    with app(tmp_path, max_user_mb=1.0, max_record_mb=0.2, keep_days=30) as (c, store):
         assert c.get("/usage").json()["stored_bytes"] == 0     # expired stays expired
+
+
+def test_a_job_left_running_by_a_stop_counts_the_files_it_wrote(tmp_path):
+    """At start-up a job the stopped server left running is failed with the bytes its
+    folder holds (a run stopped while writing its files leaves some)."""
+    store = Store(str(tmp_path))
+    store.add_user("eve")
+    job, _ = store.create_job(1, "servo", dict(BODY), 0.05, "x", "h")
+    store.claim_next()
+    os.makedirs(store.job_dir(job["id"]))
+    with open(os.path.join(store.job_dir(job["id"]), "result.npz"), "wb") as fh:
+        fh.write(bytes(1234))
+    assert Store(str(tmp_path)).recover() == (1, 0)
+    assert store.get_job(job["id"])["bytes"] == 1234
 
 
 def test_usage_route_gives_the_figures(tmp_path):
@@ -187,9 +204,15 @@ def test_folder_bytes_of_a_tree(tmp_path):
     assert folder_bytes(str(tmp_path)) == 15
 
 
-def test_serve_refuses_a_quota_below_one_job(tmp_path, capsys):
-    """--max-user-mb below --max-record-mb could accept no job: exit 2 saying so."""
+def test_serve_refuses_a_quota_below_one_job(tmp_path, capsys, monkeypatch):
+    """--max-user-mb below --max-record-mb could accept no job: exit 2 saying so (a server
+    it would start raises instead of serving)."""
+    from spidersim import service
     from spidersim.cli import main
+
+    def serve(*a, **k):
+        raise AssertionError("the server was started")
+    monkeypatch.setattr(service, "serve", serve)
     rc = main(["serve", "--data", str(tmp_path), "--max-user-mb", "10", "--max-record-mb",
                "20"])
     assert rc == 2
