@@ -217,6 +217,9 @@ def test_serve_refuses_a_quota_below_one_job(tmp_path, capsys, monkeypatch):
                "20"])
     assert rc == 2
     assert "no job could be submitted" in capsys.readouterr().err
+    from spidersim.service.app import Limits
+    with pytest.raises(ValueError, match="no job could be submitted"):
+        Limits(max_user_mb=1, max_record_mb=2)
 
 
 def test_the_remote_client_shows_the_quota_message(tmp_path, models_dir, capsys):
