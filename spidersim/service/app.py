@@ -58,6 +58,14 @@ class Limits(BaseModel):
     keep_days: float = 7.0               # days a finished job's files are kept
     max_user_mb: float = 4096.0          # disk quota of one user's jobs [MB = 1e6 bytes]
 
+    @model_validator(mode="after")
+    def _quota_holds_a_job(self):
+        """Every job reserves ``max_record_mb`` of the quota: a smaller quota takes none."""
+        if self.max_user_mb < self.max_record_mb:
+            raise ValueError(f"max_user_mb = {self.max_user_mb:g} is less than max_record_mb "
+                             f"= {self.max_record_mb:g}: no job could be submitted")
+        return self
+
 
 def dumps_strict(content) -> str:
     """Strict JSON text of ``content``: non-finite numbers as ``null`` (never the

@@ -220,6 +220,10 @@ def test_serve_refuses_a_quota_below_one_job(tmp_path, capsys, monkeypatch):
     from spidersim.service.app import Limits
     with pytest.raises(ValueError, match="no job could be submitted"):
         Limits(max_user_mb=1, max_record_mb=2)
+    with pytest.raises(SystemExit) as ei:
+        main(["serve", "--data", str(tmp_path), "--max-user-mb", "nan"])
+    assert ei.value.code == 2
+    assert "argument --max-user-mb: expected a finite number > 0" in capsys.readouterr().err
 
 
 def test_the_remote_client_shows_the_quota_message(tmp_path, models_dir, capsys):
