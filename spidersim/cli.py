@@ -930,11 +930,16 @@ def cmd_serve(args):
         print(f"user '{args.revoke_user}': {n} token(s) revoked (refused from the next "
               f"request on; --add-user gives a new one)")
         return 0
+    if args.max_user_mb < args.max_record_mb:
+        print(f"spidersim: error: --max-user-mb {args.max_user_mb:g} is less than "
+              f"--max-record-mb {args.max_record_mb:g}: every job reserves its recording "
+              f"budget of the user's quota, so no job could be submitted", file=sys.stderr)
+        return 2
     from .service.app import Limits
     lim = Limits(max_t_end=args.max_t_end, max_active=args.max_jobs,
                  max_body=args.max_body, max_signals=args.max_signals,
                  max_record_mb=args.max_record_mb, max_points=args.max_points,
-                 keep_days=args.keep_days)
+                 keep_days=args.keep_days, max_user_mb=args.max_user_mb)
     service.serve(args.host, args.port, args.models, args.data, args.workers, args.scheduler,
                   lim, args.job_timeout, not args.no_jit)
     return 0
@@ -1066,6 +1071,9 @@ def build_parser():
                     help="values of one /signals answer (more: 413)")
     sv.add_argument("--keep-days", type=positive_float, default=7.0,
                     help="days a finished job's files are kept (then 410 Gone)")
+    sv.add_argument("--max-user-mb", type=positive_float, default=4096.0,
+                    help="disk quota of one user's jobs, MB: stored results plus "
+                         "--max-record-mb for each queued or running job (more: 507)")
     sv.add_argument("--job-timeout", type=positive_float, default=3600.0, help="wall s per job")
     sv.add_argument("--no-jit", action="store_true", help="interpreted runs (debugging)")
     sv.set_defaults(fn=cmd_serve)

@@ -515,6 +515,19 @@ class Client:
         return self._json("POST", f"/jobs/{self._job(job)}/cancel", dict,
                           "the job's status (an object)")
 
+    def delete(self, job):
+        """Remove a finished job's files on the service (it stays listed, ``expired``;
+        its results answer 410); frees its bytes of the user's disk quota. Return the
+        job's status. A queued or running job is refused (cancel it first)."""
+        path = f"/jobs/{self._job(job)}"
+        return self._status(self._json("DELETE", path, dict, "the job's status (an object)"),
+                            self.url + path)
+
+    def usage(self):
+        """The user's disk use and quota: ``{used_bytes, quota_bytes, free_bytes,
+        stored_bytes, reserved_bytes, active_jobs, largest, ...}``."""
+        return self._json("GET", "/usage", dict, "the disk use (an object)")
+
     def result(self, job):
         """The job's :class:`~spidersim.Result` (also for a failed run: the data up to the
         failure, ``status == "failed"`` and the message; and for a run cancelled while

@@ -4,8 +4,10 @@ Every route but ``GET /health``, ``/`` and the page's static files needs
 ``Authorization: Bearer <token>`` (401 otherwise); a job of another user answers 404 as an
 unknown one. Limits answer 413 (body size, a signal answer of more than ``max_points``
 values), 422 (run length, logged signals, bad request, a non-finite number) and 429 (active
-jobs per user, with ``Retry-After``), each with a ``detail`` message; the files of a job
-finished more than ``keep_days`` ago are removed and its result routes answer 410 Gone.
+jobs per user, with ``Retry-After``) and 507 (the user's disk quota ``max_user_mb``), each
+with a ``detail`` message; the files of a job finished more than ``keep_days`` ago, or
+deleted by its user (``DELETE /jobs/{id}``), are removed and its result routes answer 410
+Gone. ``GET /usage`` gives the user's disk use and quota.
 
 Every JSON answer is strict JSON (RFC 8259): a non-finite number in a stored value or a
 result (a run whose rows hold inf or nan) is written as ``null``
@@ -41,7 +43,7 @@ from spidersim.text.yamlio import lone_surrogate
 from .commands import prepare
 from .execute import finite_json
 from .library import BadName, Library, UnknownModel
-from .store import KeyReused, Store, TooManyJobs
+from .store import KeyReused, OverQuota, Store, TooManyJobs
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
 
@@ -54,6 +56,15 @@ class Limits(BaseModel):
     max_record_mb: float = 256.0         # recording budget of one job [MB = 1e6 bytes]
     max_points: int = 200_000            # values (samples x elements) of one /signals answer
     keep_days: float = 7.0               # days a finished job's files are kept
+    max_user_mb: float = 4096.0          # disk quota of one user's jobs [MB = 1e6 bytes]
+
+    @model_validator(mode="after")
+    def _quota_holds_a_job(self):
+        """Every job reserves ``max_record_mb`` of the quota: a smaller quota takes none."""
+        if self.max_user_mb < self.max_record_mb:
+            raise ValueError(f"max_user_mb = {self.max_user_mb:g} is less than max_record_mb "
+                             f"= {self.max_record_mb:g}: no job could be submitted")
+        return self
 
 
 def dumps_strict(content) -> str:
@@ -244,6 +255,42 @@ def read_rows(path, name, stride, chunk_rows=1 << 16):
     return n, out
 
 
+def _mb(n):
+    """``n`` bytes as MB (1e6 bytes, the unit of the limits): ``12.3 MB``."""
+    return f"{n / 1e6:.4g} MB"
+
+
+def quota_message(use, reserve, limit, largest, keep_days, now):
+    """The 507 answer of a submit over the user's quota: what is used (stored results,
+    active jobs' reservations), the quota, and the way out (the largest jobs to delete,
+    when retention frees the oldest, or waiting for the active jobs).
+
+    ``use``: :meth:`Store.usage`; ``reserve`` and ``limit`` in bytes; ``largest``:
+    :meth:`Store.largest_jobs`; ``now``: time.time()."""
+    n = use["active"]
+    text = (f"this job would take your disk use over your quota of {_mb(limit)}: your "
+            f"stored results take {_mb(use['stored'])}, your {n} queued or running job(s) "
+            f"reserve {_mb(use['used'] - use['stored'])} and this job {_mb(reserve)} "
+            f"(a job's reservation is the recording budget per job; a finished job counts "
+            f"the size of its files)")
+    ways = []
+    if largest:
+        big = ", ".join(f"{jid} ({model}, {_mb(b)})" for jid, model, b, _ in largest)
+        ways.append(f"delete results you no longer need with DELETE /jobs/{{id}} "
+                    f"(Client.delete(job)); your largest: {big}")
+        left = max(0.0, min(f for *_, f in largest) + keep_days * 86400.0 - now)
+        when = f"{left / 3600:.3g} h" if left < 2 * 86400 else f"{left / 86400:.3g} days"
+        ways.append(f"wait: results are removed {keep_days:g} day(s) after their job ends "
+                    f"(the oldest of these in {when})")
+    if n:
+        ways.append("wait for your active jobs to finish (their files then count instead "
+                    "of the reservation)")
+    if not ways:
+        ways.append("ask the service's administrator for a larger quota (serve "
+                    "--max-user-mb)")
+    return text + "; to free space: " + "; or ".join(ways) + " (GET /usage shows your use)"
+
+
 def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None = None):
     """The ASGI app; ``runner_factory(store, library) -> Runner`` starts the workers."""
     limits = limits or Limits()
@@ -258,6 +305,13 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         return bool(job.get("expired")) or (
             job["state"] in ("done", "failed", "cancelled") and job["finished"] is not None
             and time.time() - job["finished"] > keep_s)
+
+    reserve = limits.max_record_mb * 1e6      # bytes reserved for each active job
+    quota = limits.max_user_mb * 1e6
+
+    def since():
+        """The end time of the oldest finished job whose files are kept."""
+        return time.time() - keep_s
 
     def sweep():
         """Remove the files of jobs finished more than ``keep_days`` ago; return how many."""
@@ -296,6 +350,7 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         j["request"] = job["request"]
         j["fraction"] = min(1.0, job["progress"] / job["t_end"]) if job["t_end"] > 0 else 1.0
         j["expired"] = expired(job)
+        j["bytes"] = 0 if j["expired"] else job["bytes"]
         if job["state"] in ("done", "failed") or kept_data(job):
             j["files"] = {"data": [], "plots": []} if j["expired"] else _files(job)
         return j
@@ -412,7 +467,8 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         try:
             job, created = store.create_job(u[0], m.name, body, t_end, spidersim.__version__,
                                             m.file_hash(), idem_key=idempotency_key,
-                                            max_active=limits.max_active)
+                                            max_active=limits.max_active,
+                                            quota=(quota, reserve, since()))
         except KeyReused:
             raise HTTPException(422, "this Idempotency-Key was used for a different request: "
                                      "a key names one request (use a new key for a new "
@@ -421,6 +477,10 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
             raise HTTPException(429, f"you have {exc.n} queued or running jobs, the limit is "
                                      f"{limits.max_active}: wait for one to finish",
                                 headers={"Retry-After": "2"}) from None
+        except OverQuota as exc:
+            raise HTTPException(507, quota_message(
+                exc.usage, exc.reserve, exc.limit, store.largest_jobs(u[0], since()),
+                limits.keep_days, time.time())) from None
         if state["runner"] is not None:
             state["runner"].wake()
         response.headers["Location"] = f"/jobs/{job['id']}"
@@ -435,6 +495,31 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
     @app.get("/jobs/{job_id}")
     def job_get(job_id: str, u: User):
         return _public(own_job(job_id, u))
+
+    @app.get("/usage")
+    def usage(u: User):
+        """The user's disk use against its quota (bytes)."""
+        use = store.usage(u[0], since(), reserve)
+        return {"user": u[1], "quota_bytes": int(quota), "used_bytes": use["used"],
+                "free_bytes": max(0, int(quota) - use["used"]),
+                "stored_bytes": use["stored"], "active_jobs": use["active"],
+                "reserved_bytes": use["used"] - use["stored"],
+                "reserve_per_job_bytes": int(reserve), "keep_days": limits.keep_days,
+                "largest": [{"id": jid, "model": model, "bytes": b,
+                             "expires": f + keep_s}
+                            for jid, model, b, f in store.largest_jobs(u[0], since(), 5)]}
+
+    @app.delete("/jobs/{job_id}")
+    def job_delete(job_id: str, u: User):
+        """Remove a finished job's files (it stays listed, expired; its result routes
+        answer 410); 409 for a queued or running job."""
+        job = own_job(job_id, u)
+        if job["state"] in ("queued", "running"):
+            raise HTTPException(409, f"job {job_id} is {job['state']}: cancel it first "
+                                     f"(POST /jobs/{job_id}/cancel), then delete it")
+        store.mark_deleted(job_id)
+        shutil.rmtree(store.job_dir(job_id), ignore_errors=True)
+        return _public(store.get_job(job_id))
 
     @app.post("/jobs/{job_id}/cancel")
     def job_cancel(job_id: str, u: User):
@@ -472,9 +557,10 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                                                      and not expired(job)):
             raise HTTPException(409, f"job {job['id']} is {job['state']}: no results")
         if expired(job):
-            raise HTTPException(410, f"the results of job {job['id']} were removed: this "
-                                     f"service keeps them {limits.keep_days:g} day(s) after "
-                                     f"the job ends")
+            raise HTTPException(410, f"the results of job {job['id']} were removed: "
+                                     f"deleted by its user, or past the retention time "
+                                     f"(this service keeps them {limits.keep_days:g} day(s) "
+                                     f"after the job ends)")
         p = os.path.join(store.job_dir(job["id"]), rel)
         if not os.path.isfile(p):
             raise HTTPException(404, f"job {job['id']} has no file {rel}")

@@ -14,7 +14,13 @@ looks the token's row up (one indexed query), so a token deleted from the databa
 request on, without a restart.
 
 Retention: :meth:`Store.expire` marks finished jobs past the retention time ``expired``
-(their files are removed by the app; the record stays and its result routes answer 410).
+(their files are removed by the app; the record stays and its result routes answer 410);
+:meth:`Store.mark_deleted` does the same for one job its user deletes.
+
+Disk use: ``bytes`` is the size of a finished job's folder, measured when the job reaches
+its final state (after its files are written); 0 once expired or deleted. A user's stored
+bytes plus a reservation per active job are held to a quota at submit
+(:meth:`Store.create_job`, :class:`OverQuota`).
 
 Job states: ``queued`` -> ``running`` -> ``done`` | ``failed`` | ``cancelled`` (a queued job
 may be cancelled directly). ``progress`` is the simulated time reached [s]; ``t_end`` the
@@ -50,7 +56,7 @@ CREATE TABLE IF NOT EXISTS jobs(
     progress REAL NOT NULL DEFAULT 0, message TEXT NOT NULL DEFAULT '',
     created REAL NOT NULL, started REAL, finished REAL,
     version TEXT, diagram_hash TEXT, idem_key TEXT, cancel INTEGER NOT NULL DEFAULT 0,
-    expired REAL);
+    expired REAL, bytes INTEGER);
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(user_id, idem_key)
     WHERE idem_key IS NOT NULL;
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, seq);
@@ -59,7 +65,20 @@ CREATE INDEX IF NOT EXISTS jobs_user ON jobs(user_id, seq);
 
 _JOB_COLS = ("id", "user_id", "model", "request", "state", "t_end", "progress", "message",
              "created", "started", "finished", "version", "diagram_hash", "idem_key",
-             "expired")
+             "expired", "bytes")
+
+
+def folder_bytes(folder) -> int:
+    """Bytes of the files under ``folder`` (0 if it does not exist); files that vanish
+    while it is walked are skipped."""
+    total = 0
+    for root, _dirs, names in os.walk(folder):
+        for n in names:
+            try:
+                total += os.lstat(os.path.join(root, n)).st_size
+            except OSError:
+                pass
+    return total
 
 
 def _scrypt(secret: str, salt: bytes) -> bytes:
@@ -80,6 +99,26 @@ class Store:
             cols = {r[1] for r in c.execute("PRAGMA table_info(jobs)")}
             if "expired" not in cols:            # a database of an earlier version
                 c.execute("ALTER TABLE jobs ADD COLUMN expired REAL")
+            if "bytes" not in cols:
+                self._add_bytes_column(c)
+
+    def _add_bytes_column(self, c):
+        """Migration of a database made before the quota: add ``jobs.bytes`` and measure
+        the folder of every finished job whose files are kept (0 for expired ones; active
+        jobs are measured when they finish)."""
+        c.execute("BEGIN IMMEDIATE")
+        try:
+            if "bytes" not in {r[1] for r in c.execute("PRAGMA table_info(jobs)")}:
+                c.execute("ALTER TABLE jobs ADD COLUMN bytes INTEGER")
+            rows = c.execute("SELECT id, expired FROM jobs WHERE state IN ('done', 'failed', "
+                             "'cancelled') AND bytes IS NULL").fetchall()
+            c.executemany("UPDATE jobs SET bytes = ? WHERE id = ?",
+                          [(0 if r["expired"] else folder_bytes(self.job_dir(r["id"])),
+                            r["id"]) for r in rows])
+            c.execute("COMMIT")
+        except BaseException:
+            c.execute("ROLLBACK")
+            raise
 
     # ------------------------------------------------------------------ plumbing
     def _conn(self) -> sqlite3.Connection:
@@ -156,14 +195,18 @@ class Store:
 
     # ------------------------------------------------------------------ jobs
     def create_job(self, user_id, model, request: dict, t_end, version, diagram_hash,
-                   idem_key=None, max_active=None):
+                   idem_key=None, max_active=None, quota=None):
         """Insert a queued job; return ``(job, created)``.
 
         With ``idem_key`` an earlier job of the same user with the same key is returned
         instead (``created`` False) when it was the same request; a different request
         under a key already used raises :class:`KeyReused` (a client's bug: the key names
         one request). With ``max_active`` raise :class:`TooManyJobs` when the
-        user already has that many queued or running jobs.
+        user already has that many queued or running jobs. With ``quota = (limit bytes,
+        reservation bytes per active job, since)`` raise :class:`OverQuota` when the
+        user's stored bytes (jobs finished at or after ``since``, not expired) plus a
+        reservation for each active job and for this one would exceed the limit; checked
+        in the insert's transaction, so that parallel submits cannot all pass.
         """
         c = self._conn()
         c.execute("BEGIN IMMEDIATE")
@@ -183,6 +226,11 @@ class Store:
                               "('queued', 'running')", (user_id,)).fetchone()[0]
                 if n >= max_active:
                     raise TooManyJobs(n)
+            if quota is not None:
+                limit, reserve, since = quota
+                use = self.usage(user_id, since, reserve)
+                if use["used"] + reserve > limit:
+                    raise OverQuota(use, reserve, limit)
             jid = uuid.uuid4().hex
             c.execute("INSERT INTO jobs(id, user_id, model, request, state, t_end, created, "
                       "version, diagram_hash, idem_key) VALUES (?,?,?,?,?,?,?,?,?,?)",
@@ -211,13 +259,43 @@ class Store:
             ids = [r[0] for r in c.execute(
                 "SELECT id FROM jobs WHERE expired IS NULL AND finished IS NOT NULL AND "
                 "finished < ? AND state IN ('done', 'failed', 'cancelled')", (cutoff,))]
-            c.executemany("UPDATE jobs SET expired = ? WHERE id = ?",
+            c.executemany("UPDATE jobs SET expired = ?, bytes = 0 WHERE id = ?",
                           [(time.time(), i) for i in ids])
             c.execute("COMMIT")
         except BaseException:
             c.execute("ROLLBACK")
             raise
         return ids
+
+    def mark_deleted(self, job_id):
+        """Mark a finished job expired, its bytes 0 (its user deleted it; the caller
+        removes its folder); True if it was finished and not yet expired."""
+        cur = self._conn().execute(
+            "UPDATE jobs SET expired = ?, bytes = 0 WHERE id = ? AND expired IS NULL AND "
+            "state IN ('done', 'failed', 'cancelled')", (time.time(), job_id))
+        return cur.rowcount == 1
+
+    def usage(self, user_id, since, reserve):
+        """A user's disk use: ``{"stored": bytes of its finished jobs that ended at or
+        after ``since`` and are not expired, "active": queued + running jobs, "used":
+        stored + active x reserve}``."""
+        c = self._conn()
+        stored = c.execute(
+            "SELECT COALESCE(SUM(bytes), 0) FROM jobs WHERE user_id = ? AND expired IS NULL "
+            "AND finished >= ? AND state IN ('done', 'failed', 'cancelled')",
+            (user_id, since)).fetchone()[0]
+        active = c.execute("SELECT COUNT(*) FROM jobs WHERE user_id = ? AND state IN "
+                           "('queued', 'running')", (user_id,)).fetchone()[0]
+        return {"stored": int(stored), "active": int(active),
+                "used": int(stored) + int(active * reserve)}
+
+    def largest_jobs(self, user_id, since, n=3):
+        """``[(id, model, bytes, finished)]`` of a user's ``n`` largest stored jobs (as
+        counted by :meth:`usage`), largest first."""
+        return [tuple(r) for r in self._conn().execute(
+            "SELECT id, model, bytes, finished FROM jobs WHERE user_id = ? AND expired IS NULL"
+            " AND finished >= ? AND state IN ('done', 'failed', 'cancelled') AND bytes > 0 "
+            "ORDER BY bytes DESC, seq LIMIT ?", (user_id, since, n))]
 
     def release(self, job_id):
         """Put a job claimed while the server began to stop back in the queue."""
@@ -259,7 +337,8 @@ class Store:
     def finish(self, job_id, state, message="", progress=None):
         """Move a job to a final state (only from queued or running); True if it moved."""
         assert state in ("done", "failed", "cancelled")
-        sets, args = "state = ?, message = ?, finished = ?", [state, message, time.time()]
+        sets, args = "state = ?, message = ?, finished = ?, bytes = ?", [
+            state, message, time.time(), folder_bytes(self.job_dir(job_id))]
         if progress is not None:
             sets += ", progress = ?"
             args.append(float(progress))
@@ -274,8 +353,8 @@ class Store:
         c.execute("BEGIN IMMEDIATE")
         try:
             c.execute("UPDATE jobs SET cancel = 1 WHERE id = ?", (job_id,))
-            c.execute("UPDATE jobs SET state = 'cancelled', finished = ?, message = ? "
-                      "WHERE id = ? AND state = 'queued'",
+            c.execute("UPDATE jobs SET state = 'cancelled', finished = ?, message = ?, "
+                      "bytes = 0 WHERE id = ? AND state = 'queued'",
                       (time.time(), "cancelled before it started", job_id))
             c.execute("COMMIT")
         except BaseException:
@@ -291,11 +370,15 @@ class Store:
         """At start-up: jobs left running by a stopped server are failed; return the number
         of those and of the queued jobs (which the workers will run)."""
         c = self._conn()
-        cur = c.execute("UPDATE jobs SET state = 'failed', finished = ?, message = ? "
-                        "WHERE state = 'running'",
-                        (time.time(), "server stopped while running"))
+        ids = [r[0] for r in c.execute("SELECT id FROM jobs WHERE state = 'running'")]
+        n = 0
+        for jid in ids:                 # the files a run wrote before the stop count
+            n += c.execute("UPDATE jobs SET state = 'failed', finished = ?, message = ?, "
+                           "bytes = ? WHERE id = ? AND state = 'running'",
+                           (time.time(), "server stopped while running",
+                            folder_bytes(self.job_dir(jid)), jid)).rowcount
         n_queued = c.execute("SELECT COUNT(*) FROM jobs WHERE state = 'queued'").fetchone()[0]
-        return cur.rowcount, n_queued
+        return n, n_queued
 
     def active_count(self, user_id):
         return self._conn().execute("SELECT COUNT(*) FROM jobs WHERE user_id = ? AND state IN "
@@ -314,3 +397,12 @@ class TooManyJobs(Exception):
     def __init__(self, n):
         super().__init__(n)
         self.n = n
+
+
+class OverQuota(Exception):
+    """A submit that would take a user's disk use over its quota: ``usage`` (as
+    :meth:`Store.usage` gives it), the new job's ``reserve`` and the ``limit`` [bytes]."""
+
+    def __init__(self, usage, reserve, limit):
+        super().__init__(usage, reserve, limit)
+        self.usage, self.reserve, self.limit = usage, reserve, limit
