@@ -16,14 +16,31 @@ from .base import Block, Event, Mode, Param, Port
 _ZC = Param(True, kind="bool", doc="switch modes at the corners by zero-crossing events")
 
 
+#: relative width of a corner for :func:`_corner_modes`: an input this close to a corner is
+#: on it (an input solved by an algebraic loop is only as exact as the loop's Newton
+#: tolerance, 1e-3 of the integrator's: 1e-9 relative at the default rtol of 1e-6)
+CORNER_BAND = 1e-9
+
+
 def _corner_modes(lo, hi, u, m):
-    """Modes from the input: +1 above ``hi``, -1 below ``lo``, 0 between. Exactly on a
-    corner either adjacent mode is right: the current one is kept if it is adjacent (an
-    event may have just set it)."""
+    """Modes from the input: +1 above ``hi``, -1 below ``lo``, 0 between. On a corner
+    (within :data:`CORNER_BAND` of it, relative) either adjacent mode is right: the current
+    one is kept if it is adjacent (an event has just set it; deciding by an input that an
+    algebraic loop put a hair on the other side undid the event, and the limit held with
+    the input back inside)."""
     for i in range(u.size):
-        if u[i] > hi or (u[i] == hi and m[i] > 0.5 and hi > lo):
+        v = u[i]
+        b_hi = CORNER_BAND * max(abs(hi), abs(v))
+        b_lo = CORNER_BAND * max(abs(lo), abs(v))
+        on_hi = hi - b_hi <= v <= hi + b_hi          # false for an infinite limit (nan)
+        on_lo = lo - b_lo <= v <= lo + b_lo
+        if hi > lo and ((on_hi and m[i] > 0.5) or (on_lo and m[i] < -0.5)):
+            continue                                 # at the limit the event chose
+        if (on_hi or on_lo) and -0.5 <= m[i] <= 0.5:
+            m[i] = 0.0                               # linear, on a corner
+        elif v > hi:
             m[i] = 1.0
-        elif u[i] < lo or (u[i] == lo and m[i] < -0.5 and hi > lo):
+        elif v < lo:
             m[i] = -1.0
         else:
             m[i] = 0.0
