@@ -459,3 +459,20 @@ def test_argument_that_is_not_utf8_is_refused(capsys):
     code = main(["check", servo, "--set", "V_max=\udcff"])
     err = capsys.readouterr().err
     assert code == 2 and "not UTF-8 text" in err and "V_max=" in err, err
+
+
+def test_scipy_failure_warning_is_part_of_the_error_not_raw_lines(tmp_path):
+    """``--set motor.b=1e300``: LSODA fails, and SciPy's own warning ("lsoda: Repeated
+    convergence failures ...") printed as two raw lines (file path, source line) before
+    the clean error; it is now in the error's message. A real process: pytest catches
+    warnings itself."""
+    import subprocess
+    import sys
+    res = subprocess.run([sys.executable, "-m", "spidersim.cli", "run",
+                          os.path.join(ROOT, "diagrams", "servo.yaml"), "--set",
+                          "motor.b=1e300", "--no-jit", "--no-plots", "--out",
+                          str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "UserWarning" not in res.stderr and "integrator.run" not in res.stderr
+    assert ("Unexpected istate in LSODA. (SciPy: lsoda: Repeated convergence failures"
+            in res.stderr.split("spidersim: error: ", 1)[1])
