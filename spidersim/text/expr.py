@@ -4,6 +4,9 @@ It walks Python's AST and accepts only numbers, lists, names of diagram paramete
 constants, the arithmetic operators ``+ - * / // % **``, unary minus and a few math functions.
 Nothing is ever passed to ``eval``; attribute access, subscripts other than ``name[int]``,
 comprehensions, lambdas and calls to anything but the listed functions are rejected.
+The text is ASCII (a look-alike letter is not read as the letter it resembles), a value is
+never complex (refused at the operation that made it), a boolean is neither a number nor
+an index, and a list is rectangular.
 """
 from __future__ import annotations
 
