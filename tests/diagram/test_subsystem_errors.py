@@ -162,21 +162,24 @@ def _chain(tmp_path, n):
     return str(tmp_path / "top.yaml")
 
 
-def test_subsystem_nesting_depth_is_bounded(tmp_path, monkeypatch):
+@pytest.mark.parametrize("limit, chain", [
+    (4, "top.yaml -> s0.yaml -> s1.yaml -> s2.yaml -> s3.yaml -> s4.yaml"),
+    (6, "top.yaml -> s0.yaml -> s1.yaml -> ... -> s5.yaml -> s6.yaml"),   # long: its ends
+])
+def test_subsystem_nesting_depth_is_bounded(tmp_path, monkeypatch, limit, chain):
     """A chain of distinct files deeper than MAX_SUBSYSTEM_DEPTH is refused at the top
     instance that starts it, naming the chain's ends and the level (a chain of 3,000 files
-    failed in the YAML reader of the 483rd, blaming that small file). Lowered to 4 here;
+    failed in the YAML reader of the 483rd, blaming that small file). Lowered here;
     exactly at the limit loads."""
     from spidersim.text import limits
     assert limits.MAX_SUBSYSTEM_DEPTH == 32
-    monkeypatch.setattr(limits, "MAX_SUBSYSTEM_DEPTH", 4)
+    monkeypatch.setattr(limits, "MAX_SUBSYSTEM_DEPTH", limit)
     with pytest.raises(SpidersimError) as e:
-        spidersim.load(_chain(tmp_path, 5))
+        spidersim.load(_chain(tmp_path, limit + 1))
     msg = str(e.value)
     assert msg.startswith(f"{tmp_path / 'top.yaml'}:4: block 'a': ")
-    assert "subsystems nested more than 4 levels deep (limit MAX_SUBSYSTEM_DEPTH)" in msg
-    assert "top.yaml -> s0.yaml -> s1.yaml -> s2.yaml -> s3.yaml -> s4.yaml" in msg
-    assert "reaches level 5 at 'a.n.n.n.n'" in msg
+    assert f"subsystems nested more than {limit} levels deep (limit MAX_SUBSYSTEM_DEPTH)" in msg
+    assert f"chain of files {chain} that reaches level {limit + 1} at 'a{'.n' * limit}'" in msg
     for f in tmp_path.glob("*.yaml"):
         f.unlink()
-    assert "a.n.n.n.g" in spidersim.load(_chain(tmp_path, 4)).blocks
+    assert f"a{'.n' * (limit - 1)}.g" in spidersim.load(_chain(tmp_path, limit)).blocks
