@@ -954,6 +954,15 @@ def out_folder(text):
     return text
 
 
+def out_file(text):
+    """An ``-o`` value: a file name, not empty (``-o ""`` silently wrote to standard output,
+    as leaving ``-o`` out does; ``--out ""`` is refused the same way)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a file, got an empty text (leave -o out "
+                                         "for standard output)")
+    return text
+
+
 def positive_float(text):
     """argparse type of a time or a limit: a finite number > 0 (``nan``, ``inf``, ``0``,
     ``-1`` and ``true`` are refused with the option's name, exit status 2)."""
@@ -1083,7 +1092,8 @@ def build_parser():
     b.set_defaults(fn=cmd_blocks)
 
     sc = sub.add_parser("schema", help="JSON Schema of diagram files (editor completion)")
-    sc.add_argument("-o", "--output", help="file to write (default: standard output)")
+    sc.add_argument("-o", "--output", type=out_file,
+                    help="file to write (default: standard output)")
     sc.set_defaults(fn=cmd_schema)
 
     ca = sub.add_parser("cache", help="the compiled-code cache: info or clear")

@@ -181,6 +181,54 @@ def test_missing_diagram_file(tmp_path, capsys):
     assert_clean_error(rc, out, err, None, "not found", "nope.yaml")
 
 
+def _special(tmp_path, kind):
+    """A path of the given kind: a FIFO (no writer: opening it to read would block), a
+    character device, a folder."""
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "pipe.yaml")
+        return str(tmp_path / "pipe.yaml")
+    return {"null": "/dev/null", "zero": "/dev/zero", "folder": str(tmp_path)}[kind]
+
+
+@pytest.mark.parametrize("kind, words", [
+    ("null", "diagram file is not a regular file (a character device): /dev/null"),
+    ("zero", "diagram file is not a regular file (a character device): /dev/zero"),
+    ("fifo", "diagram file is not a regular file (a FIFO, a named pipe)"),
+    ("folder", "diagram file is a folder, not a file"),
+])
+@pytest.mark.parametrize("command", ["check", "run"])
+def test_diagram_path_that_is_not_a_regular_file(tmp_path, capsys, kind, words, command):
+    """``check /dev/zero``, ``/dev/null`` or a FIFO said "not found"; each says what the
+    path is instead, and none is opened (a FIFO would block the read)."""
+    rc, out, err = run_cli([command, _special(tmp_path, kind)], capsys)
+    assert_clean_error(rc, out, err, None, words)
+
+
+@pytest.mark.parametrize("kind, words", [
+    ("null", "subsystem file for type 'S' is not a regular file (a character device)"),
+    ("fifo", "subsystem file for type 'S' is not a regular file (a FIFO, a named pipe)"),
+])
+def test_subsystem_path_that_is_not_a_regular_file(tmp_path, capsys, kind, words):
+    main_yaml = write(tmp_path, f"""\
+        subsystems: {{S: {_special(tmp_path, kind)}}}
+        blocks:
+          s: {{type: S}}
+        """)
+    rc, out, err = run_cli(["check", main_yaml], capsys)
+    assert_clean_error(rc, out, err, f"{main_yaml}:1: ", words)
+
+
+def test_a_fifo_swapped_in_after_the_check_is_not_read(tmp_path):
+    """The reader itself opens without blocking and refuses what is not a regular file
+    (a FIFO put in place between a check by name and the read would wait forever)."""
+    from spidersim.errors import DiagramError
+    from spidersim.text.yamlio import read_file
+    with pytest.raises(DiagramError, match=r"file is not a regular file \(a FIFO"):
+        read_file(_special(tmp_path, "fifo"))
+    with pytest.raises(DiagramError, match=r"file is not a regular file \(a character"):
+        read_file("/dev/zero")
+
+
 # ---------------------------------------------------------------------------- --set
 @pytest.fixture
 def set_diagram(tmp_path):
@@ -329,6 +377,9 @@ def test_run_unsolvable_loop_is_reported_and_keeps_data(tmp_path, capsys, monkey
     (["serve", "--keep-days", "0"], "argument --keep-days: expected a finite number > 0"),
     (["serve", "--max-points", "10"], "argument --max-points: expected an integer >= 1000"),
     (["serve", "--add-user", "a", "--revoke-user", "a"], "not allowed with argument"),
+    # -o "" wrote the schema to standard output (as --out "" once meant the default folder)
+    (["schema", "-o", ""], "argument -o/--output: must name a file, got an empty text"),
+    (["schema", "--output", " "], "argument -o/--output: must name a file"),
 ])
 def test_numeric_options_refuse_nan_inf_and_out_of_range(argv, words, capsys):
     """Numeric options are finite and in range before anything runs: ``--max-t-end nan``
@@ -408,3 +459,20 @@ def test_argument_that_is_not_utf8_is_refused(capsys):
     code = main(["check", servo, "--set", "V_max=\udcff"])
     err = capsys.readouterr().err
     assert code == 2 and "not UTF-8 text" in err and "V_max=" in err, err
+
+
+def test_scipy_failure_warning_is_part_of_the_error_not_raw_lines(tmp_path):
+    """``--set motor.b=1e300``: LSODA fails, and SciPy's own warning ("lsoda: Repeated
+    convergence failures ...") printed as two raw lines (file path, source line) before
+    the clean error; it is now in the error's message. A real process: pytest catches
+    warnings itself."""
+    import subprocess
+    import sys
+    res = subprocess.run([sys.executable, "-m", "spidersim.cli", "run",
+                          os.path.join(ROOT, "diagrams", "servo.yaml"), "--set",
+                          "motor.b=1e300", "--no-jit", "--no-plots", "--out",
+                          str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "UserWarning" not in res.stderr and "integrator.run" not in res.stderr
+    assert ("Unexpected istate in LSODA. (SciPy: lsoda: Repeated convergence failures"
+            in res.stderr.split("spidersim: error: ", 1)[1])

@@ -280,3 +280,47 @@ def test_diagram_methods_mirror_the_analysis_functions():
             [(p.name, p.default) for p in func[1:]], name
     with pytest.raises(TypeError, match="unexpected keyword argument 'x'"):
         spidersim.loads(LAG).trim(x=1)
+
+
+SET_DIAGRAM = f"""
+parameters: {{k0: 3}}
+subsystems: {{lag: {pathlib.Path(__file__).parents[1] / "diagrams" / "lib" / "lag.yaml"}}}
+blocks:
+  c: {{type: Constant, value: k0}}
+  sat: {{type: Saturation, lower: -1, upper: 1}}
+  f: {{type: lag, tau: 0.5}}
+connections: [c.y -> sat.u, sat.y -> f.u]
+"""
+
+
+@pytest.mark.parametrize("path, value, words", [
+    # said "no block ''"
+    ("k0", 10, "set k0: 'k0' is a parameter of the diagram, not of a block: its value went "
+               "into the blocks' values (and later parameters) when the diagram was loaded; "
+               "to change it, reload with spidersim.load(file, set={'k0': ...})"),
+    ("f.tau", 1.0, "set f.tau: 'f' is a subsystem instance: its parameters went into its "
+                   "blocks' values when the diagram was loaded; to change 'tau', reload with "
+                   "spidersim.load(file, set={'f.tau': ...}) (or set a block parameter "
+                   "inside it: f.<block>.<param>)"),
+    ("sat", 1.0, "set sat: 'sat' is a block; write sat.<param> (e.g. sat.lower)"),
+    ("f", 1.0, "set f: 'f' is a subsystem instance; write f.<block>.<param>"),
+    ("kk0", 1.0, "set kk0: the diagram has no block or parameter 'kk0'; did you mean k0?"),
+    ("satt.lower", 1.0, "set satt.lower: the diagram has no block 'satt'; did you mean sat?"),
+    # said "must not be NaN, got None"
+    ("sat.lower", None, "block 'sat': set sat.lower: parameter 'lower' must be a number, "
+                        "got None"),
+    # named no block
+    ("sat.lower", 100, "block 'sat': set sat.lower: lower (100.0) must be below upper (1.0)"),
+])
+def test_set_says_what_is_wrong_with_its_target_or_value(path, value, words):
+    """``Diagram.set`` changes block parameters only; each other target says what it is
+    and how to change it, and a refused value names the block and the call. A refused
+    call leaves the parameters as they were."""
+    d = spidersim.loads(SET_DIAGRAM)
+    p0 = d.p.copy()
+    with pytest.raises(ParameterError) as info:
+        d.set(path, value)
+    assert words in str(info.value)
+    assert np.array_equal(d.p, p0)
+    d.set("f.gain.k", 3.0)                 # a block inside a subsystem instance: settable
+    assert not np.array_equal(d.p, p0)

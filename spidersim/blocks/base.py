@@ -733,6 +733,8 @@ class Block:
     def _as_float_array(value, fail):
         """``value`` of a numeric parameter as a float array; strings, booleans (alone or
         in a list) and what numpy cannot read as floats are refused."""
+        if value is None:                 # numpy would read it as NaN
+            fail("must be a number, got None")
         if isinstance(value, str):
             fail(f"must be a number, got the string '{value}'")
         if isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(

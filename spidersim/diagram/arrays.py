@@ -40,10 +40,13 @@ def array_key(key):
 def expand_block(key, entry, file, line):
     """The ``(name, entry)`` pairs an array entry makes (checked), in index order."""
     base, idx = array_key(key)
-    n = len(idx)
+    # the count from the bounds, not len(range): a range of 10^20 indices has no len
+    n = idx.stop - idx.start
     if n < 1 or n > MAX_INSTANCES:
+        got = n if abs(n) < 10**9 else (f"{n:.3g}" if abs(n) < 10**300 else
+                                         f"a number of {len(str(n))} digits")
         raise DiagramError(f"block '{key}': an array needs 1 to {MAX_INSTANCES} instances "
-                           f"(a..b with a <= b), got {n}", file=file, line=line)
+                           f"(a..b with a <= b), got {got}", file=file, line=line)
     if not isinstance(entry, dict):
         return [(f"{base}{i}", entry) for i in idx]
     out = []

@@ -20,7 +20,8 @@ from ..blocks.base import REGISTRY, Block, lookup
 from ..errors import DiagramError, ParameterError, SpidersimError, WiringError
 from ..text import limits
 from ..text import units as U
-from ..text.expr import ExprError, evaluate
+from ..text.expr import ExprError, check_rectangular, evaluate
+from ..text.yamlio import file_problem
 from .spec import Address, DiagramSpec, parse_file
 
 
@@ -141,17 +142,6 @@ def _quantity(value, scope, decl, file, line, what, block, record):
         return (np.asarray(x, dtype=float) * a + b).tolist()
 
 
-def _check_rectangular(values):
-    """A list value is an array of numbers: every row of the same length, at every depth
-    (``[1, [2, 3]]`` or ``[[1, 2], [3]]`` is no array; numpy refuses them with a
-    ValueError about an inhomogeneous shape). An ExprError says so."""
-    try:
-        np.asarray(values, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise ExprError("a list value must be a number list or a matrix (rows of equal "
-                        "length, numbers only), got a ragged or mixed list") from None
-
-
 def _plain_value(value, scope, file, line, what, block=None):
     """A value without a unit: an expression (evaluated in ``scope``), a list (element by
     element, an error in an element located like one in the whole value: same file, line
@@ -161,7 +151,7 @@ def _plain_value(value, scope, file, line, what, block=None):
         return evaluate(value, scope)
     if isinstance(value, list):
         out = [_eval_value(v, scope, None, file, line, what, block) for v in value]
-        _check_rectangular(out)
+        check_rectangular(out)
         return out
     if value is None:
         raise ExprError("no value given (empty entry)")
@@ -235,7 +225,7 @@ def flatten(spec: DiagramSpec, overrides: dict | None = None) -> Flat:
         scope0[k] = v
     flat = Flat({}, [], {}, scope=dict(scope0))
     sub_overrides = {k: v for k, v in overrides.items() if "." in k}
-    _instantiate(spec, "", scope0, sub_overrides, flat, [os.path.abspath(spec.file)], used,
+    _instantiate(spec, "", scope0, sub_overrides, flat, [os.path.realpath(spec.file)], used,
                  top=True)
     missing = [k for k in overrides if k not in used]
     if missing:
@@ -273,7 +263,7 @@ class _Level:
     prefix: str
     scope: dict       #: the diagram's parameters, evaluated
     flat: Flat        #: the flat diagram being filled
-    stack: list       #: absolute paths of the files being instantiated (cycle check)
+    stack: list       #: real paths of the files being instantiated (cycle check)
     used: set         #: override keys of this level that found their target
 
 
@@ -318,18 +308,26 @@ def _load_subsystem(level, b, path, sub_specs):
     Raises
     ------
     DiagramError
-        When the type includes itself (the chain of files is named), its file is missing,
-        or the file has an error (the parent line is appended).
+        When the type includes itself (the chain of files is named; files are compared by
+        their real paths, so a link such as ``d -> .`` in ``d/x.yaml`` cannot hide a
+        cycle), the nesting is deeper than :data:`limits.MAX_SUBSYSTEM_DEPTH`, its file is
+        missing or not a regular file, or the file has an error (the parent line is
+        appended).
     """
     spec = level.spec
     sub_file = spec.subsystems[b.type]
-    if os.path.abspath(sub_file) in level.stack:
+    if os.path.realpath(sub_file) in level.stack:
         chain = " -> ".join(os.path.basename(s) for s in level.stack + [sub_file])
+        real = os.path.realpath(sub_file)
+        if real != os.path.abspath(sub_file):
+            chain += f"; {sub_file} is {real} through a link"
         raise DiagramError(f"subsystem type '{b.type}' includes itself ({chain})",
                            file=spec.file, line=b.line, block=path)
+    if len(level.stack) > limits.MAX_SUBSYSTEM_DEPTH:
+        raise _too_deep(level, path, sub_file)
     if sub_file not in sub_specs:
-        if not os.path.isfile(sub_file):
-            what = "is a folder, not a file" if os.path.isdir(sub_file) else "not found"
+        what = file_problem(sub_file)
+        if what:
             raise DiagramError(f"subsystem file for type '{b.type}' {what}: {sub_file}",
                                file=spec.file, line=spec.subsystem_lines.get(b.type),
                                block=path)
@@ -339,6 +337,22 @@ def _load_subsystem(level, b, path, sub_specs):
             _note_parent_line(exc, b, path, spec)
             raise
     return sub_file, sub_specs[sub_file]
+
+
+def _too_deep(level, path, sub_file):
+    """The error for subsystem instance ``path`` nested deeper than
+    :data:`limits.MAX_SUBSYSTEM_DEPTH`, located at the top-level instance that starts the
+    chain (one file of a long chain is not to blame) and naming the chain's ends."""
+    names = [os.path.basename(s) for s in level.stack + [sub_file]]
+    chain = " -> ".join(names[:3] + ["..."] + names[-2:]) if len(names) > 6 else \
+        " -> ".join(names)
+    top = path.split(".")[0]
+    typ, file, line = level.flat.instances[top]
+    return DiagramError(f"subsystems nested more than {limits.MAX_SUBSYSTEM_DEPTH} levels "
+                        f"deep (limit MAX_SUBSYSTEM_DEPTH): instance '{top}' of type '{typ}' "
+                        f"starts a chain of files {chain} that reaches level "
+                        f"{len(level.stack)} at '{path}'", file=file,
+                        line=line, block=top)
 
 
 def _subsystem_given(level, b, path, sub):
@@ -397,7 +411,7 @@ def _instantiate_subsystem(level, bname, b, ov: BlockOverrides, sub_specs) -> Po
     flat.instances[path] = (b.type, spec.file, b.line)
     try:
         maps = _instantiate(sub, path + ".", sub_scope, sub_over, flat,
-                            level.stack + [os.path.abspath(sub_file)], sub_used)
+                            level.stack + [os.path.realpath(sub_file)], sub_used)
     except SpidersimError as exc:
         if exc.file == sub_file and not getattr(exc, "_used_at", False):
             _note_parent_line(exc, b, path, spec)
@@ -556,18 +570,28 @@ def _wire_connections(level, addresses):
                                              f"{c.src} -> {c.dst}"))
 
 
-def _check_exposed_target(level, name, a, dst_path, dst_port, line):
-    """Exposed input ``name`` maps to ``a``: the primitive block must have input
-    ``dst_port`` (WiringError listing its inputs otherwise)."""
-    inst = level.flat.blocks[dst_path]
-    names = inst.cls.input_names(inst.params)
-    if dst_port not in names:
-        near = difflib.get_close_matches(dst_port, names, n=2)
-        hint = f"; did you mean {', '.join(near)}?" if near else ""
-        raise WiringError(
-            f"exposed input '{name}' maps to '{a}', but block '{a.block}' "
-            f"({inst.cls.type_name}) has no input '{dst_port}'{hint}; inputs: "
-            f"{', '.join(names) or 'none'}", file=level.spec.file, line=line, block=dst_path)
+def _check_exposed_target(level, kind, name, a, path, port, line):
+    """Exposed ``kind`` (``"input"`` or ``"output"``) ``name`` maps to ``a``: primitive block
+    ``path`` must have a port ``port`` of that kind. A WiringError at the exposed port's
+    line otherwise, saying when it is a port of the other kind and listing the block's
+    ports of the right kind (an output mapped to an input port was an internal error)."""
+    inst = level.flat.blocks[path]
+    names = (inst.cls.input_names if kind == "input" else inst.cls.output_names)(inst.params)
+    if port in names:
+        return
+    other = "output" if kind == "input" else "input"
+    others = (inst.cls.output_names if kind == "input" else inst.cls.input_names)(inst.params)
+    if port in others:
+        what = f"'{port}' is an {other} port of block '{a.block}' ({inst.cls.type_name})"
+        why = f": an exposed {kind} must name an {kind} port"
+    else:
+        near = difflib.get_close_matches(port, names, n=2)
+        what = (f"block '{a.block}' ({inst.cls.type_name}) has no {kind} '{port}'"
+                + (f"; did you mean {', '.join(near)}?" if near else ""))
+        why = ""
+    raise WiringError(f"exposed {kind} '{name}' maps to '{a}', but {what}{why}; {kind}s of "
+                      f"'{a.block}': {', '.join(names) or 'none'}", file=level.spec.file,
+                      line=line, block=path)
 
 
 def _exposed_inputs(level, addresses):
@@ -585,7 +609,7 @@ def _exposed_inputs(level, addresses):
             got = addresses.destinations(a, line)
             for dst_path, dst_port in got:
                 if a.block not in addresses.local_subs:
-                    _check_exposed_target(level, name, a, dst_path, dst_port, line)
+                    _check_exposed_target(level, "input", name, a, dst_path, dst_port, line)
                 flat.exposed[(dst_path, dst_port)] = (level.prefix[:-1], name, spec.file,
                                                       line)
             targets += got
@@ -594,10 +618,29 @@ def _exposed_inputs(level, addresses):
 
 
 def _exposed_outputs(level, addresses):
-    """The level's exposed outputs -> the flat output slices they are."""
-    spec = level.spec
-    return {name: addresses.source(a, spec.port_lines[("out", name)])
-            for name, a in spec.outputs.items()}
+    """The level's exposed outputs -> the flat output slices they are; one naming a port of
+    a primitive block must name an output port (:func:`_check_exposed_target`)."""
+    spec, out = level.spec, {}
+    for name, a in spec.outputs.items():
+        line = spec.port_lines[("out", name)]
+        out[name] = addresses.source(a, line)
+        if a.block not in addresses.local_subs:
+            _check_exposed_target(level, "output", name, a, out[name][0], a.port, line)
+    return out
+
+
+def _check_no_shadowing(spec):
+    """A subsystem type may not have the name of a library block: ``subsystems: {Gain:
+    lag.yaml}`` silently made every ``type: Gain`` of the file a lag. A DiagramError at
+    the subsystem entry's line names the library block it would hide."""
+    for name in spec.subsystems:
+        if name in REGISTRY:
+            raise DiagramError(
+                f"subsystem type '{name}' has the name of the library block {name} "
+                f"(`spidersim blocks {name}`): every 'type: {name}' of this file would "
+                f"silently mean {os.path.basename(spec.subsystems[name])} instead; give the "
+                f"subsystem type another name", file=spec.file,
+                line=spec.subsystem_lines.get(name))
 
 
 def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False) -> PortMaps:
@@ -624,6 +667,7 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False) -
     connections are wired and the exposed ports mapped.
     """
     level = _Level(spec, prefix, scope, flat, stack, used)
+    _check_no_shadowing(spec)
     _check_override_targets(spec, prefix, overrides)
     sub_specs = {}
     local_subs = {}  # instance name -> PortMaps

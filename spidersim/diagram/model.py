@@ -314,8 +314,7 @@ class Diagram:
         block, _, name = path.rpartition(".")
         bl = self.layout.blocks.get(block)
         if bl is None:
-            raise ParameterError(f"set {path}: no block '{block}' (write block.param; "
-                                 f"subsystem parameters need load(set=...))")
+            raise ParameterError(self._set_target_problem(path, block, name))
         (name, value), = bl.cls.current_names({name: value}).items()
         decl = bl.cls.parameters.get(name)
         if decl is None:
@@ -326,7 +325,11 @@ class Diagram:
                                  f"spidersim.load(file, set={{'{path}': ...}})", block=block)
         user = {k: v for k, v in self.blocks[block].params.items()}
         user[name] = value
-        new = bl.cls.validate_params(user)
+        try:
+            new = bl.cls.validate_params(user)
+        except ParameterError as exc:       # the value, or its check against the others
+            exc.message, exc.block = f"set {path}: {exc.message}", block
+            raise
         old_shape = np.shape(self.blocks[block].params[name])
         if np.shape(new[name]) != old_shape:
             raise ParameterError(f"set {path}: shape {np.shape(new[name])} differs from "
@@ -343,6 +346,35 @@ class Diagram:
                 self.p[a:b] = np.ravel(merged[pname])
         finally:                        # after every update: a run kept until now is stale
             self._param_gen += 1
+
+    def _set_target_problem(self, path, block, name):
+        """What is wrong with the target of ``set(path, ...)`` that names no block
+        parameter: a parameter of the diagram or of a subsystem instance (evaluated into
+        the blocks' values at load: load again with ``set=``), a block or subsystem
+        instance without a parameter, or no such name (near names suggested)."""
+        again = f"reload with spidersim.load(file, set={{{path!r}: ...}})"
+        if not block and name in self.spec.parameters:
+            return (f"set {path}: '{name}' is a parameter of the diagram, not of a block: "
+                    f"its value went into the blocks' values (and later parameters) when the "
+                    f"diagram was loaded; to change it, {again}")
+        if block in self.flat.subsystem_instances:
+            return (f"set {path}: '{block}' is a subsystem instance: its parameters went "
+                    f"into its blocks' values when the diagram was loaded; to change "
+                    f"'{name}', {again} (or set a block parameter inside it: "
+                    f"{block}.<block>.<param>)")
+        whole = path if not block else block
+        if whole in self.layout.blocks or whole in self.flat.subsystem_instances:
+            return (f"set {path}: '{whole}' is a block; write {whole}.<param> (e.g. "
+                    f"{whole}.{next(iter(self.blocks[whole].params), 'k')})"
+                    if whole in self.blocks else
+                    f"set {path}: '{whole}' is a subsystem instance; write "
+                    f"{whole}.<block>.<param>")
+        import difflib
+        known = list(self.layout.blocks) + list(self.spec.parameters)
+        near = difflib.get_close_matches(whole, known, n=3)
+        hint = f"; did you mean {', '.join(near)}?" if near else ""
+        return (f"set {path}: the diagram has no block{' or parameter' if not block else ''} "
+                f"'{whole}'{hint} (write block.param, e.g. motor.R)")
 
     def initial_state(self):
         x0 = np.zeros(self.layout.n_x)

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from ..errors import DiagramError, WiringError
-from ..text.yamlio import LineDict, load_text, read_file
+from ..text.yamlio import LineDict, file_problem, load_text, read_file
 from .arrays import array_key, expand_block, expand_connection
 
 SECTIONS = ("name", "description", "parameters", "subsystems", "blocks", "connections",
@@ -140,9 +140,9 @@ def _section(data, key, kind, file):
 
 def parse_file(path: str) -> DiagramSpec:
     """Read and check one diagram file (no subsystems opened yet)."""
-    if not os.path.isfile(path):
-        raise DiagramError(f"diagram file {'is a folder' if os.path.isdir(path) else 'not found'}"
-                           f": {path}")
+    problem = file_problem(path)
+    if problem:
+        raise DiagramError(f"diagram file {problem}: {path}")
     return _parse_data(read_file(path), path)
 
 

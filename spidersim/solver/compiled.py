@@ -392,14 +392,26 @@ def info() -> dict:
 
 
 def _count(folder):
-    """Compiled structures and bytes of spidersim's files in ``folder``."""
+    """Compiled structures and bytes of spidersim's own cache files in ``folder``: the
+    files of cache entries (:data:`_ENTRY_FILE`, as :func:`clear` removes them) in the
+    folder and its ``__pycache__``, nothing deeper (with ``SPIDERSIM_CACHE=/`` the whole
+    file system was walked and every ``spidersim_gen_*`` anywhere counted). Links are not
+    followed."""
     entries, size = 0, 0
-    if os.path.isdir(folder):
-        for d, _, files in os.walk(folder):
-            for f in files:
-                if f.startswith(PREFIX):
-                    size += os.path.getsize(os.path.join(d, f))
-                    entries += f.endswith(".py") and d == folder
+    for d in (folder, os.path.join(folder, "__pycache__")):
+        try:
+            listing = os.scandir(d)
+        except OSError:                    # absent, not a folder, not readable
+            continue
+        with listing:
+            for f in listing:
+                if not (_ENTRY_FILE.match(f.name) and f.is_file(follow_symlinks=False)):
+                    continue
+                try:
+                    size += f.stat(follow_symlinks=False).st_size
+                except OSError:            # removed meanwhile
+                    continue
+                entries += d == folder and f.name.endswith(".py")
     return entries, size
 
 

@@ -23,7 +23,10 @@ The system is anything that meets the contract of :mod:`spidersim.solver.system`
 """
 from __future__ import annotations
 
+import os
+import threading
 import time
+import warnings
 
 import numpy as np
 
@@ -141,6 +144,8 @@ class SciPyLoop:
         self.recent = {}               # block -> times of its latest events (chattering)
         self.chatter_window = max(1e-9, 1e-6 * (t_end - t0))
         self.wall0 = time.perf_counter()
+        #: warnings caught during the run (see :meth:`run`), or None
+        self._caught = None
 
     # -- failures -----------------------------------------------------------------------
 
@@ -164,6 +169,8 @@ class SciPyLoop:
                         f"round-off): {ahead}"), ""
         else:
             why = s.diagnose(t, x) if x is not None else ""
+        said = self._scipy_said()
+        msg = f"{msg} (SciPy: {said})" if said else msg
         full = f"integration failed at t = {t:.9g} s: {msg}" + (f"; {why}" if why else "")
         raise IntegrationError(full, partial=self.rec.result(self.events, st, "failed", full))
 
@@ -508,7 +515,39 @@ class SciPyLoop:
     def run(self):
         """Integrate from ``t0`` to ``t_end``; return the :class:`Result` (its ``final``
         holds the end time, state and modes). A run whose rows reach the recording budget
-        (:mod:`.record_budget`) fails with the rows recorded so far."""
+        (:mod:`.record_budget`) fails with the rows recorded so far.
+
+        SciPy's steppers say why they fail in a warning of their own (LSODA: "Repeated
+        convergence failures ...", then only "Unexpected istate"): the warnings of the run
+        are caught and SciPy's go into the failure's message (:meth:`_scipy_said`) instead
+        of raw lines before it; the others, and all of a run that does not fail, are
+        issued again after it. Catching swaps process-wide state, so it is done in the
+        main thread only (where the command line and notebooks run); in other threads the
+        warnings pass as before."""
+        if threading.current_thread() is not threading.main_thread():
+            return self._run_bounded()
+        caught = []
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                self._caught = caught
+                return self._run_bounded()
+        finally:
+            self._caught = None
+            for w in caught:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+    def _scipy_said(self):
+        """The messages of the SciPy warnings caught so far, taken out of the catch (they
+        are in the failure's message, not issued again), or ''."""
+        if not self._caught:
+            return ""
+        mine = [w for w in self._caught
+                if f"{os.sep}scipy{os.sep}" in (w.filename or "")]
+        self._caught[:] = [w for w in self._caught if w not in mine]
+        return "; ".join(dict.fromkeys(str(w.message) for w in mine))
+
+    def _run_bounded(self):
+        """:meth:`_run`, a full recording budget turned into an IntegrationError."""
         try:
             return self._run()
         except RecordBudgetFull as exc:

@@ -4,6 +4,9 @@ It walks Python's AST and accepts only numbers, lists, names of diagram paramete
 constants, the arithmetic operators ``+ - * / // % **``, unary minus and a few math functions.
 Nothing is ever passed to ``eval``; attribute access, subscripts other than ``name[int]``,
 comprehensions, lambdas and calls to anything but the listed functions are rejected.
+The text is ASCII (a look-alike letter is not read as the letter it resembles), a value is
+never complex (refused at the operation that made it), a boolean is neither a number nor
+an index, and a list is rectangular.
 """
 from __future__ import annotations
 
@@ -11,9 +14,11 @@ import ast
 import difflib
 import math
 import operator
+import unicodedata
 
 import numpy as np
 
+from ..errors import printable
 from . import limits
 
 CONSTANTS = {"pi": math.pi, "e": math.e, "inf": math.inf}
@@ -60,6 +65,7 @@ def evaluate(text: str, names: dict):
     if len(text) > limits.MAX_EXPR_CHARS:
         raise ExprError(f"expression of {len(text)} characters is longer than the limit of "
                         f"{limits.MAX_EXPR_CHARS}: '{_short(text)}'")
+    _check_ascii(text)
     # an expression written over several lines (a YAML block scalar) is one line: line
     # breaks and tabs are spaces, as they would be inside parentheses
     text = " ".join(text.split())
@@ -87,10 +93,38 @@ def evaluate(text: str, names: dict):
         raise ExprError(f"cannot evaluate '{_short(text)}': {exc}") from None
     except MemoryError:
         raise ExprError(f"expression result too large: '{_short(text)}'") from None
+    if isinstance(value, list):
+        check_rectangular(value)
     if np.size(value) > limits.MAX_ARRAY_ELEMENTS:
         raise ExprError(f"expression gives {np.size(value)} elements, more than the limit of "
                         f"{limits.MAX_ARRAY_ELEMENTS}: '{_short(text)}'")
     return value
+
+
+def check_rectangular(values):
+    """A list value is an array of numbers: every row of the same length, at every depth
+    (``[1, [2, 3]]`` or ``[[1, 2], [3]]`` is no array; numpy refuses them with a
+    ValueError about an inhomogeneous shape). An ExprError says so. Used for a list
+    written in YAML and for one an expression gives (``"[[1, 2], [3]]"``)."""
+    try:
+        np.asarray(values, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ExprError("a list value must be a number list or a matrix (rows of equal "
+                        "length, numbers only), got a ragged or mixed list") from None
+
+
+def _check_ascii(text):
+    """Expressions are ASCII (they hold no string literals): Python's parser would read a
+    look-alike letter as its plain form (NFKC: fullwidth ``ｋ`` is ``k``, bold ``𝐩𝐢`` is
+    ``pi``), so a name that looks foreign would silently mean a parameter. The first
+    non-ASCII character is an ExprError naming it, its code point and its position."""
+    for pos, ch in enumerate(text):
+        if ord(ch) > 127:
+            name = unicodedata.name(ch, "unnamed")
+            raise ExprError(f"non-ASCII character '{printable(ch)}' (U+{ord(ch):04X} "
+                            f"{name}) at character {pos + 1} of '{printable(_short(text))}':"
+                            f" expressions are ASCII (names are ASCII identifiers: a "
+                            f"look-alike letter would be read as another name)")
 
 
 def _not_allowed(node, text):
@@ -180,6 +214,9 @@ def _subscript(node, names, text):
         raise _not_allowed(node, text)
     seq = _eval(node.value, names, text)
     idx = _eval(node.slice, names, text)
+    if isinstance(idx, (bool, np.bool_)):
+        raise ExprError(f"a boolean (true/false) is not an index in '{_short(text)}'; "
+                        f"write 0 or 1 if an index is meant")
     if isinstance(idx, float) and idx.is_integer():
         idx = int(idx)
     if not isinstance(seq, list) or not isinstance(idx, int):
@@ -214,4 +251,16 @@ def _eval(node, names, text):
     evaluator = _EVALUATORS.get(type(node))
     if evaluator is None:
         raise _not_allowed(node, text)
-    return evaluator(node, names, text)
+    value = evaluator(node, names, text)
+    if isinstance(value, complex):
+        raise _complex(node, value, text)
+    return value
+
+
+def _complex(node, value, text):
+    """The error for a complex value (a negative number to a fractional power, ``(-8) **
+    (1/3)``): parameters are real, and a later ``abs`` would silently make it one."""
+    why = (" (a negative number to a fractional power has no real value)"
+           if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow) else "")
+    return ExprError(f"'{_short(ast.unparse(node))}' gives the complex number {value:.6g}"
+                     f"{why} in '{_short(text)}': parameters are real numbers")

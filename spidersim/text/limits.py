@@ -23,6 +23,11 @@ MAX_EXPR_CHARS = 2_000
 MAX_EXPR_DEPTH = 50
 #: elements of an evaluated vector or matrix parameter
 MAX_ARRAY_ELEMENTS = 1_000_000
+#: subsystem instances nested inside each other (a subsystem file that uses a subsystem
+#: that uses ...; spider.yaml nests 2 deep). Deeper chains are refused before the next
+#: file is read: a chain of 3,000 files once failed deep in the YAML reader, blaming one
+#: file of the chain
+MAX_SUBSYSTEM_DEPTH = 32
 #: primitive blocks of one diagram after its subsystems are expanded (compile time and
 #: memory grow faster than the count: 1,200 chained Gains compile in about 23 s and 1.5 GB,
 #: 2,000 in 73 s and 3.7 GB, 5,000 did not fit in 4 GB; spider.yaml has 74); also stops a

@@ -14,8 +14,8 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
-
 import re
+import stat
 
 import yaml
 
@@ -254,12 +254,46 @@ def refuse_unreadable(path: str, what: str = "file"):
                            f"read (a request cannot name files of the server)")
 
 
+_SPECIAL = ((stat.S_ISFIFO, "a FIFO, a named pipe"), (stat.S_ISCHR, "a character device"),
+            (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _mode_problem(mode):
+    """None for a regular file, else what the file is instead, in words."""
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "is a folder, not a file"
+    kind = next((k for test, k in _SPECIAL if test(mode)), "a special file")
+    return f"is not a regular file ({kind})"
+
+
+def file_problem(path: str):
+    """Why ``path`` cannot be read as a diagram file: ``"not found"``, ``"is a folder, not
+    a file"``, ``"is not a regular file (a character device)"`` (``/dev/zero``,
+    ``/dev/null``, a FIFO: never opened, so a FIFO cannot block), ``"cannot be read
+    (...)"``; None for a regular file (a link to one included)."""
+    try:
+        st = os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return "not found"
+    except (OSError, ValueError) as exc:          # ValueError: a NUL in the path
+        return f"cannot be read ({getattr(exc, 'strerror', None) or exc})"
+    return _mode_problem(st.st_mode)
+
+
 def read_file(path: str):
     """Read and parse a YAML file within bounds (see :func:`load_text`); a file outside
-    :func:`files_only_under` is refused unopened."""
+    :func:`files_only_under` is refused unopened. Opened without blocking and checked to
+    be a regular file before a byte is read (a FIFO put in its place after a check by
+    name would otherwise wait for a writer forever)."""
     refuse_unreadable(path)
     try:
-        with open(path, "rb") as fh:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as fh:
+            problem = _mode_problem(os.fstat(fd).st_mode)
+            if problem:
+                raise DiagramError(f"file {problem}", file=path)
             raw = fh.read(limits.MAX_FILE_BYTES + 1)
     except OSError as exc:
         raise DiagramError(f"cannot read file: {exc.strerror}", file=path) from None

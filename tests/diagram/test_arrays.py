@@ -73,6 +73,9 @@ def test_spider_yaml_uses_an_array_of_seven_joints():
     (("  - g{i}.y -> out.u{i}", "  - h{i}.y -> out.u{i}"), "names no block array"),
     (("g[1..3]", "g[1..5000]"), "1 to 1000 instances"),
     (("g[1..3]", "g[3..1]"), "1 to 1000 instances"),
+    # a range too large for len() was an internal OverflowError before the bound was checked
+    (("g[1..3]", "g[1..99999999999999999999]"), r"1 to 1000 instances .* got 1e\+20"),
+    (("g[1..3]", "g[1..1" + "0" * 999 + "]"), "got a number of 1000 digits"),
     (("  out: {type: Mux, n: 3}", "  out: {type: Mux, n: 3}\n  g2: {type: Gain}"),
      "also declared on its own"),
     (("  - g{i}.y -> out.u{i}", "  - g{i}.y -> out.u{j}"), "braces"),

@@ -124,8 +124,43 @@ def test_exposed_inputs_record_their_targets():
     assert lv.flat.exposed[("j1.h", "u")] == ("j1", "u", "<string>", 5)
     lv.spec.inputs["v"] = [Address("g", "w")]
     lv.spec.port_lines[("in", "v")] = 6
-    with pytest.raises(WiringError, match=r"block 'g' \(Gain\) has no input 'w'; inputs: u"):
+    with pytest.raises(WiringError, match=r"block 'g' \(Gain\) has no input 'w'; inputs of "
+                                          r"'g': u"):
         F._exposed_inputs(lv, addr)
+
+
+@pytest.mark.parametrize("section, target, words", [
+    # an output mapped to an input port was an internal error (KeyError: 'j1.g.u')
+    ("outputs", "g.u", "exposed output 'x' maps to 'g.u', but 'u' is an input port of block "
+                       "'g' (Gain): an exposed output must name an output port; outputs of "
+                       "'g': y"),
+    ("outputs", "g.yy", "block 'g' (Gain) has no output 'yy'; did you mean y?; outputs of "
+                        "'g': y"),
+    ("inputs", "g.y", "exposed input 'x' maps to 'g.y', but 'y' is an output port of block "
+                      "'g' (Gain): an exposed input must name an input port; inputs of 'g': u"),
+    ("inputs", "g.uu", "block 'g' (Gain) has no input 'uu'; did you mean u?; inputs of 'g': u"),
+])
+def test_exposed_port_of_the_wrong_kind_is_refused_at_its_line(section, target, words):
+    """An exposed output must name an output port of its block and an exposed input an
+    input port: a port of the other kind is named as such, an unknown one gets near names;
+    the block's ports of the right kind are listed, at the exposed port's line (line 4 of
+    the subsystem file), with the instance path."""
+    lv = level(f"blocks:\n  g: {{type: Gain}}\n{section}:\n  x: {target}\n", prefix="j1.")
+    F._instantiate_block(lv, "g", lv.spec.blocks["g"], F.BlockOverrides({}, {}))
+    addr = F._LocalAddresses(lv.spec, "j1.", {})
+    with pytest.raises(WiringError) as ei:
+        F._exposed_inputs(lv, addr)
+        F._exposed_outputs(lv, addr)
+    assert words in ei.value.message
+    assert (ei.value.line, ei.value.block) == (4, "j1.g")
+
+
+def test_exposed_outputs_of_output_ports_are_accepted():
+    """The check lets an output port through: the flat slice it exposes is returned."""
+    lv = level("blocks:\n  g: {type: Gain}\noutputs:\n  x: g.y\n  z: g.y[0]\n", prefix="j1.")
+    F._instantiate_block(lv, "g", lv.spec.blocks["g"], F.BlockOverrides({}, {}))
+    out = F._exposed_outputs(lv, F._LocalAddresses(lv.spec, "j1.", {}))
+    assert out == {"x": ("j1.g", "y", None, None), "z": ("j1.g", "y", 0, 1)}
 
 
 def test_unit_factor_to_declared_unit_or_si():

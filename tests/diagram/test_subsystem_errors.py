@@ -113,3 +113,73 @@ def test_subsystem_fan_out_bomb_stops_at_the_block_limit(tmp_path, monkeypatch):
     assert "MAX_BLOCKS" in msg and msg.startswith(f"{tmp_path / 'l1.yaml'}:2: ")
     monkeypatch.setattr(limits, "MAX_BLOCKS", 1000)       # exactly at the limit: loads
     assert len(spidersim.load(str(tmp_path / "l3.yaml")).flat.blocks) == 1000
+
+
+def test_subsystem_type_named_like_a_library_block_is_refused(tmp_path):
+    """``subsystems: {Gain: lag.yaml}`` made every ``type: Gain`` of the file a lag without
+    a word (the README documents no shadowing): refused at the entry's line, naming the
+    library block it would hide."""
+    exc, msg = _error(tmp_path, SUB, PARENT.replace("  my: sub.yaml", "  Gain: sub.yaml")
+                      .replace("{type: my}", "{type: Gain, k: 2}"))
+    assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 2
+    assert "subsystem type 'Gain' has the name of the library block Gain" in msg
+    assert "sub.yaml" in msg
+    # the same subsystem under its own name loads
+    (tmp_path / "parent.yaml").write_text(PARENT)
+    assert "s.g" in spidersim.load(str(tmp_path / "parent.yaml")).blocks
+
+
+def test_self_inclusion_through_a_link_says_so(tmp_path):
+    """``me: d/x.yaml`` with ``d -> .`` is x.yaml itself: the cycle check compares real
+    paths (it used to nest 40 levels of d/d/d/... and say 'not found')."""
+    os.symlink(".", tmp_path / "d")
+    (tmp_path / "x.yaml").write_text(
+        "subsystems:\n  me: d/x.yaml\nblocks:\n  g: {type: Gain}\n  inner: {type: me}\n"
+        "connections:\n  - g.y -> inner.u\ninputs: {u: g.u}\noutputs: {y: g.y}\n")
+    (tmp_path / "top.yaml").write_text(
+        "subsystems:\n  me: x.yaml\nblocks:\n  c: {type: Constant, value: 1}\n"
+        "  inner: {type: me}\nconnections:\n  - c.y -> inner.u\n")
+    with pytest.raises(SpidersimError) as e:
+        spidersim.load(str(tmp_path / "top.yaml"))
+    msg = str(e.value)
+    assert "subsystem type 'me' includes itself (top.yaml -> x.yaml -> x.yaml" in msg
+    assert "through a link" in msg and os.path.basename(e.value.file) == "x.yaml"
+    assert e.value.line == 5 and "d/d" not in msg
+
+
+def _chain(tmp_path, n):
+    """top.yaml -> s0.yaml -> ... -> s<n-1>.yaml, each a subsystem holding the next; the
+    last holds a Gain: n levels of subsystem instances."""
+    for k in range(n):
+        inner = ("blocks:\n  g: {type: Gain}\ninputs: {u: g.u}\noutputs: {y: g.y}\n"
+                 if k == n - 1 else
+                 f"subsystems: {{nxt: s{k + 1}.yaml}}\nblocks:\n  n: {{type: nxt}}\n"
+                 f"inputs: {{u: n.u}}\noutputs: {{y: n.y}}\n")
+        (tmp_path / f"s{k}.yaml").write_text(inner)
+    (tmp_path / "top.yaml").write_text(
+        "subsystems: {s: s0.yaml}\nblocks:\n  c: {type: Constant, value: 1}\n"
+        "  a: {type: s}\nconnections:\n  - c.y -> a.u\n")
+    return str(tmp_path / "top.yaml")
+
+
+@pytest.mark.parametrize("limit, chain", [
+    (4, "top.yaml -> s0.yaml -> s1.yaml -> s2.yaml -> s3.yaml -> s4.yaml"),
+    (6, "top.yaml -> s0.yaml -> s1.yaml -> ... -> s5.yaml -> s6.yaml"),   # long: its ends
+])
+def test_subsystem_nesting_depth_is_bounded(tmp_path, monkeypatch, limit, chain):
+    """A chain of distinct files deeper than MAX_SUBSYSTEM_DEPTH is refused at the top
+    instance that starts it, naming the chain's ends and the level (a chain of 3,000 files
+    failed in the YAML reader of the 483rd, blaming that small file). Lowered here;
+    exactly at the limit loads."""
+    from spidersim.text import limits
+    assert limits.MAX_SUBSYSTEM_DEPTH == 32
+    monkeypatch.setattr(limits, "MAX_SUBSYSTEM_DEPTH", limit)
+    with pytest.raises(SpidersimError) as e:
+        spidersim.load(_chain(tmp_path, limit + 1))
+    msg = str(e.value)
+    assert msg.startswith(f"{tmp_path / 'top.yaml'}:4: block 'a': ")
+    assert f"subsystems nested more than {limit} levels deep (limit MAX_SUBSYSTEM_DEPTH)" in msg
+    assert f"chain of files {chain} that reaches level {limit + 1} at 'a{'.n' * limit}'" in msg
+    for f in tmp_path.glob("*.yaml"):
+        f.unlink()
+    assert f"a{'.n' * (limit - 1)}.g" in spidersim.load(_chain(tmp_path, limit)).blocks

@@ -353,3 +353,27 @@ def test_clear_removes_only_cache_entries(tmp_path, monkeypatch):
         f.write_text("x")
     assert compiled.clear() == len(ours)
     assert not any(f.exists() for f in ours) and all(f.exists() for f in theirs)
+
+
+def test_cache_info_counts_only_its_own_entries_at_its_own_depth(tmp_path, monkeypatch):
+    """``cache info`` counts the files of cache entries in the folder and its
+    ``__pycache__`` only: with ``SPIDERSIM_CACHE=/`` it walked the whole file system and
+    counted any ``spidersim_gen_*`` anywhere (a file of the same prefix that is no entry,
+    one in a deeper folder, a link to a big file are not its own)."""
+    from spidersim.solver import compiled
+    monkeypatch.setenv("SPIDERSIM_CACHE", str(tmp_path))
+    monkeypatch.setattr(compiled, "fallback_path", lambda: str(tmp_path / "no_fallback"))
+    key = "0123456789abcdef0123"
+    (tmp_path / "__pycache__").mkdir()
+    (tmp_path / "deeper").mkdir()
+    ours = {tmp_path / f"spidersim_gen_{key}.py": 100, tmp_path / f"spidersim_gen_{key}.sha256": 64,
+            tmp_path / "__pycache__" / f"spidersim_gen_{key}.outputs-45.py311.nbi": 10,
+            tmp_path / "__pycache__" / f"spidersim_gen_{key}.outputs-45.py311.1.nbc": 1000}
+    theirs = {tmp_path / "spidersim_gen_notmine.py": 5000,
+              tmp_path / "deeper" / f"spidersim_gen_{key[::-1]}.py": 7000,
+              tmp_path / "big.bin": 9000}
+    for f, n in {**ours, **theirs}.items():
+        f.write_bytes(b"x" * n)
+    os.symlink(tmp_path / "big.bin", tmp_path / f"spidersim_gen_{'f' * 20}.py")
+    info = compiled.info()
+    assert (info["entries"], info["bytes"]) == (1, sum(ours.values()))

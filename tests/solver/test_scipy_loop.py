@@ -1,6 +1,8 @@
 """The SciPy-stepper loop's parts on hand-written systems: no YAML, no code generation, no
 numba (issue 17, item 1). Each system is a few lines over :class:`PlainSystem`."""
 import math
+import os
+import warnings
 
 import numpy as np
 import pytest
@@ -226,3 +228,45 @@ def test_a_run_shorter_than_the_shortest_run_is_refused():
     with pytest.raises(SpidersimError, match="shorter than the shortest run of 1e-07 s"):
         integrate(Ball(1.0, 0.8), 1e-300, method="RK45")
     assert integrate(Ball(1.0, 0.8), 1e-7, method="RK45").t[-1] == 1e-7
+
+
+class Warner(PlainSystem):
+    """x' = 1, warning once from its right-hand side: as SciPy's own code (a file under a
+    ``scipy`` folder) or as any other code; the state turns NaN at t = 0.5 if ``fail``."""
+
+    def __init__(self, as_scipy, fail):
+        super().__init__([0.0])
+        self.as_scipy, self.fail, self.warned = as_scipy, fail, False
+
+    def rhs(self, t, x):
+        if not self.warned:
+            self.warned = True
+            where = os.path.join(os.sep, "lib", "scipy", "integrate", "x.py") \
+                if self.as_scipy else __file__
+            warnings.warn_explicit("lsoda: Repeated convergence failures", UserWarning,
+                                   where, 7)
+        return np.array([math.nan if self.fail and t > 0.5 else 1.0])
+
+
+def test_scipy_warnings_go_into_the_failure_message_not_to_stderr(recwarn):
+    """SciPy's steppers say why they fail in a warning of their own (LSODA: "Repeated
+    convergence failures", then only "Unexpected istate"): it printed as raw lines before
+    the clean error (``--set motor.b=1e300``). It is now part of the failure's message and
+    not issued."""
+    with pytest.raises(IntegrationError) as ei:
+        integrate(Warner(as_scipy=True, fail=True), 1.0, method="RK45")
+    assert "(SciPy: lsoda: Repeated convergence failures)" in str(ei.value)
+    assert not [w for w in recwarn if "Repeated" in str(w.message)]
+
+
+@pytest.mark.parametrize("as_scipy", [True, False])
+def test_other_warnings_and_those_of_a_good_run_are_issued_again(as_scipy):
+    """Only a failure takes SciPy's warnings in; any other warning, and every warning of a
+    run that succeeds, is issued after the run as before."""
+    with pytest.warns(UserWarning, match="Repeated convergence failures"):
+        r = integrate(Warner(as_scipy=as_scipy, fail=False), 1.0, method="RK45")
+    assert r.t[-1] == 1.0
+    if not as_scipy:
+        with pytest.warns(UserWarning, match="Repeated"), pytest.raises(IntegrationError) as ei:
+            integrate(Warner(as_scipy=False, fail=True), 1.0, method="RK45")
+        assert "SciPy:" not in str(ei.value)

@@ -7,6 +7,7 @@ expressions are covered by tests/diagram and the hostile corpus.
 import ast
 import math
 
+import numpy as np
 import pytest
 
 from spidersim.text import expr as X
@@ -117,3 +118,57 @@ def test_booleans_are_not_numbers_in_arithmetic(text):
     with pytest.raises(ExprError, match="a boolean \\(true/false\\) is not a number"):
         evaluate(text, {"flag": True, "flags": [1.0, False]})
     assert evaluate("len(flags)", {"flags": [True, False]}) == 2
+
+
+@pytest.mark.parametrize("text, words", [
+    # Python's parser reads these as 2*k + pi (NFKC): they were accepted as that
+    ("2*\uff4b + pi", "non-ASCII character '\uff4b' (U+FF4B FULLWIDTH LATIN SMALL LETTER K) "
+                      "at character 3 of '2*\uff4b + pi'"),
+    ("2*k + \U0001d429\U0001d422", "'\U0001d429' (U+1D429 MATHEMATICAL BOLD SMALL P) at "
+                                    "character 7"),
+    ("\u212f", "U+212F SCRIPT SMALL E"),
+    ("k\u200b", "'\\u200b' (U+200B ZERO WIDTH SPACE) at character 2"),  # shown escaped
+    ("2*\u03c0", "U+03C0 GREEK SMALL LETTER PI"),
+    ("1\u00a0+ k", "U+00A0 NO-BREAK SPACE"),
+])
+def test_non_ascii_characters_are_refused_where_they_stand(text, words):
+    """Expressions hold no string literals, so any non-ASCII character is refused, naming
+    it, its code point and its position: a look-alike letter would otherwise be read as a
+    parameter's name (names are ASCII identifiers, see the README's limits)."""
+    with pytest.raises(ExprError) as ei:
+        evaluate(text, {"k": 3.0})
+    assert words in str(ei.value) and "expressions are ASCII" in str(ei.value)
+
+
+@pytest.mark.parametrize("text", ["v[f]", "v[t]", "v[bs[0]]"])
+def test_a_boolean_is_not_an_index(text):
+    """``v[f]`` with ``f: true`` picked element 1 (Python counts True as 1)."""
+    names = {"v": [10.0, 20.0], "f": True, "t": np.bool_(False), "bs": [True]}
+    with pytest.raises(ExprError, match=r"a boolean \(true/false\) is not an index"):
+        evaluate(text, names)
+    assert evaluate("v[i]", dict(names, i=1)) == 20.0
+
+
+@pytest.mark.parametrize("text, part", [
+    ("(-8)**(1/3)", "'(-8) ** (1 / 3)' gives the complex number 1+1.73205j (a negative "
+                    "number to a fractional power has no real value)"),
+    ("abs((-8)**(1/3))", "'(-8) ** (1 / 3)' gives"),        # abs() made it 2.0
+    ("a**0.5 + 1", "'a ** 0.5' gives"),
+    ("[1, (-1)**0.5]", "'(-1) ** 0.5' gives"),
+])
+def test_complex_values_are_refused_at_the_operation(text, part):
+    """Parameters are real: a complex value is refused where it arises (the sub-expression
+    is named), before ``abs`` or ``min`` could turn it into a wrong real number."""
+    with pytest.raises(ExprError) as ei:
+        evaluate(text, {"a": -4.0})
+    assert part in str(ei.value) and "parameters are real numbers" in str(ei.value)
+    assert evaluate("(8)**(1/3)", {}) == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("text", ["[[1, 2], [3]]", "((1,2),(3,))", "[1, [2, 3]]", "[L, 1]"])
+def test_a_ragged_list_from_an_expression_is_refused(text):
+    """The same error as for a ragged YAML list (it was an internal ValueError from
+    numpy's inhomogeneous shape)."""
+    with pytest.raises(ExprError, match="must be a number list or a matrix .* ragged"):
+        evaluate(text, NAMES)
+    assert evaluate("[[1, 2], [3, a]]", NAMES) == [[1.0, 2.0], [3.0, 2.0]]
