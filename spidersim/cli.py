@@ -312,6 +312,8 @@ class StopRequest:
     """
 
     CODES = {"SIGINT": 130, "SIGTERM": 143}
+    #: what had not started when a signal ends the command at once
+    BEFORE = "the integration started"
 
     def __init__(self):
         self.requested = False
@@ -336,7 +338,8 @@ class StopRequest:
         if self.requested:
             raise _Interrupted(name, f"interrupted again ({name}): stopped at once")
         if self.phase == "before":
-            raise _Interrupted(name)
+            raise _Interrupted(name, f"interrupted ({name}) before {self.BEFORE}: nothing "
+                                     f"computed to keep")
         self.requested, self.name = True, name
         if self.phase == "writing":
             sys.stderr.write(f"spidersim: {name}: finishing writing the results "
@@ -859,7 +862,7 @@ def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, out):
 
 
 def cmd_sweep(args):
-    from .sweep import parse_vary, print_progress, sweep
+    from .sweep import SweepInterrupted, parse_vary, print_progress, sweep
 
     vary = parse_vary(args.vary)
     if args.workers is not None and args.workers < 0:
@@ -881,20 +884,55 @@ def cmd_sweep(args):
              f"local Dask cluster, {workers} worker(s)")
     print(f"spidersim: sweep of {n} run(s) over {', '.join(p for p, _ in vary)} ({where}); "
           f"compiling once ...", file=sys.stderr)
-    res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
-                set=_parse_sets(args.set), sim=sim, progress=print_progress)
+    stop = SweepStop()
+    with stop.installed():     # a signal during the runs: the table of those finished
+        try:
+            res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
+                        set=_parse_sets(args.set), sim=sim, progress=print_progress,
+                        should_stop=stop)
+            code = stop.exit_code if res.unfinished else None
+        except SweepInterrupted as exc:       # a second signal: the run in progress ended
+            res, code = exc.result, exc.exit_code
+        stop.writing()
+        pngs = _write_sweep(res, out, args.no_plots)
+    print(res.table())
+    rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
+    print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed"
+          + (f", {len(res.unfinished)} unfinished" if res.unfinished else "")
+          + f", {res.wall_s:.1f} s ({rate:.1f} runs/min); wrote {out}/sweep.csv"
+          + (f" and {len(pngs)} plot(s)" if pngs else ""))
+    if code is not None:
+        done = len(res.rows) - len(res.unfinished)
+        print(f"spidersim: {stop.name or 'interrupted'}: sweep stopped after {done} of "
+              f"{len(res.rows)} run(s); {out}/sweep.csv has their rows, the others with "
+              f"status 'interrupted' or 'not run'", file=sys.stderr)
+        return code
+    if stop.requested:                  # the signal came while the table was written
+        print(f"spidersim: {stop.name} after the last run: the results in {out}/ are "
+              f"complete", file=sys.stderr)
+        return stop.exit_code
+    return 1 if res.failed else 0        # the table is written either way
+
+
+def _write_sweep(res, out, no_plots):
+    """``sweep.csv`` and (unless ``no_plots``) the plots of ``res`` in ``out``; returns
+    the plots' paths. A file that cannot be written is an error naming it."""
     try:
         res.write_csv(os.path.join(out, "sweep.csv"))
-        pngs = res.plot(out) if not args.no_plots else []
+        return res.plot(out) if not no_plots else []
     except OSError as exc:
         raise SpidersimError(f"{exc.strerror or exc} (free some space or choose another "
                              f"--out)") from None
-    print(res.table())
-    rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
-    print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed, "
-          f"{res.wall_s:.1f} s ({rate:.1f} runs/min); wrote {out}/sweep.csv"
-          + (f" and {len(pngs)} plot(s)" if pngs else ""))
-    return 1 if res.failed else 0        # the table is written either way
+
+
+class SweepStop(StopRequest):
+    """SIGINT/SIGTERM during ``spidersim sweep``: before the first run the command ends at
+    once; during the runs the first signal stops the sweep (serially, the run in progress
+    at its current step) and the table of the finished runs is written; a second signal
+    ends the run in progress at once, the table is still written (see
+    :class:`StopRequest` for the rest)."""
+
+    BEFORE = "the first run started"
 
 
 def cmd_run_remote(args):

@@ -215,12 +215,18 @@ def grid(vary) -> list[dict]:
 
 
 # --------------------------------------------------------------------------- one run
-def run_point(file, base_set, point, sim, index=0):
+#: status of a run stopped part-way by an interrupt (no metrics: they would describe a
+#: shorter run), and of a run that never started because the sweep was interrupted
+INTERRUPTED, NOT_RUN = "interrupted", "not run"
+
+
+def run_point(file, base_set, point, sim, index=0, should_stop=None):
     """Run one grid point; never raises for a failed run. Returns a row dict.
 
     Runs in the calling process or in a Dask worker. The diagram is rebuilt with the point's
     values (``--set`` semantics); its compiled module comes from this process's modules or
-    the on-disk cache.
+    the on-disk cache. ``should_stop`` (serial sweeps) is polled after every step: when it
+    says stop, the row has status :data:`INTERRUPTED`, the time reached and no metrics.
     """
     from .diagram.model import load
     from .solver.compiled import COUNTS
@@ -231,10 +237,14 @@ def run_point(file, base_set, point, sim, index=0):
     try:
         d = load(file, set={**base_set, **point})
         metrics = parse_metrics(d)
-        r = d.simulate(**sim)
+        r = d.simulate(**sim, **({"should_stop": should_stop} if should_stop else {}))
         row["t_reached"] = r.stats.get("t_reached")
-        values = {m.name: m.evaluate(r) for m in metrics}     # all or none in the row
-        row.update(values)
+        if r.status == INTERRUPTED:
+            row["status"] = INTERRUPTED
+            row["message"] = (f"stopped by the interrupt at t = {row['t_reached']:.6g} s "
+                              f"(no metrics: the run is incomplete)")
+        else:
+            row.update({m.name: m.evaluate(r) for m in metrics})  # all or none in the row
     except SpidersimError as exc:
         row["status"] = "failed"
         row["message"] = str(exc)
@@ -247,6 +257,25 @@ def run_point(file, base_set, point, sim, index=0):
     row["compiled"] = COUNTS["written"] > written      # a structure new to the cache
     row["wall_s"] = time.perf_counter() - t0
     return row
+
+
+def _unfinished_row(k, point, status, message):
+    """The row of run ``k`` at ``point`` that an interrupt left without a result."""
+    return {"run": k, **point, "status": status, "message": message, "compiled": False,
+            "worker": "", "wall_s": math.nan}
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """A KeyboardInterrupt (Ctrl-C, or a second signal to the CLI) during the runs of a
+    sweep. ``result`` is the :class:`SweepResult` of the runs finished before it, the
+    others marked :data:`INTERRUPTED` or :data:`NOT_RUN`; ``message`` and ``exit_code``
+    are those of the interrupt (130 by default)."""
+
+    def __init__(self, result, cause):
+        self.result = result
+        self.message = getattr(cause, "message", None) or "interrupted"
+        self.exit_code = getattr(cause, "exit_code", 130)
+        super().__init__(self.message)
 
 
 @dataclass
@@ -263,7 +292,14 @@ class SweepResult:
 
     @property
     def failed(self):
-        return [r for r in self.rows if r["status"] != "ok"]
+        """The rows of the runs that failed."""
+        return [r for r in self.rows if r["status"] == "failed"]
+
+    @property
+    def unfinished(self):
+        """The rows an interrupt left without metrics (:data:`INTERRUPTED`,
+        :data:`NOT_RUN`); empty for a sweep that ran to its end."""
+        return [r for r in self.rows if r["status"] in (INTERRUPTED, NOT_RUN)]
 
     def columns(self):
         return (["run"] + [p for p, _ in self.vary] + ["status"]
@@ -294,8 +330,11 @@ class SweepResult:
         width = [max(len(c), *(len(x[i]) for x in rows)) for i, c in enumerate(cols)]
         lines = ["  ".join(c.rjust(w) for c, w in zip(cols, width))]
         lines += ["  ".join(x.rjust(w) for x, w in zip(row, width)) for row in rows]
-        for r in self.failed:
-            lines.append(f"run {r['run']} failed: {r['message']}")
+        for r in self.failed + [r for r in self.rows if r["status"] == INTERRUPTED]:
+            lines.append(f"run {r['run']} {r['status']}: {r['message']}")
+        not_run = sum(r["status"] == NOT_RUN for r in self.rows)
+        if not_run:
+            lines.append(f"{not_run} run(s) not run: the sweep was interrupted")
         return "\n".join(lines)
 
     def curves(self, fixed):
@@ -311,7 +350,7 @@ class SweepResult:
         """The :class:`Curve` of the rows whose parameters have the values in ``point``."""
         pts = [r for r in self.rows if all(r[k] == v for k, v in point.items())]
         return Curve(label, [r for r in pts if r["status"] == "ok"],
-                     [r for r in pts if r["status"] != "ok"])
+                     [r for r in pts if r["status"] == "failed"])
 
     def figures(self):
         """The ``fixed`` mapping of each figure per metric: one per combination of the
@@ -338,7 +377,7 @@ class SweepResult:
         ax.set_ylabel(f"{m.name}" + (f" [{m.unit}]" if m.unit else ""))
         ax.set_title(_figure_title(m, fixed))
         ax.grid(True, alpha=0.3)
-        if len(self.vary) > 1 or any(r["status"] != "ok" for r in self.rows):
+        if len(self.vary) > 1 or self.failed:
             ax.legend()
         fig.tight_layout()
         path = _figure_path(folder, m, fixed)
@@ -394,7 +433,7 @@ def _fmt(v, digits=None):
 
 # --------------------------------------------------------------------------- the sweep
 def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=None,
-          connect_timeout=10.0):
+          connect_timeout=10.0, should_stop=None):
     """Run the grid of ``vary`` (see :func:`parse_vary`) over the diagram ``file``.
 
     Parameters
@@ -412,10 +451,20 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         ``progress(row, done, total)`` after each finished run.
     connect_timeout : float
         Seconds to wait for the scheduler at ``scheduler``.
+    should_stop : callable, optional
+        ``should_stop() -> bool``, polled between runs (and, serially, after every step of
+        the current run; keep it a flag check). Once it says stop, no run starts; the run
+        in progress is stopped (serial) or abandoned (Dask): see :data:`INTERRUPTED`.
 
     Returns
     -------
     SweepResult
+        Its ``unfinished`` rows are those a stop left without metrics.
+
+    Raises
+    ------
+    SweepInterrupted
+        On a KeyboardInterrupt during the runs, carrying the result of the runs finished.
     """
     from .diagram.model import load
     base = dict(set or {})
@@ -439,19 +488,49 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     rows = [None] * len(points)
-    if workers == 0 and scheduler is None:
-        for k, pt in enumerate(points):
-            rows[k] = run_point(file, base, pt, sim, k)
-            if progress:
-                progress(rows[k], k + 1, len(points))
-        n_workers = 0
-    else:
-        rows, n_workers = _run_dask(file, base, points, sim, workers, scheduler, progress,
-                                    connect_timeout)
+    interrupt = None
+    try:
+        if workers == 0 and scheduler is None:
+            n_workers = 0
+            _run_serial(file, base, points, sim, rows, progress, should_stop)
+        else:
+            n_workers = _run_dask(file, base, points, sim, rows, workers, scheduler,
+                                  progress, connect_timeout, should_stop)
+    except KeyboardInterrupt as exc:
+        if not any(r is not None and r["status"] not in (INTERRUPTED, NOT_RUN)
+                   for r in rows):
+            raise                   # no run finished: nothing computed to keep
+        interrupt, n_workers = exc, workers
+    _mark_unfinished(rows, points)
     res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
                       {"compile_s": compile_s, "structure_key": d._modules[True][1],
                        "name": d.spec.name})
+    if interrupt is not None:
+        raise SweepInterrupted(res, interrupt) from None
     return res
+
+
+def _run_serial(file, base, points, sim, rows, progress, should_stop):
+    """Run ``points`` one after the other here, filling ``rows``; stop (leaving the rest
+    None) when ``should_stop()`` says so (the run in progress polls it too)."""
+    for k, pt in enumerate(points):
+        if should_stop is not None and should_stop():
+            return
+        try:
+            rows[k] = run_point(file, base, pt, sim, k, should_stop)
+        except KeyboardInterrupt:
+            rows[k] = _unfinished_row(k, pt, INTERRUPTED, "stopped by the interrupt (no "
+                                      "metrics: the run is incomplete)")
+            raise
+        if progress:
+            progress(rows[k], k + 1, len(points))
+
+
+def _mark_unfinished(rows, points):
+    """Mark :data:`NOT_RUN` the rows an interrupt left empty (the runs never started)."""
+    for k, pt in enumerate(points):
+        if rows[k] is None:
+            rows[k] = _unfinished_row(k, pt, NOT_RUN, "not run: the sweep was interrupted")
 
 
 def _check_varied(file, base, d, path, values):
@@ -478,31 +557,13 @@ def _check_varied(file, base, d, path, values):
             raise SpidersimError(f"--vary {path}={v:g}: {exc}") from None
 
 
-def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_timeout):
-    try:
-        from dask.distributed import Client, LocalCluster, as_completed
-    except ImportError as exc:  # pragma: no cover - a dependency
-        raise SpidersimError(f"sweeps on Dask need dask.distributed ({exc}); "
-                             f"pip install 'dask[distributed]' or use --workers 0") from None
-    import logging
-    cluster = None
-    if scheduler:
-        try:
-            client = Client(scheduler, timeout=f"{connect_timeout}s")
-        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, bad address
-            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: "
-                                 f"{type(exc).__name__}: {exc}") from None
-    else:
-        if workers < 1:
-            raise SpidersimError(f"--workers must be >= 0, got {workers}")
-        try:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
-        except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
-            raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
-                                 f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
-                from None
-        client = Client(cluster)
+def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, connect_timeout,
+              should_stop=None):
+    """Run ``points`` on Dask, filling ``rows``; returns the number of workers. A stop
+    (``should_stop()``, polled every :data:`POLL_S`, or a KeyboardInterrupt) cancels the
+    runs not finished and marks them :data:`INTERRUPTED`."""
+    client, cluster = _dask_client(workers, scheduler, connect_timeout)
+    futures = []
     try:
         n_workers = len(client.scheduler_info().get("workers", {}))
         if n_workers == 0:
@@ -515,10 +576,38 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
         futures = [client.submit(run_point, file, base, pt, sim, k, pure=False,
                                  key=f"spidersim-run-{k}-{os.getpid()}-{time.time_ns()}")
                    for k, pt in enumerate(points)]
-        index = {f.key: k for k, f in enumerate(futures)}
-        rows = [None] * len(points)
-        done = 0
-        for fut in as_completed(futures):
+        _collect(futures, points, rows, progress, should_stop)
+        return n_workers
+    finally:
+        unfinished = [k for k, f in enumerate(futures) if rows[k] is None]
+        for k in unfinished:
+            rows[k] = _unfinished_row(k, points[k], INTERRUPTED, "unfinished when the sweep "
+                                      "was interrupted (queued or running on a worker)")
+        if unfinished:
+            client.cancel([futures[k] for k in unfinished])
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+#: seconds between two looks at ``should_stop`` while waiting for Dask runs
+POLL_S = 0.1
+
+
+def _collect(futures, points, rows, progress, should_stop):
+    """Fill ``rows`` as the runs of ``futures`` finish (a worker's failure is a failed row);
+    return early when ``should_stop()`` says so."""
+    from dask.distributed import as_completed
+    index = {f.key: k for k, f in enumerate(futures)}
+    done = 0
+    pending = as_completed(futures)
+    while not pending.is_empty():
+        if should_stop is not None and should_stop():
+            return
+        batch = pending.next_batch(block=False)
+        if not batch:
+            time.sleep(POLL_S)
+        for fut in batch:
             k = index[fut.key]
             try:
                 rows[k] = fut.result()
@@ -528,12 +617,34 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
                            "compiled": False, "worker": "", "wall_s": math.nan}
             done += 1
             if progress:
-                progress(rows[k], done, len(points))
-        return rows, n_workers
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+                progress(rows[k], done, len(futures))
+
+
+def _dask_client(workers, scheduler, connect_timeout):
+    """``(client, cluster)``: a client of the scheduler at ``scheduler`` (cluster None), or
+    of a new local cluster of ``workers`` processes."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - a dependency
+        raise SpidersimError(f"sweeps on Dask need dask.distributed ({exc}); "
+                             f"pip install 'dask[distributed]' or use --workers 0") from None
+    import logging
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=f"{connect_timeout}s"), None
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, bad address
+            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: "
+                                 f"{type(exc).__name__}: {exc}") from None
+    if workers < 1:
+        raise SpidersimError(f"--workers must be >= 0, got {workers}")
+    try:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
+        raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
+                             f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
+            from None
+    return Client(cluster), cluster
 
 
 def print_progress(row, done, total, stream=None):
@@ -542,7 +653,7 @@ def print_progress(row, done, total, stream=None):
     vals = " ".join(f"{k}={v:g}" for k, v in row.items()
                     if k not in ("run", "status", "message", "compiled", "worker", "wall_s",
                                  "t_reached") and isinstance(v, float))
-    what = "ok" if row["status"] == "ok" else f"FAILED: {row['message'][:200]}"
+    what = "ok" if row["status"] == "ok" else f"{row['status'].upper()}: {row['message'][:200]}"
     stream.write(f"  [{done}/{total}] run {row['run']}: {vals}  {what}  "
                  f"({row.get('wall_s', math.nan):.2f} s)\n")
     stream.flush()

@@ -290,3 +290,34 @@ def test_cli_sweep_bad_vary_exits_with_a_message(drop_file, capsys):
     rc = main(["sweep", drop_file, "--vary", "K=1,abc", "--workers", "0"])
     assert rc != 0
     assert "'abc' is not a number" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ interrupts
+def _interrupt_at(monkeypatch, run):
+    """Make run number ``run`` of a sweep end in a KeyboardInterrupt (Ctrl-C in Python)."""
+    real = sw.run_point
+
+    def run_point(file, base, point, sim, index=0, should_stop=None):
+        if index == run:
+            raise KeyboardInterrupt
+        return real(file, base, point, sim, index, should_stop)
+    monkeypatch.setattr(sw, "run_point", run_point)
+
+
+def test_ctrl_c_in_a_serial_sweep_carries_the_finished_rows(grow_file, monkeypatch):
+    _interrupt_at(monkeypatch, 1)
+    with pytest.raises(sw.SweepInterrupted) as exc:
+        sw.sweep(grow_file, [("a", [1.0, 2.0, 3.0])], workers=0)
+    res = exc.value.result
+    assert exc.value.exit_code == 130
+    assert [r["status"] for r in res.rows] == ["ok", sw.INTERRUPTED, sw.NOT_RUN]
+    assert res.rows[0]["x_end"] == pytest.approx(math.e, rel=1e-6)
+    assert [r["run"] for r in res.unfinished] == [1, 2] and res.failed == []
+
+
+def test_ctrl_c_before_any_run_finished_is_the_plain_interrupt(grow_file, monkeypatch):
+    """Nothing computed: the KeyboardInterrupt itself, not an empty table."""
+    _interrupt_at(monkeypatch, 0)
+    with pytest.raises(KeyboardInterrupt) as exc:
+        sw.sweep(grow_file, [("a", [1.0, 2.0])], workers=0)
+    assert type(exc.value) is KeyboardInterrupt
