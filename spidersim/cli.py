@@ -733,12 +733,14 @@ def cmd_check(args):
 
 
 def _check_commands(d, args):
-    """The file's ``commands`` section as the service reads it, and each command's ``set``
-    values and argument defaults applied to the model (a path the model does not have, or
-    a value it refuses, is an error naming the command)."""
+    """The file's ``commands`` section as the service reads it, each argument naming a
+    parameter of the model, and each command's ``set`` values and argument defaults
+    applied to the model (a path the model does not have, or a value it refuses, is an
+    error naming the command)."""
     from . import load
-    from .service.commands import named_commands
+    from .service.commands import check_argument_paths, named_commands
     cmds = named_commands(d.spec)
+    check_argument_paths(d, cmds)
     base = _parse_sets(args.set)
     line = d.spec.data.line_of("commands") if hasattr(d.spec.data, "line_of") else None
     for name, c in cmds.items():
