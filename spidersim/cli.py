@@ -903,6 +903,8 @@ def cmd_sweep(args):
           + (f", {len(res.unfinished)} unfinished" if res.unfinished else "")
           + f", {res.wall_s:.1f} s ({rate:.1f} runs/min); wrote {out}/sweep.csv"
           + (f" and {len(pngs)} plot(s)" if pngs else ""))
+    for note in res.extra.get("warnings", []):      # said before the runs, and again here
+        print(f"spidersim: warning: {note}", file=sys.stderr)
     if code is not None:
         done = len(res.rows) - len(res.unfinished)
         print(f"spidersim: {stop.name or 'interrupted'}: sweep stopped after {done} of "
@@ -1172,8 +1174,8 @@ def cmd_cache(args):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """spidersim's own warnings as one line (``spidersim: warning: ...``), others as usual."""
-    from .errors import LinearizationWarning, RenamedParameterWarning
-    if issubclass(category, RenamedParameterWarning):
+    from .errors import LinearizationWarning, RenamedParameterWarning, SweepWarning
+    if issubclass(category, (RenamedParameterWarning, SweepWarning)):
         print(f"spidersim: warning: {message}", file=sys.stderr)
     elif issubclass(category, LinearizationWarning):
         print(f"spidersim: note: {message}", file=sys.stderr)

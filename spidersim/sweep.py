@@ -37,12 +37,13 @@ import os
 import re
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from .errors import DiagramError, SpidersimError
+from .errors import DiagramError, SpidersimError, SweepWarning
 from .outputs import safe_stem, save_figure, write_atomic
 from .plots import math_text_problem, signal_values, split_signal
 
@@ -481,8 +482,10 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     t_end = sim.get("t_end")
     if t_end is not None and not (isinstance(t_end, (int, float)) and t_end > 0):
         raise SpidersimError(f"the simulated time of each run must be > 0 s, got {t_end}")
-    for path, values in vary:
-        _check_varied(file, base, d, path, values)
+    uses = {path: _check_varied(file, base, d, path, values) for path, values in vary}
+    notes = ineffective_parameters(file, base, vary, uses)
+    for note in notes:
+        warnings.warn(note, SweepWarning, stacklevel=2)
     t0 = time.perf_counter()
     d.compile()
     compile_s = time.perf_counter() - t0
@@ -504,7 +507,7 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     _mark_unfinished(rows, points)
     res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
                       {"compile_s": compile_s, "structure_key": d._modules[True][1],
-                       "name": d.spec.name})
+                       "name": d.spec.name, "warnings": notes})
     if interrupt is not None:
         raise SweepInterrupted(res, interrupt) from None
     return res
@@ -536,7 +539,8 @@ def _mark_unfinished(rows, points):
 def _check_varied(file, base, d, path, values):
     """Every value of a varied path loads (a bad value is refused before any run, not
     found in the table afterwards), and the path is a scalar (a scalar given to a vector
-    parameter would be spread over its elements: every run the same direction)."""
+    parameter would be spread over its elements: every run the same direction). Returns
+    the block parameters (``block.param``) whose values differ between the values."""
     from .diagram.flatten import eval_parameters
     from .diagram.model import load
     size = None
@@ -550,11 +554,84 @@ def _check_varied(file, base, d, path, values):
         raise SpidersimError(f"--vary {path}: a vector parameter ({size} elements); a sweep "
                              f"varies scalars: make the varied quantity a scalar "
                              f"parameter of the diagram and build the vector from it")
+    first, changed = None, set()
     for v in values:
         try:
-            load(file, set={**base, path: v})
+            dv = load(file, set={**base, path: v})
         except SpidersimError as exc:
             raise SpidersimError(f"--vary {path}={v:g}: {exc}") from None
+        first = dv if first is None else first
+        changed |= set(_changed(first, dv))
+    return sorted(changed)
+
+
+def ineffective_parameters(file, base, vary, uses):
+    """Notes on the varied top-level parameters whose values change no run: none of the
+    block parameters depends on it (with the base ``--set`` values), or every one that does
+    (``uses[path]``, from :func:`_check_varied`) is itself set by another varied path
+    (``g.k`` varied while ``g.k: a`` and ``a`` varied): its column varies, the runs do not. The
+    other paths are tried at their first and at their last values (a value such as 0 in
+    ``k: a*b`` may hide ``a`` at one of them only)."""
+    from .diagram.model import load
+    notes = []
+    for path, values in vary:
+        if "." in path or len(values) < 2:
+            continue
+        if not uses[path]:
+            notes.append(f"--vary {path}: no block parameter depends on '{path}'"
+                         + (" once the --set values are applied" if base else "")
+                         + ": its values change nothing in the runs")
+            continue
+        others = [(p, v) for p, v in vary if p != path]
+        if not others:
+            continue
+        ends = [{p: v[0] for p, v in others}, {p: v[-1] for p, v in others}]
+        if not any(_changed(load(file, set={**base, **fixed, path: values[0]}),
+                            load(file, set={**base, **fixed, path: v}))
+                   for fixed in ends for v in values[1:]):
+            used = ", ".join(uses[path][:5]) + (", ..." if len(uses[path]) > 5 else "")
+            setters = ", ".join(f"--vary {p}" for p, _ in others if _may_set(p, uses[path]))
+            notes.append(f"--vary {path}: its values change nothing in the runs: the block "
+                         f"parameter(s) that depend on '{path}' ({used}) are set "
+                         f"themselves by {setters}; vary one of them, not both")
+    return notes
+
+
+def _may_set(key, params):
+    """An override ``key`` may set one of the block parameters ``params``: a top-level
+    parameter (through expressions), the parameter itself, or one of a subsystem or block
+    containing one of them."""
+    return "." not in key or any(p == key or p.startswith(key.rpartition(".")[0] + ".")
+                                 for p in params)
+
+
+def _changed(d1, d2):
+    """The block parameters (``block.param``) whose values differ between the loaded
+    diagrams ``d1`` and ``d2`` (a block of only one of them counts as its path). Nothing
+    else decides a sweep's metrics (the simulation settings take no parameters; the
+    ``microgravity`` section is not part of a sweep)."""
+    out = [p for p in d2.blocks if p not in d1.blocks]
+    for path, inst in d1.blocks.items():
+        other = d2.blocks.get(path)
+        if other is None:
+            out.append(path)
+            continue
+        out += [f"{path}.{k}" for k, v in inst.params.items()
+                if k not in other.params or not _same(v, other.params[k])]
+    return out
+
+
+def _same(a, b):
+    """``a`` and ``b`` (parameter values: numbers, arrays, texts, mappings) are equal; a
+    value that cannot be compared counts as different."""
+    if isinstance(a, dict) or isinstance(b, dict):
+        return (isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys()
+                and all(_same(a[k], b[k]) for k in a))
+    try:
+        return bool(np.array_equal(np.asarray(a), np.asarray(b),
+                                   equal_nan=np.asarray(a).dtype.kind in "fc"))
+    except Exception:  # noqa: BLE001 - objects without a comparison: not the same
+        return a is b
 
 
 def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, connect_timeout,

@@ -321,3 +321,76 @@ def test_ctrl_c_before_any_run_finished_is_the_plain_interrupt(grow_file, monkey
     with pytest.raises(KeyboardInterrupt) as exc:
         sw.sweep(grow_file, [("a", [1.0, 2.0])], workers=0)
     assert type(exc.value) is KeyboardInterrupt
+
+
+# ------------------------------------------------------------------ varied in vain
+SHADOW = """
+parameters: {a: 1.0, b: 1.0, unused: 0.0}
+subsystems: {LAG: lag.yaml}
+blocks:
+  c: {type: Constant, value: 1}
+  g: {type: Gain, k: a}
+  h: {type: Gain, k: a*b}
+  j: {type: LAG, gain: a}
+connections: [c.y -> g.u, g.y -> h.u, h.y -> j.u]
+metrics: {y: {signal: j.y, reduce: final}}
+"""
+LAG = """
+parameters: {gain: 1.0}
+blocks: {k: {type: Gain, k: gain}}
+inputs: {u: k.u}
+outputs: {y: k.y}
+"""
+
+
+@pytest.mark.parametrize("vary, base, note", [
+    # every use of 'a' (g.k, h.k, j's gain) overridden: its values change nothing
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("h.k", [3]), ("j.gain", [1]), ("b", [2])], {},
+     "--vary a: its values change nothing in the runs: the block parameter(s) that depend "
+     "on 'a' (g.k, h.k, j.k.k) are set themselves by --vary g.k, --vary h.k, --vary j.gain, "
+     "--vary b; vary one"),
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("c.value", [1, 2]), ("j.k.k", [1])], {"h.k": 2},
+     "(g.k, j.k.k) are set themselves by --vary g.k, --vary j.k.k; vary one"),
+    ([("unused", [1, 2]), ("a", [1, 2])], {},
+     "--vary unused: no block parameter depends on 'unused': its values change nothing"),
+    ([("a", [1, 2])], {"g.k": 1, "h.k": 1, "j.gain": 1},
+     "no block parameter depends on 'a' once the --set values are applied"),
+    # one use left (h.k through a*b, j's gain): a real grid, nothing said
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("j.gain", [1])], {}, None),
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("h.k", [1])], {}, None),
+    # b = 0 hides 'a' in h.k = a*b at its first value only
+    ([("a", [1, 2]), ("g.k", [1]), ("j.gain", [1]), ("b", [0, 1])], {}, None),
+    ([("g.k", [1, 2]), ("b", [1, 2])], {}, None),
+    ([("unused", [1])], {}, None),              # one value: nothing varies anyway
+])
+def test_a_varied_parameter_that_changes_nothing_is_named(tmp_path, vary, base, note):
+    """A varied top-level parameter that no run depends on (unused, or every block
+    parameter using it overridden by another varied path or a --set) is said, with the
+    parameters it reaches and what overrides them; a parameter with one use left is not."""
+    from spidersim import load
+    (tmp_path / "lag.yaml").write_text(LAG)
+    f = tmp_path / "shadow.yaml"
+    f.write_text(SHADOW)
+    d = load(str(f), set=base)
+    uses = {p: sw._check_varied(str(f), base, d, p, v) for p, v in vary}
+    notes = sw.ineffective_parameters(str(f), base, vary, uses)
+    if note is None:
+        assert notes == []
+    else:
+        assert len(notes) == 1 and note in notes[0], notes
+
+
+def test_sweep_and_cli_say_a_varied_parameter_changes_nothing(grow_file, tmp_path, capsys):
+    """grow.yaml has g.k: a; varying both makes the a column meaningless: warned before
+    the runs (a SweepWarning) and again after the table."""
+    with pytest.warns(sw.SweepWarning, match="--vary a: its values change nothing"):
+        res = sw.sweep(grow_file, [("a", [1.0, 2.0]), ("g.k", [1.0])], workers=0)
+    assert res.extra["warnings"] == [
+        "--vary a: its values change nothing in the runs: the block parameter(s) that "
+        "depend on 'a' (g.k) are set themselves by --vary g.k; vary one of them, not both"]
+    assert res.rows[0]["x_end"] == res.rows[1]["x_end"]          # what it warns about
+    rc = main(["sweep", grow_file, "--vary", "a=1,2", "--vary", "g.k=1", "--workers", "0",
+               "--out", str(tmp_path), "--no-plots"])
+    err = capsys.readouterr().err
+    assert rc == 0 and err.count("spidersim: warning: --vary a: its values change") == 2
+    assert err.rstrip().endswith("vary one of them, not both"), err
