@@ -891,7 +891,7 @@ def cmd_sweep(args):
         try:
             res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
                         set=_parse_sets(args.set), sim=sim, progress=print_progress,
-                        should_stop=stop)
+                        should_stop=stop, run_timeout=args.run_timeout)
             code = stop.exit_code if res.unfinished else None
         except SweepInterrupted as exc:       # a second signal: the run in progress ended
             res, code = exc.result, exc.exit_code
@@ -1077,6 +1077,9 @@ def build_parser():
     sw.add_argument("--set", action="append", metavar="PATH=VALUE",
                     help="base parameter value for every run")
     sw.add_argument("--t-end", type=positive_float, help="simulated time of each run [s]")
+    sw.add_argument("--run-timeout", type=positive_float, metavar="S",
+                    help="wall-time limit of each run [s]: a run that reaches it stops there "
+                         "and is a failed row (the sweep goes on)")
     sw.add_argument("--out", type=out_folder, help="results folder (default results/<diagram>_sweep)")
     sw.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sw.set_defaults(fn=cmd_sweep)

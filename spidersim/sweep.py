@@ -221,13 +221,15 @@ def grid(vary) -> list[dict]:
 INTERRUPTED, NOT_RUN = "interrupted", "not run"
 
 
-def run_point(file, base_set, point, sim, index=0, should_stop=None):
+def run_point(file, base_set, point, sim, index=0, should_stop=None, timeout=None):
     """Run one grid point; never raises for a failed run. Returns a row dict.
 
     Runs in the calling process or in a Dask worker. The diagram is rebuilt with the point's
     values (``--set`` semantics); its compiled module comes from this process's modules or
     the on-disk cache. ``should_stop`` (serial sweeps) is polled after every step: when it
     says stop, the row has status :data:`INTERRUPTED`, the time reached and no metrics.
+    ``timeout`` [s] limits the run's wall time: the integration stops at the step that
+    reaches it and the row is ``failed``, with the time reached.
     """
     from .diagram.model import load
     from .solver.compiled import COUNTS
@@ -238,9 +240,14 @@ def run_point(file, base_set, point, sim, index=0, should_stop=None):
     try:
         d = load(file, set={**base_set, **point})
         metrics = parse_metrics(d)
-        r = d.simulate(**sim, **({"should_stop": should_stop} if should_stop else {}))
+        limit = _Deadline(timeout, should_stop)
+        r = d.simulate(**sim, **({"should_stop": limit} if limit.active else {}))
         row["t_reached"] = r.stats.get("t_reached")
-        if r.status == INTERRUPTED:
+        if r.status == INTERRUPTED and limit.reached:
+            row["status"] = "failed"
+            row["message"] = (f"stopped: the wall-time limit of {timeout:g} s per run "
+                              f"(--run-timeout) was reached at t = {row['t_reached']:.6g} s")
+        elif r.status == INTERRUPTED:
             row["status"] = INTERRUPTED
             row["message"] = (f"stopped by the interrupt at t = {row['t_reached']:.6g} s "
                               f"(no metrics: the run is incomplete)")
@@ -258,6 +265,24 @@ def run_point(file, base_set, point, sim, index=0, should_stop=None):
     row["compiled"] = COUNTS["written"] > written      # a structure new to the cache
     row["wall_s"] = time.perf_counter() - t0
     return row
+
+
+class _Deadline:
+    """The ``should_stop`` of one run: true once ``timeout`` seconds of wall time have
+    passed since it was made (then ``reached``) or once ``outer()`` says stop."""
+
+    def __init__(self, timeout, outer=None):
+        self.end = None if timeout is None else time.monotonic() + timeout
+        self.outer = outer
+        self.reached = False
+        self.active = timeout is not None or outer is not None
+
+    def __call__(self):
+        if self.outer is not None and self.outer():
+            return True
+        if self.end is not None and time.monotonic() > self.end:
+            self.reached = True
+        return self.reached
 
 
 def _unfinished_row(k, point, status, message):
@@ -434,7 +459,7 @@ def _fmt(v, digits=None):
 
 # --------------------------------------------------------------------------- the sweep
 def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=None,
-          connect_timeout=10.0, should_stop=None):
+          connect_timeout=10.0, should_stop=None, run_timeout=None):
     """Run the grid of ``vary`` (see :func:`parse_vary`) over the diagram ``file``.
 
     Parameters
@@ -456,6 +481,9 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         ``should_stop() -> bool``, polled between runs (and, serially, after every step of
         the current run; keep it a flag check). Once it says stop, no run starts; the run
         in progress is stopped (serial) or abandoned (Dask): see :data:`INTERRUPTED`.
+    run_timeout : float, optional
+        Wall-time limit of each run's integration [s]: a run that reaches it stops there and
+        is a failed row saying so (the sweep goes on).
 
     Returns
     -------
@@ -482,6 +510,11 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     t_end = sim.get("t_end")
     if t_end is not None and not (isinstance(t_end, (int, float)) and t_end > 0):
         raise SpidersimError(f"the simulated time of each run must be > 0 s, got {t_end}")
+    if run_timeout is not None and not (isinstance(run_timeout, (int, float)) and not
+                                        isinstance(run_timeout, bool) and
+                                        math.isfinite(run_timeout) and run_timeout > 0):
+        raise SpidersimError(f"the wall-time limit of a run must be a finite number of "
+                             f"seconds > 0, got {run_timeout!r}")
     uses = {path: _check_varied(file, base, d, path, values) for path, values in vary}
     notes = ineffective_parameters(file, base, vary, uses)
     for note in notes:
@@ -495,10 +528,10 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     try:
         if workers == 0 and scheduler is None:
             n_workers = 0
-            _run_serial(file, base, points, sim, rows, progress, should_stop)
+            _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout)
         else:
             n_workers = _run_dask(file, base, points, sim, rows, workers, scheduler,
-                                  progress, connect_timeout, should_stop)
+                                  progress, connect_timeout, should_stop, run_timeout)
     except KeyboardInterrupt as exc:
         if not any(r is not None and r["status"] not in (INTERRUPTED, NOT_RUN)
                    for r in rows):
@@ -513,14 +546,14 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     return res
 
 
-def _run_serial(file, base, points, sim, rows, progress, should_stop):
+def _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout=None):
     """Run ``points`` one after the other here, filling ``rows``; stop (leaving the rest
     None) when ``should_stop()`` says so (the run in progress polls it too)."""
     for k, pt in enumerate(points):
         if should_stop is not None and should_stop():
             return
         try:
-            rows[k] = run_point(file, base, pt, sim, k, should_stop)
+            rows[k] = run_point(file, base, pt, sim, k, should_stop, run_timeout)
         except KeyboardInterrupt:
             rows[k] = _unfinished_row(k, pt, INTERRUPTED, "stopped by the interrupt (no "
                                       "metrics: the run is incomplete)")
@@ -635,7 +668,7 @@ def _same(a, b):
 
 
 def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, connect_timeout,
-              should_stop=None):
+              should_stop=None, run_timeout=None):
     """Run ``points`` on Dask, filling ``rows``; returns the number of workers. A stop
     (``should_stop()``, polled every :data:`POLL_S`, or a KeyboardInterrupt) cancels the
     runs not finished and marks them :data:`INTERRUPTED`."""
@@ -650,7 +683,8 @@ def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, conne
                 raise SpidersimError(f"the Dask scheduler at {scheduler} has no workers "
                                      f"(waited {connect_timeout:g} s)") from None
             n_workers = len(client.scheduler_info().get("workers", {}))
-        futures = [client.submit(run_point, file, base, pt, sim, k, pure=False,
+        futures = [client.submit(run_point, file, base, pt, sim, k, None, run_timeout,
+                                 pure=False,
                                  key=f"spidersim-run-{k}-{os.getpid()}-{time.time_ns()}")
                    for k, pt in enumerate(points)]
         _collect(futures, points, rows, progress, should_stop)

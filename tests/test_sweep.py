@@ -394,3 +394,48 @@ def test_sweep_and_cli_say_a_varied_parameter_changes_nothing(grow_file, tmp_pat
     err = capsys.readouterr().err
     assert rc == 0 and err.count("spidersim: warning: --vary a: its values change") == 2
     assert err.rstrip().endswith("vary one of them, not both"), err
+
+
+# ------------------------------------------------------------------ wall-time limit
+# z.Ts = 1e-9 asks for a billion samples: a run that would take hours
+HELD = """\
+name: held
+parameters: {a: -1.0}
+blocks:
+  x: {type: Integrator, x0: 1}
+  g: {type: Gain, k: a}
+  z: {type: ZeroOrderHold, Ts: 0.1}
+connections:
+  - x.y -> g.u
+  - g.y -> x.u
+  - x.y -> z.u
+simulation: {t_end: 1.0}
+metrics:
+  x_end: {signal: x.y, reduce: final}
+"""
+
+
+def test_run_timeout_stops_a_run_and_the_sweep_goes_on(tmp_path, capsys):
+    f = tmp_path / "held.yaml"
+    f.write_text(HELD)
+    rc = main(["sweep", str(f), "--vary", "z.Ts=0.1,1e-9,0.2", "--workers", "0",
+               "--run-timeout", "0.5", "--out", str(tmp_path / "out"), "--no-plots"])
+    assert rc == 1
+    with open(tmp_path / "out" / "sweep.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["status"] for r in rows] == ["ok", "failed", "ok"]
+    assert rows[1]["message"].startswith("stopped: the wall-time limit of 0.5 s per run "
+                                         "(--run-timeout) was reached at t = ")
+    assert rows[1]["x_end"] == "" and 0 < float(rows[1]["t_reached"]) < 1
+    assert 0.5 <= float(rows[1]["wall_s"]) < 20
+    assert float(rows[2]["x_end"]) == pytest.approx(math.exp(-1), rel=1e-3)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "x"])
+def test_run_timeout_must_be_a_positive_time(drop_file, capsys, value):
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", drop_file, "--vary", "m=1", "--run-timeout", value])
+    assert exc.value.code == 2 and "--run-timeout" in capsys.readouterr().err
+    with pytest.raises(SpidersimError, match="wall-time limit of a run"):
+        sw.sweep(drop_file, [("m", [1.0])], workers=0, run_timeout=float(
+            value.replace("x", "nan")))
