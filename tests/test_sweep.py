@@ -297,10 +297,10 @@ def _interrupt_at(monkeypatch, run):
     """Make run number ``run`` of a sweep end in a KeyboardInterrupt (Ctrl-C in Python)."""
     real = sw.run_point
 
-    def run_point(file, base, point, sim, index=0, should_stop=None):
+    def run_point(file, base, point, sim, index=0, *more):
         if index == run:
             raise KeyboardInterrupt
-        return real(file, base, point, sim, index, should_stop)
+        return real(file, base, point, sim, index, *more)
     monkeypatch.setattr(sw, "run_point", run_point)
 
 
