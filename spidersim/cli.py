@@ -933,8 +933,8 @@ class SweepStop(StopRequest):
     """SIGINT/SIGTERM during ``spidersim sweep``: before the first run the command ends at
     once; during the runs the first signal stops the sweep (serially, the run in progress
     at its current step) and the table of the finished runs is written; a second signal
-    ends the run in progress at once, the table is still written (see
-    :class:`StopRequest` for the rest)."""
+    ends the run in progress at once, the table is still written if a run had finished
+    (see :class:`StopRequest` for the rest)."""
 
     BEFORE = "the first run started"
 

@@ -14,7 +14,9 @@ declared in the diagram's ``metrics`` section::
 
 with ``reduce`` one of :data:`REDUCERS`. Each run is independent; one that fails (solver
 failure, loop that does not converge, bad value) is a row with status ``failed`` and its
-message, and the sweep goes on.
+message, and the sweep goes on (as one that reaches the wall-time limit ``run_timeout``). An
+interrupt (Ctrl-C, SIGTERM through the CLI) keeps the rows of the finished runs: the others
+are marked :data:`INTERRUPTED` or :data:`NOT_RUN`.
 
 Compiled code is shared: the generated module of a structure is compiled once (by the
 process that starts the sweep, into the on-disk cache) and every run, in this process or in
