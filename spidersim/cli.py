@@ -312,6 +312,8 @@ class StopRequest:
     """
 
     CODES = {"SIGINT": 130, "SIGTERM": 143}
+    #: what had not started when a signal ends the command at once
+    BEFORE = "the integration started"
 
     def __init__(self):
         self.requested = False
@@ -336,7 +338,8 @@ class StopRequest:
         if self.requested:
             raise _Interrupted(name, f"interrupted again ({name}): stopped at once")
         if self.phase == "before":
-            raise _Interrupted(name)
+            raise _Interrupted(name, f"interrupted ({name}) before {self.BEFORE}: nothing "
+                                     f"computed to keep")
         self.requested, self.name = True, name
         if self.phase == "writing":
             sys.stderr.write(f"spidersim: {name}: finishing writing the results "
@@ -730,12 +733,14 @@ def cmd_check(args):
 
 
 def _check_commands(d, args):
-    """The file's ``commands`` section as the service reads it, and each command's ``set``
-    values and argument defaults applied to the model (a path the model does not have, or
-    a value it refuses, is an error naming the command)."""
+    """The file's ``commands`` section as the service reads it, each argument naming a
+    parameter of the model, and each command's ``set`` values and argument defaults
+    applied to the model (a path the model does not have, or a value it refuses, is an
+    error naming the command)."""
     from . import load
-    from .service.commands import named_commands
+    from .service.commands import check_argument_paths, named_commands
     cmds = named_commands(d.spec)
+    check_argument_paths(d, cmds)
     base = _parse_sets(args.set)
     line = d.spec.data.line_of("commands") if hasattr(d.spec.data, "line_of") else None
     for name, c in cmds.items():
@@ -859,7 +864,7 @@ def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, out):
 
 
 def cmd_sweep(args):
-    from .sweep import parse_vary, print_progress, sweep
+    from .sweep import SweepInterrupted, parse_vary, print_progress, sweep
 
     vary = parse_vary(args.vary)
     if args.workers is not None and args.workers < 0:
@@ -881,20 +886,57 @@ def cmd_sweep(args):
              f"local Dask cluster, {workers} worker(s)")
     print(f"spidersim: sweep of {n} run(s) over {', '.join(p for p, _ in vary)} ({where}); "
           f"compiling once ...", file=sys.stderr)
-    res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
-                set=_parse_sets(args.set), sim=sim, progress=print_progress)
+    stop = SweepStop()
+    with stop.installed():     # a signal during the runs: the table of those finished
+        try:
+            res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
+                        set=_parse_sets(args.set), sim=sim, progress=print_progress,
+                        should_stop=stop, run_timeout=args.run_timeout)
+            code = stop.exit_code if res.unfinished else None
+        except SweepInterrupted as exc:       # a second signal: the run in progress ended
+            res, code = exc.result, exc.exit_code
+        stop.writing()
+        pngs = _write_sweep(res, out, args.no_plots)
+    print(res.table())
+    rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
+    print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed"
+          + (f", {len(res.unfinished)} unfinished" if res.unfinished else "")
+          + f", {res.wall_s:.1f} s ({rate:.1f} runs/min); wrote {out}/sweep.csv"
+          + (f" and {len(pngs)} plot(s)" if pngs else ""))
+    for note in res.extra.get("warnings", []):      # said before the runs, and again here
+        print(f"spidersim: warning: {note}", file=sys.stderr)
+    if code is not None:
+        done = len(res.rows) - len(res.unfinished)
+        print(f"spidersim: {stop.name or 'interrupted'}: sweep stopped after {done} of "
+              f"{len(res.rows)} run(s); {out}/sweep.csv has their rows, the others with "
+              f"status 'interrupted' or 'not run'", file=sys.stderr)
+        return code
+    if stop.requested:                  # the signal came while the table was written
+        print(f"spidersim: {stop.name} after the last run: the results in {out}/ are "
+              f"complete", file=sys.stderr)
+        return stop.exit_code
+    return 1 if res.failed else 0        # the table is written either way
+
+
+def _write_sweep(res, out, no_plots):
+    """``sweep.csv`` and (unless ``no_plots``) the plots of ``res`` in ``out``; returns
+    the plots' paths. A file that cannot be written is an error naming it."""
     try:
         res.write_csv(os.path.join(out, "sweep.csv"))
-        pngs = res.plot(out) if not args.no_plots else []
+        return res.plot(out) if not no_plots else []
     except OSError as exc:
         raise SpidersimError(f"{exc.strerror or exc} (free some space or choose another "
                              f"--out)") from None
-    print(res.table())
-    rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
-    print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed, "
-          f"{res.wall_s:.1f} s ({rate:.1f} runs/min); wrote {out}/sweep.csv"
-          + (f" and {len(pngs)} plot(s)" if pngs else ""))
-    return 1 if res.failed else 0        # the table is written either way
+
+
+class SweepStop(StopRequest):
+    """SIGINT/SIGTERM during ``spidersim sweep``: before the first run the command ends at
+    once; during the runs the first signal stops the sweep (serially, the run in progress
+    at its current step) and the table of the finished runs is written; a second signal
+    ends the run in progress at once, the table is still written if a run had finished
+    (see :class:`StopRequest` for the rest)."""
+
+    BEFORE = "the first run started"
 
 
 def cmd_run_remote(args):
@@ -1049,6 +1091,9 @@ def build_parser():
     sw.add_argument("--set", action="append", metavar="PATH=VALUE",
                     help="base parameter value for every run")
     sw.add_argument("--t-end", type=positive_float, help="simulated time of each run [s]")
+    sw.add_argument("--run-timeout", type=positive_float, metavar="S",
+                    help="wall-time limit of each run [s]: a run that reaches it stops there "
+                         "and is a failed row (the sweep goes on)")
     sw.add_argument("--out", type=out_folder, help="results folder (default results/<diagram>_sweep)")
     sw.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sw.set_defaults(fn=cmd_sweep)
@@ -1150,8 +1195,8 @@ def cmd_cache(args):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """spidersim's own warnings as one line (``spidersim: warning: ...``), others as usual."""
-    from .errors import LinearizationWarning, RenamedParameterWarning
-    if issubclass(category, RenamedParameterWarning):
+    from .errors import LinearizationWarning, RenamedParameterWarning, SweepWarning
+    if issubclass(category, (RenamedParameterWarning, SweepWarning)):
         print(f"spidersim: warning: {message}", file=sys.stderr)
     elif issubclass(category, LinearizationWarning):
         print(f"spidersim: note: {message}", file=sys.stderr)

@@ -129,6 +129,11 @@ class RenamedParameterWarning(FutureWarning):
     where and what the new name is. The CLI prints it as ``spidersim: warning: ...``."""
 
 
+class SweepWarning(UserWarning):
+    """A sweep whose grid does not vary what it seems to (a varied parameter that no run
+    depends on). The CLI prints it as ``spidersim: warning: ...``."""
+
+
 class LinearizationWarning(UserWarning):
     """A linearization made with a documented simplification (a quantizer taken as its
     unquantized gain). The CLI prints it as ``spidersim: note: ...``."""

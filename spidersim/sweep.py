@@ -14,7 +14,9 @@ declared in the diagram's ``metrics`` section::
 
 with ``reduce`` one of :data:`REDUCERS`. Each run is independent; one that fails (solver
 failure, loop that does not converge, bad value) is a row with status ``failed`` and its
-message, and the sweep goes on.
+message, and the sweep goes on (as one that reaches the wall-time limit ``run_timeout``). An
+interrupt (Ctrl-C, SIGTERM through the CLI) keeps the rows of the finished runs: the others
+are marked :data:`INTERRUPTED` or :data:`NOT_RUN`.
 
 Compiled code is shared: the generated module of a structure is compiled once (by the
 process that starts the sweep, into the on-disk cache) and every run, in this process or in
@@ -37,12 +39,13 @@ import os
 import re
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from .errors import DiagramError, SpidersimError
+from .errors import DiagramError, SpidersimError, SweepWarning
 from .outputs import safe_stem, save_figure, write_atomic
 from .plots import math_text_problem, signal_values, split_signal
 
@@ -215,12 +218,20 @@ def grid(vary) -> list[dict]:
 
 
 # --------------------------------------------------------------------------- one run
-def run_point(file, base_set, point, sim, index=0):
+#: status of a run stopped part-way by an interrupt (no metrics: they would describe a
+#: shorter run), and of a run that never started because the sweep was interrupted
+INTERRUPTED, NOT_RUN = "interrupted", "not run"
+
+
+def run_point(file, base_set, point, sim, index=0, should_stop=None, timeout=None):
     """Run one grid point; never raises for a failed run. Returns a row dict.
 
     Runs in the calling process or in a Dask worker. The diagram is rebuilt with the point's
     values (``--set`` semantics); its compiled module comes from this process's modules or
-    the on-disk cache.
+    the on-disk cache. ``should_stop`` (serial sweeps) is polled after every step: when it
+    says stop, the row has status :data:`INTERRUPTED`, the time reached and no metrics.
+    ``timeout`` [s] limits the run's wall time: the integration stops at the step that
+    reaches it and the row is ``failed``, with the time reached.
     """
     from .diagram.model import load
     from .solver.compiled import COUNTS
@@ -231,10 +242,19 @@ def run_point(file, base_set, point, sim, index=0):
     try:
         d = load(file, set={**base_set, **point})
         metrics = parse_metrics(d)
-        r = d.simulate(**sim)
+        limit = _Deadline(timeout, should_stop)
+        r = d.simulate(**sim, **({"should_stop": limit} if limit.active else {}))
         row["t_reached"] = r.stats.get("t_reached")
-        values = {m.name: m.evaluate(r) for m in metrics}     # all or none in the row
-        row.update(values)
+        if r.status == INTERRUPTED and limit.reached:
+            row["status"] = "failed"
+            row["message"] = (f"stopped: the wall-time limit of {timeout:g} s per run "
+                              f"(--run-timeout) was reached at t = {row['t_reached']:.6g} s")
+        elif r.status == INTERRUPTED:
+            row["status"] = INTERRUPTED
+            row["message"] = (f"stopped by the interrupt at t = {row['t_reached']:.6g} s "
+                              f"(no metrics: the run is incomplete)")
+        else:
+            row.update({m.name: m.evaluate(r) for m in metrics})  # all or none in the row
     except SpidersimError as exc:
         row["status"] = "failed"
         row["message"] = str(exc)
@@ -247,6 +267,43 @@ def run_point(file, base_set, point, sim, index=0):
     row["compiled"] = COUNTS["written"] > written      # a structure new to the cache
     row["wall_s"] = time.perf_counter() - t0
     return row
+
+
+class _Deadline:
+    """The ``should_stop`` of one run: true once ``timeout`` seconds of wall time have
+    passed since it was made (then ``reached``) or once ``outer()`` says stop."""
+
+    def __init__(self, timeout, outer=None):
+        self.end = None if timeout is None else time.monotonic() + timeout
+        self.outer = outer
+        self.reached = False
+        self.active = timeout is not None or outer is not None
+
+    def __call__(self):
+        if self.outer is not None and self.outer():
+            return True
+        if self.end is not None and time.monotonic() > self.end:
+            self.reached = True
+        return self.reached
+
+
+def _unfinished_row(k, point, status, message):
+    """The row of run ``k`` at ``point`` that an interrupt left without a result."""
+    return {"run": k, **point, "status": status, "message": message, "compiled": False,
+            "worker": "", "wall_s": math.nan}
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """A KeyboardInterrupt (Ctrl-C, or a second signal to the CLI) during the runs of a
+    sweep. ``result`` is the :class:`SweepResult` of the runs finished before it, the
+    others marked :data:`INTERRUPTED` or :data:`NOT_RUN`; ``message`` and ``exit_code``
+    are those of the interrupt (130 by default)."""
+
+    def __init__(self, result, cause):
+        self.result = result
+        self.message = getattr(cause, "message", None) or "interrupted"
+        self.exit_code = getattr(cause, "exit_code", 130)
+        super().__init__(self.message)
 
 
 @dataclass
@@ -263,7 +320,14 @@ class SweepResult:
 
     @property
     def failed(self):
-        return [r for r in self.rows if r["status"] != "ok"]
+        """The rows of the runs that failed."""
+        return [r for r in self.rows if r["status"] == "failed"]
+
+    @property
+    def unfinished(self):
+        """The rows an interrupt left without metrics (:data:`INTERRUPTED`,
+        :data:`NOT_RUN`); empty for a sweep that ran to its end."""
+        return [r for r in self.rows if r["status"] in (INTERRUPTED, NOT_RUN)]
 
     def columns(self):
         return (["run"] + [p for p, _ in self.vary] + ["status"]
@@ -294,8 +358,11 @@ class SweepResult:
         width = [max(len(c), *(len(x[i]) for x in rows)) for i, c in enumerate(cols)]
         lines = ["  ".join(c.rjust(w) for c, w in zip(cols, width))]
         lines += ["  ".join(x.rjust(w) for x, w in zip(row, width)) for row in rows]
-        for r in self.failed:
-            lines.append(f"run {r['run']} failed: {r['message']}")
+        for r in self.failed + [r for r in self.rows if r["status"] == INTERRUPTED]:
+            lines.append(f"run {r['run']} {r['status']}: {r['message']}")
+        not_run = sum(r["status"] == NOT_RUN for r in self.rows)
+        if not_run:
+            lines.append(f"{not_run} run(s) not run: the sweep was interrupted")
         return "\n".join(lines)
 
     def curves(self, fixed):
@@ -311,7 +378,7 @@ class SweepResult:
         """The :class:`Curve` of the rows whose parameters have the values in ``point``."""
         pts = [r for r in self.rows if all(r[k] == v for k, v in point.items())]
         return Curve(label, [r for r in pts if r["status"] == "ok"],
-                     [r for r in pts if r["status"] != "ok"])
+                     [r for r in pts if r["status"] == "failed"])
 
     def figures(self):
         """The ``fixed`` mapping of each figure per metric: one per combination of the
@@ -338,7 +405,7 @@ class SweepResult:
         ax.set_ylabel(f"{m.name}" + (f" [{m.unit}]" if m.unit else ""))
         ax.set_title(_figure_title(m, fixed))
         ax.grid(True, alpha=0.3)
-        if len(self.vary) > 1 or any(r["status"] != "ok" for r in self.rows):
+        if len(self.vary) > 1 or self.failed:
             ax.legend()
         fig.tight_layout()
         path = _figure_path(folder, m, fixed)
@@ -394,7 +461,7 @@ def _fmt(v, digits=None):
 
 # --------------------------------------------------------------------------- the sweep
 def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=None,
-          connect_timeout=10.0):
+          connect_timeout=10.0, should_stop=None, run_timeout=None):
     """Run the grid of ``vary`` (see :func:`parse_vary`) over the diagram ``file``.
 
     Parameters
@@ -412,10 +479,23 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         ``progress(row, done, total)`` after each finished run.
     connect_timeout : float
         Seconds to wait for the scheduler at ``scheduler``.
+    should_stop : callable, optional
+        ``should_stop() -> bool``, polled between runs (and, serially, after every step of
+        the current run; keep it a flag check). Once it says stop, no run starts; the run
+        in progress is stopped (serial) or abandoned (Dask): see :data:`INTERRUPTED`.
+    run_timeout : float, optional
+        Wall-time limit of each run's integration [s]: a run that reaches it stops there and
+        is a failed row saying so (the sweep goes on).
 
     Returns
     -------
     SweepResult
+        Its ``unfinished`` rows are those a stop left without metrics.
+
+    Raises
+    ------
+    SweepInterrupted
+        On a KeyboardInterrupt during the runs, carrying the result of the runs finished.
     """
     from .diagram.model import load
     base = dict(set or {})
@@ -432,32 +512,70 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     t_end = sim.get("t_end")
     if t_end is not None and not (isinstance(t_end, (int, float)) and t_end > 0):
         raise SpidersimError(f"the simulated time of each run must be > 0 s, got {t_end}")
-    for path, values in vary:
-        _check_varied(file, base, d, path, values)
+    if run_timeout is not None and not (isinstance(run_timeout, (int, float)) and not
+                                        isinstance(run_timeout, bool) and
+                                        math.isfinite(run_timeout) and run_timeout > 0):
+        raise SpidersimError(f"the wall-time limit of a run must be a finite number of "
+                             f"seconds > 0, got {run_timeout!r}")
+    uses = {path: _check_varied(file, base, d, path, values) for path, values in vary}
+    notes = ineffective_parameters(file, base, vary, uses)
+    for note in notes:
+        warnings.warn(note, SweepWarning, stacklevel=2)
     t0 = time.perf_counter()
     d.compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     rows = [None] * len(points)
-    if workers == 0 and scheduler is None:
-        for k, pt in enumerate(points):
-            rows[k] = run_point(file, base, pt, sim, k)
-            if progress:
-                progress(rows[k], k + 1, len(points))
-        n_workers = 0
-    else:
-        rows, n_workers = _run_dask(file, base, points, sim, workers, scheduler, progress,
-                                    connect_timeout)
+    interrupt = None
+    try:
+        if workers == 0 and scheduler is None:
+            n_workers = 0
+            _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout)
+        else:
+            n_workers = _run_dask(file, base, points, sim, rows, workers, scheduler,
+                                  progress, connect_timeout, should_stop, run_timeout)
+    except KeyboardInterrupt as exc:
+        if not any(r is not None and r["status"] not in (INTERRUPTED, NOT_RUN)
+                   for r in rows):
+            raise                   # no run finished: nothing computed to keep
+        interrupt, n_workers = exc, workers
+    _mark_unfinished(rows, points)
     res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
                       {"compile_s": compile_s, "structure_key": d._modules[True][1],
-                       "name": d.spec.name})
+                       "name": d.spec.name, "warnings": notes})
+    if interrupt is not None:
+        raise SweepInterrupted(res, interrupt) from None
     return res
+
+
+def _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout=None):
+    """Run ``points`` one after the other here, filling ``rows``; stop (leaving the rest
+    None) when ``should_stop()`` says so (the run in progress polls it too)."""
+    for k, pt in enumerate(points):
+        if should_stop is not None and should_stop():
+            return
+        try:
+            rows[k] = run_point(file, base, pt, sim, k, should_stop, run_timeout)
+        except KeyboardInterrupt:
+            rows[k] = _unfinished_row(k, pt, INTERRUPTED, "stopped by the interrupt (no "
+                                      "metrics: the run is incomplete)")
+            raise
+        if progress:
+            progress(rows[k], k + 1, len(points))
+
+
+def _mark_unfinished(rows, points):
+    """Mark :data:`NOT_RUN` the rows an interrupt left empty (the runs never started)."""
+    for k, pt in enumerate(points):
+        if rows[k] is None:
+            rows[k] = _unfinished_row(k, pt, NOT_RUN, "not run: the sweep was interrupted")
 
 
 def _check_varied(file, base, d, path, values):
     """Every value of a varied path loads (a bad value is refused before any run, not
     found in the table afterwards), and the path is a scalar (a scalar given to a vector
-    parameter would be spread over its elements: every run the same direction)."""
+    parameter would be spread over its elements: every run the same direction). Returns
+    the block parameters (``block.param``) whose values differ between the values."""
     from .diagram.flatten import eval_parameters
     from .diagram.model import load
     size = None
@@ -471,38 +589,93 @@ def _check_varied(file, base, d, path, values):
         raise SpidersimError(f"--vary {path}: a vector parameter ({size} elements); a sweep "
                              f"varies scalars: make the varied quantity a scalar "
                              f"parameter of the diagram and build the vector from it")
+    first, changed = None, set()
     for v in values:
         try:
-            load(file, set={**base, path: v})
+            dv = load(file, set={**base, path: v})
         except SpidersimError as exc:
             raise SpidersimError(f"--vary {path}={v:g}: {exc}") from None
+        first = dv if first is None else first
+        changed |= set(_changed(first, dv))
+    return sorted(changed)
 
 
-def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_timeout):
+def ineffective_parameters(file, base, vary, uses):
+    """Notes on the varied top-level parameters whose values change no run: none of the
+    block parameters depends on it (with the base ``--set`` values), or every one that does
+    (``uses[path]``, from :func:`_check_varied`) is itself set by another varied path
+    (``g.k`` varied while ``g.k: a`` and ``a`` varied): its column varies, the runs do not. The
+    other paths are tried at their first and at their last values (a value such as 0 in
+    ``k: a*b`` may hide ``a`` at one of them only)."""
+    from .diagram.model import load
+    notes = []
+    for path, values in vary:
+        if "." in path or len(values) < 2:
+            continue
+        if not uses[path]:
+            notes.append(f"--vary {path}: no block parameter depends on '{path}'"
+                         + (" once the --set values are applied" if base else "")
+                         + ": its values change nothing in the runs")
+            continue
+        others = [(p, v) for p, v in vary if p != path]
+        if not others:
+            continue
+        ends = [{p: v[0] for p, v in others}, {p: v[-1] for p, v in others}]
+        if not any(_changed(load(file, set={**base, **fixed, path: values[0]}),
+                            load(file, set={**base, **fixed, path: v}))
+                   for fixed in ends for v in values[1:]):
+            used = ", ".join(uses[path][:5]) + (", ..." if len(uses[path]) > 5 else "")
+            setters = ", ".join(f"--vary {p}" for p, _ in others if _may_set(p, uses[path]))
+            notes.append(f"--vary {path}: its values change nothing in the runs: the block "
+                         f"parameter(s) that depend on '{path}' ({used}) are set "
+                         f"themselves by {setters}; vary one of them, not both")
+    return notes
+
+
+def _may_set(key, params):
+    """An override ``key`` may set one of the block parameters ``params``: a top-level
+    parameter (through expressions), the parameter itself, or one of a subsystem or block
+    containing one of them."""
+    return "." not in key or any(p == key or p.startswith(key.rpartition(".")[0] + ".")
+                                 for p in params)
+
+
+def _changed(d1, d2):
+    """The block parameters (``block.param``) whose values differ between the loaded
+    diagrams ``d1`` and ``d2`` (a block of only one of them counts as its path). Nothing
+    else decides a sweep's metrics (the simulation settings take no parameters; the
+    ``microgravity`` section is not part of a sweep)."""
+    out = [p for p in d2.blocks if p not in d1.blocks]
+    for path, inst in d1.blocks.items():
+        other = d2.blocks.get(path)
+        if other is None:
+            out.append(path)
+            continue
+        out += [f"{path}.{k}" for k, v in inst.params.items()
+                if k not in other.params or not _same(v, other.params[k])]
+    return out
+
+
+def _same(a, b):
+    """``a`` and ``b`` (parameter values: numbers, arrays, texts, mappings) are equal; a
+    value that cannot be compared counts as different."""
+    if isinstance(a, dict) or isinstance(b, dict):
+        return (isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys()
+                and all(_same(a[k], b[k]) for k in a))
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
-    except ImportError as exc:  # pragma: no cover - a dependency
-        raise SpidersimError(f"sweeps on Dask need dask.distributed ({exc}); "
-                             f"pip install 'dask[distributed]' or use --workers 0") from None
-    import logging
-    cluster = None
-    if scheduler:
-        try:
-            client = Client(scheduler, timeout=f"{connect_timeout}s")
-        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, bad address
-            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: "
-                                 f"{type(exc).__name__}: {exc}") from None
-    else:
-        if workers < 1:
-            raise SpidersimError(f"--workers must be >= 0, got {workers}")
-        try:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
-        except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
-            raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
-                                 f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
-                from None
-        client = Client(cluster)
+        return bool(np.array_equal(np.asarray(a), np.asarray(b),
+                                   equal_nan=np.asarray(a).dtype.kind in "fc"))
+    except Exception:  # noqa: BLE001 - objects without a comparison: not the same
+        return a is b
+
+
+def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, connect_timeout,
+              should_stop=None, run_timeout=None):
+    """Run ``points`` on Dask, filling ``rows``; returns the number of workers. A stop
+    (``should_stop()``, polled every :data:`POLL_S`, or a KeyboardInterrupt) cancels the
+    runs not finished and marks them :data:`INTERRUPTED`."""
+    client, cluster = _dask_client(workers, scheduler, connect_timeout)
+    futures = []
     try:
         n_workers = len(client.scheduler_info().get("workers", {}))
         if n_workers == 0:
@@ -512,13 +685,42 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
                 raise SpidersimError(f"the Dask scheduler at {scheduler} has no workers "
                                      f"(waited {connect_timeout:g} s)") from None
             n_workers = len(client.scheduler_info().get("workers", {}))
-        futures = [client.submit(run_point, file, base, pt, sim, k, pure=False,
+        futures = [client.submit(run_point, file, base, pt, sim, k, None, run_timeout,
+                                 pure=False,
                                  key=f"spidersim-run-{k}-{os.getpid()}-{time.time_ns()}")
                    for k, pt in enumerate(points)]
-        index = {f.key: k for k, f in enumerate(futures)}
-        rows = [None] * len(points)
-        done = 0
-        for fut in as_completed(futures):
+        _collect(futures, points, rows, progress, should_stop)
+        return n_workers
+    finally:
+        unfinished = [k for k, f in enumerate(futures) if rows[k] is None]
+        for k in unfinished:
+            rows[k] = _unfinished_row(k, points[k], INTERRUPTED, "unfinished when the sweep "
+                                      "was interrupted (queued or running on a worker)")
+        if unfinished:
+            client.cancel([futures[k] for k in unfinished])
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+#: seconds between two looks at ``should_stop`` while waiting for Dask runs
+POLL_S = 0.1
+
+
+def _collect(futures, points, rows, progress, should_stop):
+    """Fill ``rows`` as the runs of ``futures`` finish (a worker's failure is a failed row);
+    return early when ``should_stop()`` says so."""
+    from dask.distributed import as_completed
+    index = {f.key: k for k, f in enumerate(futures)}
+    done = 0
+    pending = as_completed(futures)
+    while not pending.is_empty():
+        if should_stop is not None and should_stop():
+            return
+        batch = pending.next_batch(block=False)
+        if not batch:
+            time.sleep(POLL_S)
+        for fut in batch:
             k = index[fut.key]
             try:
                 rows[k] = fut.result()
@@ -528,12 +730,34 @@ def _run_dask(file, base, points, sim, workers, scheduler, progress, connect_tim
                            "compiled": False, "worker": "", "wall_s": math.nan}
             done += 1
             if progress:
-                progress(rows[k], done, len(points))
-        return rows, n_workers
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+                progress(rows[k], done, len(futures))
+
+
+def _dask_client(workers, scheduler, connect_timeout):
+    """``(client, cluster)``: a client of the scheduler at ``scheduler`` (cluster None), or
+    of a new local cluster of ``workers`` processes."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - a dependency
+        raise SpidersimError(f"sweeps on Dask need dask.distributed ({exc}); "
+                             f"pip install 'dask[distributed]' or use --workers 0") from None
+    import logging
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=f"{connect_timeout}s"), None
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, bad address
+            raise SpidersimError(f"cannot reach the Dask scheduler at {scheduler}: "
+                                 f"{type(exc).__name__}: {exc}") from None
+    if workers < 1:
+        raise SpidersimError(f"--workers must be >= 0, got {workers}")
+    try:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
+        raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
+                             f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
+            from None
+    return Client(cluster), cluster
 
 
 def print_progress(row, done, total, stream=None):
@@ -542,7 +766,7 @@ def print_progress(row, done, total, stream=None):
     vals = " ".join(f"{k}={v:g}" for k, v in row.items()
                     if k not in ("run", "status", "message", "compiled", "worker", "wall_s",
                                  "t_reached") and isinstance(v, float))
-    what = "ok" if row["status"] == "ok" else f"FAILED: {row['message'][:200]}"
+    what = "ok" if row["status"] == "ok" else f"{row['status'].upper()}: {row['message'][:200]}"
     stream.write(f"  [{done}/{total}] run {row['run']}: {vals}  {what}  "
                  f"({row.get('wall_s', math.nan):.2f} s)\n")
     stream.flush()

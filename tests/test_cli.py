@@ -150,17 +150,20 @@ def test_set_from_the_command_line(tmp_path, capsys):
     assert "motor.Q" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("edit, message", [
+@pytest.mark.parametrize("edit, message, at", [
     ("      ref.aftr: {doc: position after the step, unit: rad, default: 1}",
-     "block type Step has no parameter 'aftr'"),
+     "argument 'ref.aftr' names no parameter: block 'ref' (Step) has no parameter 'aftr'; "
+     "did you mean after?", "      ref.aftr"),
     ("      ref.after: {doc: position after the step, unit: rad, default: [1, 2]}",
-     "block 'ref': command 'position_step': parameter 'after' must be a scalar"),
+     "block 'ref': command 'position_step': parameter 'after' must be a scalar",
+     "commands:"),
 ])
-def test_check_reads_the_named_commands(tmp_path, capsys, edit, message):
+def test_check_reads_the_named_commands(tmp_path, capsys, edit, message, at):
     """``spidersim check`` reads the ``commands`` section the service serves: a command
-    whose argument default names a parameter the model does not have (or gives it a value
-    it refuses) fails at the check, with the file, the section's line and the command's
-    name, not at the first request to the service. The intact file lists its commands."""
+    whose argument names a parameter the model does not have (at the argument's line) or
+    whose default the model refuses (at the section's line) fails at the check, with the
+    file and the command's name, not at the first request to the service. The intact file
+    lists its commands."""
     src = os.path.join(ROOT, "diagrams", "servo.yaml")
     assert main(["check", src]) == 0
     assert "named commands (spidersim serve): position_step" in capsys.readouterr().out
@@ -171,11 +174,60 @@ def test_check_reads_the_named_commands(tmp_path, capsys, edit, message):
     bad.write_text(text.replace(good, edit))
     assert main(["check", str(bad)]) == 2
     err = capsys.readouterr().err
-    line = text.splitlines().index("commands:                  # named commands of the "
-                                   "remote service (spidersim serve)") + 1
+    line = next(k for k, t in enumerate(bad.read_text().splitlines(), 1) if t.startswith(at))
     assert f"servo.yaml:{line}: " in err and "command 'position_step'" in err
     assert message in err
     assert "Traceback" not in err
+
+
+CHECKED = """\
+parameters: {a: 1.0}
+subsystems:
+  SUB: sub.yaml
+blocks:
+  c: {type: Constant, value: 1}
+  g: {type: Gain, k: a}
+  j: {type: SUB, gain: 3}
+connections:
+  - c.y -> g.u
+  - g.y -> j.u
+commands:
+  go:
+    doc: a command
+    arguments:
+      ARG: {doc: an argument}
+"""
+SUB = """\
+parameters: {gain: 1.0}
+blocks:
+  h: {type: Gain, k: gain}
+inputs: {u: h.u}
+"""
+
+
+@pytest.mark.parametrize("arg, problem", [
+    ("a", None), ("g.k", None), ("j.gain", None), ("j.h.k", None),
+    ("nosuch.k", "there is no block or subsystem 'nosuch'"),
+    ("b", "the diagram has no parameter 'b'"),
+    ("g.kk", "block 'g' (Gain) has no parameter 'kk'; did you mean k?"),
+    ("j.gian", "subsystem 'j' (type 'SUB') has no parameter 'gian'; did you mean gain?"),
+    ("j.h.x", "block 'j.h' (Gain) has no parameter 'x'"),
+    ("j.nosuch.k", "there is no block or subsystem 'j.nosuch'"),
+])
+def test_check_refuses_an_argument_that_names_no_parameter(tmp_path, capsys, arg, problem):
+    """An argument a request could never give (no such parameter) is refused by ``check``
+    at its line; every path ``--set`` takes (a diagram parameter, a block's, a subsystem
+    instance's, a block's inside one) passes."""
+    (tmp_path / "sub.yaml").write_text(SUB)
+    f = tmp_path / "m.yaml"
+    f.write_text(CHECKED.replace("ARG", arg))
+    rc = main(["check", str(f)])
+    out, err = capsys.readouterr()
+    if problem is None:
+        assert rc == 0 and "named commands (spidersim serve): go" in out, err
+        return
+    assert rc == 2 and "Traceback" not in err
+    assert f"m.yaml:15: command 'go': argument '{arg}' names no parameter: {problem}" in err
 
 
 @pytest.mark.parametrize("path", SUBSYSTEMS,

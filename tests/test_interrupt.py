@@ -163,3 +163,69 @@ def test_second_signal_while_writing_stops_at_once(tmp_path, monkeypatch, capsys
     err = capsys.readouterr().err
     assert code == 130 and "Traceback" not in err and "again" in err, err
     assert os.listdir(out) == []                   # nothing half-written
+
+
+# ------------------------------------------------------------------ interrupted sweeps
+# run 0 (Ts = 0.1) takes milliseconds, run 1 (Ts = 1e-9: a billion samples) far longer
+# than the test: the signal comes while run 1 integrates
+SWEEP = """\
+name: held
+parameters: {a: -1.0}
+blocks:
+  x: {type: Integrator, x0: 1}
+  g: {type: Gain, k: a}
+  z: {type: ZeroOrderHold, Ts: 0.1}
+connections:
+  - x.y -> g.u
+  - g.y -> x.u
+  - x.y -> z.u
+simulation: {t_end: 1.0}
+metrics:
+  x_end: {signal: x.y, reduce: final}
+"""
+
+
+def _sweep_interrupted(tmp_path, workers, sig=signal.SIGINT):
+    """Start a sweep of three runs (fast, endless, fast) in a child, send ``sig`` once
+    the first run is in the table; return (exit status, stderr, rows of sweep.csv)."""
+    import csv
+    path = tmp_path / "held.yaml"
+    path.write_text(SWEEP)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "spidersim.cli", "sweep", str(path),
+                             "--vary", "z.Ts=0.1,1e-9,0.2", "--workers", str(workers),
+                             "--out", str(out), "--no-plots"], stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    seen = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not any("run 0:" in s for s in seen):
+        seen.append(proc.stderr.readline())
+    time.sleep(1.0)                          # run 1 is integrating (serial) or running
+    proc.send_signal(sig)
+    _stdout, stderr = proc.communicate(timeout=120)
+    stderr = "".join(seen) + stderr
+    rows = list(csv.DictReader(open(out / "sweep.csv"))) if (out / "sweep.csv").exists() \
+        else []
+    return proc.returncode, stderr, rows
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupted_serial_sweep_keeps_the_finished_runs(tmp_path, sig, code):
+    rc, err, rows = _sweep_interrupted(tmp_path, 0, sig)
+    assert rc == code, err
+    assert "Traceback" not in err and "stopped after 1 of 3 run(s)" in err
+    assert [r["status"] for r in rows] == ["ok", "interrupted", "not run"], err
+    assert float(rows[0]["x_end"]) == pytest.approx(np.exp(-1), rel=1e-3)
+    assert rows[1]["x_end"] == "" and 0 < float(rows[1]["t_reached"]) < 1
+    assert "stopped by the interrupt" in rows[1]["message"]
+    assert rows[2]["x_end"] == "" and "not run" in rows[2]["message"]
+
+
+def test_interrupted_dask_sweep_keeps_the_finished_runs(tmp_path):
+    """One worker: run 0 finished, run 1 running, run 2 queued; the signal cancels both."""
+    rc, err, rows = _sweep_interrupted(tmp_path, 1)
+    assert rc == 130, err
+    assert "Traceback" not in err and "stopped after 1 of 3 run(s)" in err
+    assert [r["status"] for r in rows] == ["ok", "interrupted", "interrupted"], err
+    assert float(rows[0]["x_end"]) == pytest.approx(np.exp(-1), rel=1e-3)
+    assert rows[1]["x_end"] == rows[2]["x_end"] == ""

@@ -290,3 +290,152 @@ def test_cli_sweep_bad_vary_exits_with_a_message(drop_file, capsys):
     rc = main(["sweep", drop_file, "--vary", "K=1,abc", "--workers", "0"])
     assert rc != 0
     assert "'abc' is not a number" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ interrupts
+def _interrupt_at(monkeypatch, run):
+    """Make run number ``run`` of a sweep end in a KeyboardInterrupt (Ctrl-C in Python)."""
+    real = sw.run_point
+
+    def run_point(file, base, point, sim, index=0, *more):
+        if index == run:
+            raise KeyboardInterrupt
+        return real(file, base, point, sim, index, *more)
+    monkeypatch.setattr(sw, "run_point", run_point)
+
+
+def test_ctrl_c_in_a_serial_sweep_carries_the_finished_rows(grow_file, monkeypatch):
+    _interrupt_at(monkeypatch, 1)
+    with pytest.raises(sw.SweepInterrupted) as exc:
+        sw.sweep(grow_file, [("a", [1.0, 2.0, 3.0])], workers=0)
+    res = exc.value.result
+    assert exc.value.exit_code == 130
+    assert [r["status"] for r in res.rows] == ["ok", sw.INTERRUPTED, sw.NOT_RUN]
+    assert res.rows[0]["x_end"] == pytest.approx(math.e, rel=1e-6)
+    assert [r["run"] for r in res.unfinished] == [1, 2] and res.failed == []
+
+
+def test_ctrl_c_before_any_run_finished_is_the_plain_interrupt(grow_file, monkeypatch):
+    """Nothing computed: the KeyboardInterrupt itself, not an empty table."""
+    _interrupt_at(monkeypatch, 0)
+    with pytest.raises(KeyboardInterrupt) as exc:
+        sw.sweep(grow_file, [("a", [1.0, 2.0])], workers=0)
+    assert type(exc.value) is KeyboardInterrupt
+
+
+# ------------------------------------------------------------------ varied in vain
+SHADOW = """
+parameters: {a: 1.0, b: 1.0, unused: 0.0}
+subsystems: {LAG: lag.yaml}
+blocks:
+  c: {type: Constant, value: 1}
+  g: {type: Gain, k: a}
+  h: {type: Gain, k: a*b}
+  j: {type: LAG, gain: a}
+connections: [c.y -> g.u, g.y -> h.u, h.y -> j.u]
+metrics: {y: {signal: j.y, reduce: final}}
+"""
+LAG = """
+parameters: {gain: 1.0}
+blocks: {k: {type: Gain, k: gain}}
+inputs: {u: k.u}
+outputs: {y: k.y}
+"""
+
+
+@pytest.mark.parametrize("vary, base, note", [
+    # every use of 'a' (g.k, h.k, j's gain) overridden: its values change nothing
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("h.k", [3]), ("j.gain", [1]), ("b", [2])], {},
+     "--vary a: its values change nothing in the runs: the block parameter(s) that depend "
+     "on 'a' (g.k, h.k, j.k.k) are set themselves by --vary g.k, --vary h.k, --vary j.gain, "
+     "--vary b; vary one"),
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("c.value", [1, 2]), ("j.k.k", [1])], {"h.k": 2},
+     "(g.k, j.k.k) are set themselves by --vary g.k, --vary j.k.k; vary one"),
+    ([("unused", [1, 2]), ("a", [1, 2])], {},
+     "--vary unused: no block parameter depends on 'unused': its values change nothing"),
+    ([("a", [1, 2])], {"g.k": 1, "h.k": 1, "j.gain": 1},
+     "no block parameter depends on 'a' once the --set values are applied"),
+    # one use left (h.k through a*b, j's gain): a real grid, nothing said
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("j.gain", [1])], {}, None),
+    ([("a", [1, 2]), ("g.k", [1, 2]), ("h.k", [1])], {}, None),
+    # b = 0 hides 'a' in h.k = a*b at its first value only
+    ([("a", [1, 2]), ("g.k", [1]), ("j.gain", [1]), ("b", [0, 1])], {}, None),
+    ([("g.k", [1, 2]), ("b", [1, 2])], {}, None),
+    ([("unused", [1])], {}, None),              # one value: nothing varies anyway
+])
+def test_a_varied_parameter_that_changes_nothing_is_named(tmp_path, vary, base, note):
+    """A varied top-level parameter that no run depends on (unused, or every block
+    parameter using it overridden by another varied path or a --set) is said, with the
+    parameters it reaches and what overrides them; a parameter with one use left is not."""
+    from spidersim import load
+    (tmp_path / "lag.yaml").write_text(LAG)
+    f = tmp_path / "shadow.yaml"
+    f.write_text(SHADOW)
+    d = load(str(f), set=base)
+    uses = {p: sw._check_varied(str(f), base, d, p, v) for p, v in vary}
+    notes = sw.ineffective_parameters(str(f), base, vary, uses)
+    if note is None:
+        assert notes == []
+    else:
+        assert len(notes) == 1 and note in notes[0], notes
+
+
+def test_sweep_and_cli_say_a_varied_parameter_changes_nothing(grow_file, tmp_path, capsys):
+    """grow.yaml has g.k: a; varying both makes the a column meaningless: warned before
+    the runs (a SweepWarning) and again after the table."""
+    with pytest.warns(sw.SweepWarning, match="--vary a: its values change nothing"):
+        res = sw.sweep(grow_file, [("a", [1.0, 2.0]), ("g.k", [1.0])], workers=0)
+    assert res.extra["warnings"] == [
+        "--vary a: its values change nothing in the runs: the block parameter(s) that "
+        "depend on 'a' (g.k) are set themselves by --vary g.k; vary one of them, not both"]
+    assert res.rows[0]["x_end"] == res.rows[1]["x_end"]          # what it warns about
+    rc = main(["sweep", grow_file, "--vary", "a=1,2", "--vary", "g.k=1", "--workers", "0",
+               "--out", str(tmp_path), "--no-plots"])
+    err = capsys.readouterr().err
+    assert rc == 0 and err.count("spidersim: warning: --vary a: its values change") == 2
+    assert err.rstrip().endswith("vary one of them, not both"), err
+
+
+# ------------------------------------------------------------------ wall-time limit
+# z.Ts = 1e-9 asks for a billion samples: a run that would take hours
+HELD = """\
+name: held
+parameters: {a: -1.0}
+blocks:
+  x: {type: Integrator, x0: 1}
+  g: {type: Gain, k: a}
+  z: {type: ZeroOrderHold, Ts: 0.1}
+connections:
+  - x.y -> g.u
+  - g.y -> x.u
+  - x.y -> z.u
+simulation: {t_end: 1.0}
+metrics:
+  x_end: {signal: x.y, reduce: final}
+"""
+
+
+def test_run_timeout_stops_a_run_and_the_sweep_goes_on(tmp_path, capsys):
+    f = tmp_path / "held.yaml"
+    f.write_text(HELD)
+    rc = main(["sweep", str(f), "--vary", "z.Ts=0.1,1e-9,0.2", "--workers", "0",
+               "--run-timeout", "0.5", "--out", str(tmp_path / "out"), "--no-plots"])
+    assert rc == 1
+    with open(tmp_path / "out" / "sweep.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["status"] for r in rows] == ["ok", "failed", "ok"]
+    assert rows[1]["message"].startswith("stopped: the wall-time limit of 0.5 s per run "
+                                         "(--run-timeout) was reached at t = ")
+    assert rows[1]["x_end"] == "" and 0 < float(rows[1]["t_reached"]) < 1
+    assert 0.5 <= float(rows[1]["wall_s"]) < 20
+    assert float(rows[2]["x_end"]) == pytest.approx(math.exp(-1), rel=1e-3)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "x"])
+def test_run_timeout_must_be_a_positive_time(drop_file, capsys, value):
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", drop_file, "--vary", "m=1", "--run-timeout", value])
+    assert exc.value.code == 2 and "--run-timeout" in capsys.readouterr().err
+    with pytest.raises(SpidersimError, match="wall-time limit of a run"):
+        sw.sweep(drop_file, [("m", [1.0])], workers=0, run_timeout=float(
+            value.replace("x", "nan")))

@@ -33,6 +33,17 @@ def test_one_parameter_is_one_curve_with_its_failed_run():
     assert [r["a"] for r in curve.ok] == [1.0, 3.0] and [r["a"] for r in curve.failed] == [2.0]
 
 
+@pytest.mark.parametrize("status", [sw.INTERRUPTED, sw.NOT_RUN])
+def test_an_unfinished_run_is_neither_a_value_nor_a_failure(status):
+    """An interrupted sweep's unfinished runs have no value and did not fail: they are not
+    drawn (a failure's cross would say the run failed)."""
+    res = result([("a", [1.0, 2.0, 3.0])])
+    res.rows[2] = {"run": 2, "a": 3.0, "status": status}
+    (curve,) = res.curves({})
+    assert [r["a"] for r in curve.ok] == [1.0] and [r["a"] for r in curve.failed] == [2.0]
+    assert [r["run"] for r in res.failed] == [1] and [r["run"] for r in res.unfinished] == [2]
+
+
 def test_second_parameter_gives_one_curve_per_value():
     """Each value of the second parameter is a labelled curve holding exactly its runs."""
     res = result([("a", [1.0, 2.0]), ("b", [0.5, 1.5])])

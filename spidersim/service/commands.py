@@ -53,7 +53,9 @@ names with suggestions, bounds, shapes); problems with the command itself raise
 """
 from __future__ import annotations
 
+import difflib
 import os
+import re
 
 import numpy as np
 
@@ -61,7 +63,9 @@ import spidersim
 from spidersim.blocks import REGISTRY, lookup
 from spidersim.diagram.spec import BlockSpec
 from spidersim.diagram.units import UNKNOWN
-from spidersim.errors import ParameterError
+from spidersim.diagram.model import sim_setting
+from spidersim.diagram.spec import parse_file
+from spidersim.errors import DiagramError, ParameterError
 from spidersim.text import units as U
 from spidersim.text.yamlio import files_only_under, found
 
@@ -145,42 +149,79 @@ def _argument_decl(v, command, name, spec, where):
             "default": v.get("default")}
 
 
+#: a command's name: an identifier (the JSON schema's name pattern), as a request spells it
+COMMAND_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+
+
+def _line(mapping, *keys):
+    """The line of the entry reached by ``keys`` in nested mappings of the YAML loader (of
+    the deepest key that has one), or None (plain dicts carry no lines)."""
+    line = None
+    for k in keys:
+        if not isinstance(mapping, dict) or k not in mapping:
+            break
+        if hasattr(mapping, "line_of"):
+            line = mapping.line_of(k) or line
+        mapping = mapping[k]
+    return line
+
+
 def _command_entry(name, c, spec, where):
     """One entry of the ``commands`` section, checked: ``{doc, set, arguments, t_end}``
-    (``arguments`` may be a list of names). Errors are located at ``where``."""
+    (``arguments`` may be a list of names). Errors are located at ``where`` (the
+    command's line) or at the line of the key they concern."""
+    def fail(msg, *keys):
+        raise ParameterError(f"command '{name}': {msg}", file=getattr(spec, "file", None),
+                             line=_line(c, *keys) or where)
+
+    if not isinstance(name, str) or not COMMAND_NAME.match(name):
+        fail("not a command name: a request names it, so it is an identifier (letters, "
+             "digits, _; not starting with a digit), e.g. capture_payload")
     if not isinstance(c, dict):
-        raise ParameterError(f"command '{name}' must be a mapping", file=spec.file,
-                             line=where)
+        fail(f"must be a mapping {{doc, set, arguments, t_end}}, got {found(c)}")
     bad = set(c) - {"doc", "set", "arguments", "t_end"}
     if bad:
-        raise ParameterError(f"command '{name}': unknown key(s) {', '.join(sorted(bad))}; "
-                             f"keys are doc, set, arguments, t_end", file=spec.file,
-                             line=where)
+        fail(f"unknown key(s) {', '.join(sorted(map(str, bad)))}; keys are doc, set, "
+             f"arguments, t_end")
+    if not isinstance(c.get("doc", ""), str):
+        fail(f"'doc' must be a text, got {found(c['doc'])}", "doc")
     args = c.get("arguments")
     args = {} if args is None else args     # absent or null; '', 0 or false are errors
     if isinstance(args, list):
         if not all(isinstance(a, str) for a in args):
-            raise ParameterError(f"command '{name}': a list of 'arguments' must hold "
-                                 f"parameter paths (texts)", file=getattr(spec, "file", None),
-                                 line=where)
+            fail("a list of 'arguments' must hold parameter paths (texts)", "arguments")
         args = {a: {} for a in args}
     sets = c.get("set")
     sets = {} if sets is None else sets
     for key, v in (("arguments", args), ("set", sets)):
         if not isinstance(v, dict):
-            raise ParameterError(f"command '{name}': '{key}' must be a mapping"
-                                 + (" or a list of parameter paths" if key == "arguments"
-                                    else "") + f", got {found(v)}",
-                                 file=spec.file, line=where)
-    t_end = c.get("t_end")
-    if t_end is not None and not _is_time(t_end):
-        raise ParameterError(f"command '{name}': t_end must be a finite time > 0 s, got "
-                             f"{found(t_end)}", file=getattr(spec, "file", None),
-                             line=where)
-    return {"doc": str(c.get("doc", "")), "set": dict(sets),
-            "arguments": {str(k): _argument_decl(v, name, str(k), spec, where)
+            fail(f"'{key}' must be a mapping" + (" or a list of parameter paths"
+                                                  if key == "arguments" else "")
+                 + f", got {found(v)}", key)
+    for k in args:
+        if str(k) in map(str, sets):
+            fail(f"'{k}' is both fixed by 'set' and an argument (the argument's value would "
+                 f"replace the fixed one): keep one; an argument with a default is a value "
+                 f"the command sets unless the request gives another", "arguments", k)
+    return {"doc": c.get("doc", ""), "set": dict(sets),
+            "arguments": {str(k): _argument_decl(v, name, str(k), spec,
+                                                 _line(c, "arguments", k) or where)
                           for k, v in args.items()},
-            "t_end": c.get("t_end")}
+            "t_end": _command_t_end(name, c, spec, where)}
+
+
+def _command_t_end(name, c, spec, where):
+    """A command's ``t_end`` as a float (None when not given), checked by the rule of the
+    file's ``simulation.t_end`` (:func:`~spidersim.diagram.model.sim_setting`: a number or
+    an expression such as ``1e3`` or ``2*3``, finite and > 0; a boolean is refused)."""
+    t_end = c.get("t_end")
+    if t_end is None:
+        return None
+    try:
+        return sim_setting("t_end", t_end, f"command '{name}': t_end",
+                           file=getattr(spec, "file", None), line=_line(c, "t_end") or where)
+    except DiagramError as exc:
+        raise ParameterError(exc.message, file=exc.file, line=exc.line) from None
 
 
 def named_commands(spec):
@@ -193,6 +234,55 @@ def named_commands(spec):
     return {str(name): _command_entry(name, c, spec, raw.line_of(name)
                                       if hasattr(raw, "line_of") else line)
             for name, c in raw.items()}
+
+
+def parameter_path_problem(d, path):
+    """Why ``path`` (an argument or ``set`` key of a named command) names no parameter of
+    the loaded diagram ``d`` (a text for a message), or None when it names one: a
+    top-level parameter (``t_latch``), a parameter of a block (``carry.q1``, also inside
+    subsystems: ``j3.motor.R``) or of a subsystem instance (``j3.ratio``) — what ``--set``
+    accepts."""
+    prefix, _, name = str(path).rpartition(".")
+    if not prefix:
+        if name in d.spec.parameters:
+            return None
+        return f"the diagram has no parameter '{name}'{_hint(name, d.spec.parameters)}"
+    if prefix in d.flat.blocks:
+        cls = d.flat.blocks[prefix].cls
+        if name in cls.parameters:
+            return None
+        return (f"block '{prefix}' ({cls.type_name}) has no parameter '{name}'"
+                f"{_hint(name, cls.parameters)}")
+    if prefix in d.flat.subsystem_instances:
+        typ = d.flat.instances[prefix][0]
+        params = parse_file(d.flat.subsystem_instances[prefix]).parameters
+        if name in params:
+            return None
+        return (f"subsystem '{prefix}' (type '{typ}') has no parameter '{name}'"
+                f"{_hint(name, params)}")
+    places = list(d.flat.blocks) + list(d.flat.instances)
+    return (f"there is no block or subsystem '{prefix}'{_hint(prefix, places)} (write "
+            f"block.param, e.g. motor.R, or a parameter of the diagram)")
+
+
+def _hint(word, choices):
+    """``"; did you mean a, b?"`` with up to three of ``choices`` close to ``word``, or ''."""
+    near = difflib.get_close_matches(word, list(choices), n=3)
+    return f"; did you mean {', '.join(near)}?" if near else ""
+
+
+def check_argument_paths(d, cmds):
+    """Raise a ParameterError at the argument's line if an argument of a named command
+    (``cmds``, from :func:`named_commands`) names no parameter of the loaded diagram
+    ``d`` (:func:`parameter_path_problem`): a request could never give it."""
+    raw = (d.spec.data or {}).get("commands") or {}
+    for name, c in cmds.items():
+        for k in c["arguments"]:
+            problem = parameter_path_problem(d, k)
+            if problem:
+                raise ParameterError(
+                    f"command '{name}': argument '{k}' names no parameter: {problem}",
+                    file=d.file, line=_line(raw, name, "arguments", k))
 
 
 def commandables(d, spec):
