@@ -40,6 +40,7 @@ from spidersim.errors import SpidersimError
 from spidersim.outputs import BARE_NAME
 from spidersim.text.yamlio import lone_surrogate
 
+from .body import BodyLimit
 from .commands import prepare
 from .execute import finite_json
 from .library import BadName, Library, UnknownModel
@@ -392,17 +393,7 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                           ensure_ascii=True, allow_nan=False)
         return Response(text, status_code=422, media_type="application/json")
 
-    @app.middleware("http")
-    async def body_limit(request: Request, call_next):
-        if request.method in ("POST", "PUT", "PATCH"):
-            n = request.headers.get("content-length")
-            if n is not None and (not n.isdigit() or int(n) > limits.max_body):
-                return JSONResponse({"detail": f"request body of {n} bytes is larger than "
-                                     f"the limit of {limits.max_body} bytes"}, status_code=413)
-            if n is None:
-                return JSONResponse({"detail": "a request body needs a Content-Length "
-                                     "header"}, status_code=411)
-        return await call_next(request)
+    app.add_middleware(BodyLimit, max_body=limits.max_body)
 
     def model_or_error(name):
         try:
