@@ -38,6 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 import spidersim
 from spidersim.errors import SpidersimError
 from spidersim.outputs import BARE_NAME
+from spidersim.text.limits import MAX_DEPTH
 from spidersim.text.yamlio import lone_surrogate
 
 from .body import BodyLimit
@@ -101,6 +102,34 @@ def non_finite_field(v, where="body"):
         elif isinstance(x, list):
             stack += [(y, f"{w}[{i}]") for i, y in enumerate(x)]
     return None
+
+
+def too_deep(v, where="body", limit=MAX_DEPTH):
+    """Where (``body.parameters.motor.R``) lists and objects of a parsed request nest more
+    than ``limit`` deep, or None; counted without recursion (a value 328 lists deep made
+    the diagram loader's recursion fail: a 500 and a 195 KB traceback in the log)."""
+    stack = [(v, where, 1)]
+    while stack:
+        x, w, d = stack.pop()
+        if isinstance(x, (dict, list)):
+            if d > limit:
+                return w
+            items = x.items() if isinstance(x, dict) else enumerate(x)
+            stack += [(y, (f"{w}.{k}" if isinstance(x, dict) else f"{w}[{k}]")
+                       if d < 4 else w, d + 1) for k, y in items]
+    return None
+
+
+def shallow(v, limit=MAX_DEPTH):
+    """``v`` with lists and objects nested deeper than ``limit`` replaced by ``"[...]"``:
+    a 422 quotes the input, and encoding one nested 483 deep failed (a 500)."""
+    if isinstance(v, (dict, list)) and limit <= 0:
+        return "[...]"
+    if isinstance(v, dict):
+        return {k: shallow(x, limit - 1) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [shallow(x, limit - 1) for x in v]
+    return v
 
 
 # ---------------------------------------------------------------------------- request types
@@ -177,7 +206,12 @@ class RunRequest(BaseModel):
         """Refuse texts holding a lone surrogate (JSON ``\\ud800`` escapes): not a
         character, it cannot be printed, stored or written to a file; and non-finite
         numbers (``1e999`` overflows to inf; ``Infinity``, ``NaN``): not JSON, they cannot
-        be answered back (an infinite value is given as the text ``"inf"``)."""
+        be answered back (an infinite value is given as the text ``"inf"``); and lists or
+        objects nested more than ``MAX_DEPTH`` deep (checked first, without recursion)."""
+        deep = too_deep(data)
+        if deep is not None:
+            raise ValueError(f"{deep}: lists and objects nested more than {MAX_DEPTH} deep "
+                             f"(the limit MAX_DEPTH of diagram files)")
         bad = non_finite_field(data)
         if bad is not None:
             raise ValueError(f"{bad}: a non-finite number (1e999 overflows to inf, Infinity, "
@@ -389,7 +423,9 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         """FastAPI's 422, written as ASCII JSON: the errors quote the input, and an input
         holding a lone surrogate (a JSON \\ud800 escape) cannot be encoded as UTF-8 (the
         default response failed with a 500)."""
-        text = json.dumps(finite_json({"detail": jsonable_encoder(exc.errors())}),
+        errors = [{**e, "input": shallow(e["input"])} if "input" in e else e
+                  for e in exc.errors()]
+        text = json.dumps(finite_json({"detail": jsonable_encoder(errors)}),
                           ensure_ascii=True, allow_nan=False)
         return Response(text, status_code=422, media_type="application/json")
 

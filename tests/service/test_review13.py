@@ -52,3 +52,39 @@ def test_transfer_function_degree_is_bounded_at_submit(tmp_path):
         r = c.post("/jobs", json={"model": "slow", "parameters": {"sys.den": [1] + den[-200:]},
                                   "t_end": 0.001, "plots": False})
         assert r.status_code == 202, r.text
+
+
+# ------------------------------------------------------------------- deeply nested JSON
+DEEP = {
+    "list": lambda n: '{"model":"servo","parameters":{"motor.R":' + "[" * n + "1" + "]" * n
+                      + "}}",
+    "dict": lambda n: '{"model":"servo","parameters":{"motor.R":' + '{"a":' * n + "1"
+                      + "}" * n + "}}",
+    "initial": lambda n: '{"model":"servo","initial":{"motor.w":' + "[" * n + "1" + "]" * n
+                         + "}}",
+    "log": lambda n: '{"model":"servo","log":' + "[" * n + "1" + "]" * n + "}",
+    "args": lambda n: '{"model":"servo","command":{"kind":"named","name":"x","arguments":'
+                      '{"a":' + "[" * n + "1" + "]" * n + "}}}",
+}
+WHERE = {"list": "body.parameters.motor.R", "dict": "body.parameters.motor.R",
+         "initial": "body.initial.motor.w", "log": "body.log", "args": "body.command"}
+
+
+@pytest.mark.parametrize("kind", list(DEEP))
+def test_deeply_nested_json_is_422(tmp_path, kind):
+    """Nesting the review found failing (a list 328 deep in the diagram loader, a dict 483
+    deep and ``log`` 484 deep encoding the 422 itself: 500s with 195 KB tracebacks) is a
+    422 naming the field and the limit, for each field; 64 levels (the body counted) pass
+    the check (and get the usual 422 for a bad value)."""
+    with app(tmp_path) as (c, store):
+        for n in (64, 328, 483, 900):
+            r = c.post("/jobs", content=DEEP[kind](n),
+                       headers={"Content-Type": "application/json"})
+            assert r.status_code == 422, (n, r.text[:300])
+            text = json.dumps(r.json())
+            assert len(r.content) < 20_000
+            assert WHERE[kind] in text and "nested more than 64 deep" in text, (n, text[:300])
+        r = c.post("/jobs", content=DEEP[kind](61),       # 64 levels with body and field
+                   headers={"Content-Type": "application/json"})
+        assert r.status_code == 422 and "nested more than" not in r.text, r.text[:300]
+        assert store.list_jobs(1) == []
