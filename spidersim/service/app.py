@@ -3,9 +3,10 @@
 Every route but ``GET /health``, ``/`` and the page's static files needs
 ``Authorization: Bearer <token>`` (401 otherwise); a job of another user answers 404 as an
 unknown one. Limits answer 413 (body size, a signal answer of more than ``max_points``
-values), 422 (run length, logged signals, bad request, a non-finite number) and 429 (active
-jobs per user, with ``Retry-After``) and 507 (the user's disk quota ``max_user_mb``), each
-with a ``detail`` message; the files of a job finished more than ``keep_days`` ago, or
+values), 422 (run length, logged signals, bad request, a non-finite number, nesting deeper
+than ``MAX_DEPTH``) and 429 (active jobs or open event streams per user, with
+``Retry-After``) and 507 (the user's disk quota ``max_user_mb``), each with a ``detail``
+message; the files of a job finished more than ``keep_days`` ago, or
 deleted by its user (``DELETE /jobs/{id}``), are removed and its result routes answer 410
 Gone. ``GET /usage`` gives the user's disk use and quota.
 
@@ -24,6 +25,7 @@ import re
 import shutil
 import threading
 import time
+import weakref
 import zipfile
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -55,6 +57,7 @@ class Limits(BaseModel):
     max_t_end: float = 60.0              # s of simulated time per run
     max_signals: int = 64                # signals a request's 'log' may name
     max_active: int = 8                  # queued + running jobs per user
+    max_streams: int = 8                 # open event streams per user
     max_record_mb: float = 256.0         # recording budget of one job [MB = 1e6 bytes]
     max_points: int = 200_000            # values (samples x elements) of one /signals answer
     keep_days: float = 7.0               # days a finished job's files are kept
@@ -233,12 +236,17 @@ class RunRequest(BaseModel):
         return data
 
 
+def bearer(authorization):
+    """The token of an ``Authorization: Bearer <token>`` header, or None."""
+    if authorization and authorization.lower().startswith("bearer "):
+        return authorization[7:].strip()
+    return None
+
+
 def current_user(request: Request,
                  authorization: Annotated[Optional[str], Header()] = None):
     """The (user id, name) of the request's bearer token; 401 without a valid one."""
-    tok = None
-    if authorization and authorization.lower().startswith("bearer "):
-        tok = authorization[7:].strip()
+    tok = bearer(authorization)
     u = request.app.state.store.user_for_token(tok) if tok else None
     if u is None:
         raise HTTPException(401, "a valid token is required: send 'Authorization: Bearer "
@@ -562,24 +570,60 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                 state["runner"].wake()
         return _public(store.get_job(job_id))
 
+    streams = {}            # user id -> open event streams
+
+    def open_stream(user_id):
+        """Count an event stream of the user (429 beyond ``max_streams``); return the
+        function that ends it (idempotent)."""
+        if streams.get(user_id, 0) >= limits.max_streams:
+            raise HTTPException(429, f"you have {streams[user_id]} open event streams, the "
+                                     f"limit is {limits.max_streams}: close one (or poll "
+                                     f"GET /jobs/{{id}})", headers={"Retry-After": "2"})
+        streams[user_id] = streams.get(user_id, 0) + 1
+        done = []
+
+        def close():
+            if not done:
+                done.append(True)
+                streams[user_id] -= 1
+                if not streams[user_id]:
+                    del streams[user_id]
+        return close
+
     @app.get("/jobs/{job_id}/events")
-    async def job_events(job_id: str, u: User):
+    async def job_events(job_id: str, u: User,
+                         authorization: Annotated[Optional[str], Header()] = None):
+        """Server-sent events of a job's status until it ends; the token is checked again
+        at every poll (a revoked user's open stream ends with an ``error`` event), at most
+        ``max_streams`` open per user."""
         own_job(job_id, u)
+        token = bearer(authorization)
+        close = open_stream(u[0])
 
         async def stream():
             last = None
-            while True:
-                job = store.get_job(job_id)
-                pub = _public(job, request=False)
-                key = (pub["state"], pub["progress"], pub["message"])
-                if key != last:
-                    last = key
-                    yield f"event: {pub['state']}\ndata: {dumps_strict(pub)}\n\n"
-                if job["state"] not in ("queued", "running"):
-                    return
-                await asyncio.sleep(0.25)
+            try:
+                while True:
+                    if store.user_for_token(token) is None:
+                        yield ("event: error\ndata: " + dumps_strict(
+                            {"detail": "the token is no longer valid (revoked): stream "
+                                       "ended"}) + "\n\n")
+                        return
+                    job = store.get_job(job_id)
+                    pub = _public(job, request=False)
+                    key = (pub["state"], pub["progress"], pub["message"])
+                    if key != last:
+                        last = key
+                        yield f"event: {pub['state']}\ndata: {dumps_strict(pub)}\n\n"
+                    if job["state"] not in ("queued", "running"):
+                        return
+                    await asyncio.sleep(0.25)
+            finally:
+                close()
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
+        events = stream()
+        weakref.finalize(events, close)       # a stream never started is released too
+        return StreamingResponse(events, media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache",
                                           "X-Accel-Buffering": "no"})
 

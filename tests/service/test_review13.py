@@ -4,10 +4,13 @@ job list without the stored requests, event streams that recheck the token and a
 per user."""
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import io
 import json
 import time
 
+import httpx
 import psutil
 import pytest
 from fastapi.testclient import TestClient
@@ -15,7 +18,7 @@ from fastapi.testclient import TestClient
 from spidersim.service.app import Limits, create_app
 from spidersim.service.store import Store
 
-from .conftest import SERVO, SLOW
+from .conftest import SERVO, SLOW, add_user
 
 
 @contextlib.contextmanager
@@ -106,3 +109,83 @@ def test_job_list_leaves_the_requests_out(tmp_path):
         assert c.get(f"/jobs/{ids[0]}").json()["request"] == big
         ev = c.get(f"/jobs/{ids[0]}/events").text
         assert "failed" in ev and len(ev) < 2000
+
+
+# ------------------------------------------------------------------------ event streams
+def events_of(server, token, job, out, stop):
+    """Read the job's event stream into ``out`` (``(time, line)``) until it ends or
+    ``stop`` is set (a thread)."""
+    with httpx.stream("GET", f"{server.url}/jobs/{job}/events", timeout=30,
+                      headers={"Authorization": f"Bearer {token}"}) as r:
+        out.append((time.time(), f"status {r.status_code}"))
+        for line in r.iter_lines():
+            out.append((time.time(), line))
+            if stop.is_set():
+                return
+
+
+def slow_job(server, token):
+    """A job of the slow model that runs for minutes (cancel it at the end)."""
+    r = httpx.post(f"{server.url}/jobs", json={"model": "slow", "t_end": 900, "plots": False},
+                   headers={"Authorization": f"Bearer {token}"}, timeout=30)
+    assert r.status_code == 202, r.text
+    return r.json()["id"]
+
+
+def test_a_revoked_token_ends_an_open_event_stream(server):
+    """The token is checked at every poll: revoking the user (``serve --revoke-user``)
+    ends its open stream within a second with an ``error`` event (it kept delivering)."""
+    import threading
+    from spidersim.cli import main
+    tok = add_user(server.data, "carol")
+    job = slow_job(server, tok)
+    got, stop = [], threading.Event()
+    th = threading.Thread(target=events_of, args=(server, tok, job, got, stop), daemon=True)
+    th.start()
+    time.sleep(1.5)
+    assert got and got[0][1] == "status 200", got
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["serve", "--revoke-user", "carol", "--data", server.data]) == 0
+    t_rev = time.time()
+    th.join(5)
+    stop.set()
+    assert not th.is_alive(), "the stream did not end"
+    after = [line for t, line in got if t > t_rev]
+    assert "event: error" in after and any("revoked" in x for x in after), after
+    assert time.time() - t_rev < 3
+    from spidersim.service.store import Store
+    Store(server.data).request_cancel(job)      # carol's token is gone: as the admin
+
+
+def test_open_event_streams_are_capped_per_user(server):
+    """At most --max-streams (8) open streams per user: the 9th is a 429 naming the limit
+    (2,000 were accepted, /health then took 14 s); a closed stream frees its place; another
+    user is not affected."""
+    tok = add_user(server.data, "dave")
+    job = slow_job(server, tok)
+
+    async def main():
+        h = {"Authorization": f"Bearer {tok}"}
+        async with httpx.AsyncClient(base_url=server.url, headers=h, timeout=30,
+                                     limits=httpx.Limits(max_connections=20)) as c:
+            async with contextlib.AsyncExitStack() as stack:
+                open_ = []
+                for _ in range(8):
+                    r = await stack.enter_async_context(c.stream("GET", f"/jobs/{job}/events"))
+                    assert r.status_code == 200
+                    open_.append(r)
+                r = await c.get(f"/jobs/{job}/events")
+                assert r.status_code == 429, r.text
+                assert "8 open event streams, the limit is 8" in r.json()["detail"]
+                other = await c.get("/jobs", headers={"Authorization":
+                                                      f"Bearer {server.bob}"})
+                assert other.status_code == 200
+                await open_[0].aclose()
+                for _ in range(50):             # the server notices the hang-up
+                    await asyncio.sleep(0.1)
+                    async with c.stream("GET", f"/jobs/{job}/events") as r:
+                        if r.status_code == 200:
+                            break
+                assert r.status_code == 200
+            await c.post(f"/jobs/{job}/cancel")
+    asyncio.run(main())
