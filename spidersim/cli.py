@@ -938,7 +938,8 @@ def cmd_serve(args):
     from .service.app import Limits
     lim = Limits(max_t_end=args.max_t_end, max_active=args.max_jobs,
                  max_body=args.max_body, max_signals=args.max_signals,
-                 max_streams=args.max_streams, max_record_mb=args.max_record_mb, max_points=args.max_points,
+                 max_streams=args.max_streams, max_record_mb=args.max_record_mb,
+                 max_points=args.max_points,
                  keep_days=args.keep_days, max_user_mb=args.max_user_mb)
     service.serve(args.host, args.port, args.models, args.data, args.workers, args.scheduler,
                   lim, args.job_timeout, not args.no_jit)
