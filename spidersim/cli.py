@@ -980,7 +980,8 @@ def cmd_serve(args):
     from .service.app import Limits
     lim = Limits(max_t_end=args.max_t_end, max_active=args.max_jobs,
                  max_body=args.max_body, max_signals=args.max_signals,
-                 max_record_mb=args.max_record_mb, max_points=args.max_points,
+                 max_streams=args.max_streams, max_record_mb=args.max_record_mb,
+                 max_points=args.max_points,
                  keep_days=args.keep_days, max_user_mb=args.max_user_mb)
     service.serve(args.host, args.port, args.models, args.data, args.workers, args.scheduler,
                   lim, args.job_timeout, not args.no_jit)
@@ -1119,6 +1120,8 @@ def build_parser():
     sv.add_argument("--max-signals", type=count(1), default=64,
                     help="signals a request's 'log' may name (a model's own log list is "
                          "bounded by --max-record-mb)")
+    sv.add_argument("--max-streams", type=count(1), default=8,
+                    help="open event streams (GET /jobs/{id}/events) per user (more: 429)")
     sv.add_argument("--max-record-mb", type=positive_float, default=256.0,
                     help="recorded data of one job, MB (a run stops there keeping its data)")
     sv.add_argument("--max-points", type=count(1000), default=200_000,

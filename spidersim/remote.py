@@ -142,6 +142,18 @@ def _positive(value, what):
     return v
 
 
+def _check_encoding(r, url, status=""):
+    """Refuse an answer with a ``Content-Encoding`` the client did not ask for (it sends
+    ``Accept-Encoding: identity``), before reading it: its body is read undecoded
+    (``iter_raw``) so that the size limits count the bytes on the wire; decoded, a
+    1,828-byte ``gzip, gzip`` answer became 1 GiB (3.28 GB of peak memory)."""
+    value = r.headers.get("content-encoding", "")
+    if any(c.strip().lower() not in ("", "identity") for c in value.split(",")):
+        raise RemoteError(f"{url}: {status}the answer is encoded '{printable(value)}' "
+                          f"(Content-Encoding), which this client did not ask for (it sends "
+                          f"Accept-Encoding: identity); not read", r.status_code)
+
+
 def _env_proxy(url):
     """The proxy the environment (``http_proxy``, ``no_proxy``, ...) names for ``url``."""
     import urllib.parse
@@ -340,12 +352,13 @@ class Client:
                 with self._http.stream(method, path, **kw) as r:
                     if r.status_code >= 300:
                         self._refuse(r, url)
+                    _check_encoding(r, url)
                     declared = r.headers.get("content-length", "")
                     if declared.isdigit() and int(declared) > limit:
                         raise RemoteError(f"{url}: the answer announces {_size(int(declared))}"
                                           f", more than {too_big}; not read", r.status_code)
                     n, parts = 0, []
-                    for chunk in r.iter_bytes(_CHUNK):
+                    for chunk in r.iter_raw(_CHUNK):      # wire bytes, never decoded
                         n += len(chunk)
                         if n > limit:
                             raise RemoteError(f"{url}: the answer is longer than {too_big}; "
@@ -373,8 +386,9 @@ class Client:
             raise RemoteError(f"{url}: HTTP {r.status_code}: a redirect to '{where}', not "
                               f"followed (the token is sent only to {self.url})",
                               status=r.status_code)
+        _check_encoding(r, url, f"HTTP {r.status_code}: ")
         body = b""
-        for chunk in r.iter_bytes(_CHUNK):
+        for chunk in r.iter_raw(_CHUNK):
             body += chunk
             if len(body) >= MAX_ERROR_BYTES:
                 break

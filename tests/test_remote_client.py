@@ -58,6 +58,17 @@ LISTINGS = {
     "three": {"data": [], "plots": ["a.png", "b.png", "c.png"]},
     "dripplot": {"data": [], "plots": ["slow.png"]},
 }
+
+def _gzip_bomb(mib):
+    """``mib`` MiB of spaces (JSON whitespace) gzipped twice: a few KB on the wire."""
+    import gzip
+    import zlib
+    co = zlib.compressobj(9, zlib.DEFLATED, 31)
+    inner = b"".join(co.compress(b" " * 2**20) for _ in range(mib)) + co.flush()
+    return gzip.compress(inner, 9)
+
+
+GZIP_BOMB = _gzip_bomb(64)
 DRIP_LIMIT = 8.0        # s a dripping answer lasts at most (then the fake server hangs up)
 
 
@@ -119,6 +130,11 @@ class _Fake(BaseHTTPRequestHandler):
         mode, rest = parts[0], "/".join(parts[1:])
         if mode == "badjson":
             return self.send(200, "{not json")
+        if mode in ("gzip", "gzip500"):      # a gzip bomb the client did not ask for
+            return self.send(200 if mode == "gzip" else 500, GZIP_BOMB,
+                             extra=[("Content-Encoding", "gzip, gzip")])
+        if mode == "identity" and rest == "jobs/j1":
+            return self.send(200, self.status("ok"), extra=[("Content-Encoding", "identity")])
         if mode == "redirect":
             return self.send(302, extra=[("Location", f"{self.server.other}/ok/{rest}")])
         if mode == "code204":
@@ -415,3 +431,29 @@ def test_client_rejects_bad_options():
             Client("http://127.0.0.1:9", TOKEN, **kw)
         assert name in str(e.value)
 
+
+
+@pytest.mark.parametrize("mode, words", [
+    ("gzip", ["/gzip/jobs/j1", "encoded 'gzip, gzip'", "Accept-Encoding: identity",
+              "not read"]),
+    ("gzip500", ["/gzip500/jobs/j1", "HTTP 500", "encoded 'gzip, gzip'"])])
+def test_an_encoding_not_asked_for_is_refused_undecoded(fake, mode, words):
+    """``Content-Encoding: gzip, gzip`` (a few KB decoding to 64 MiB here; 1 GiB took the
+    client to 3.28 GB, the size limit counting decoded bytes): a RemoteError naming the
+    encoding, nothing decoded (the peak of Python allocations stays far below 64 MiB);
+    an error answer too. An answer marked ``identity`` is read."""
+    import tracemalloc
+    assert len(GZIP_BOMB) < 100_000
+    with Client(f"{fake.url}/{mode}", TOKEN) as c:
+        tracemalloc.start()
+        try:
+            with pytest.raises(RemoteError) as e:
+                c.status("j1")
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    for w in words:
+        assert w in str(e.value), str(e.value)
+    assert peak < 8 * 2**20, f"{peak / 2**20:.0f} MiB allocated"
+    with Client(f"{fake.url}/identity", TOKEN) as c:
+        assert c.status("j1")["state"] == "done"

@@ -1,6 +1,9 @@
 """Linear continuous-time blocks: integrator, state space and transfer function."""
+import math
+
 import numpy as np
 
+from ..text import limits
 from .base import Block, Dim, Event, Mode, Param, Port, State
 
 
@@ -172,6 +175,9 @@ class StateSpace(Block):
         if C.shape[1] != n:
             raise ValueError(f"C must have {n} columns (as A), got shape {C.shape}")
         if D.shape == (1, 1) and D[0, 0] == 0:
+            check_matrix_size(C.shape[0], B.shape[1], f"D = 0 with {C.shape[0]} outputs "
+                              f"(rows of C) and {B.shape[1]} inputs (columns of B)",
+                              "give fewer outputs or inputs")
             params["D"] = np.zeros((C.shape[0], B.shape[1]))
         elif D.shape != (C.shape[0], B.shape[1]):
             raise ValueError(f"D must have shape {(C.shape[0], B.shape[1])}, got {D.shape}")
@@ -181,6 +187,20 @@ class StateSpace(Block):
     derivative = staticmethod(_ss_derivative)
     output = staticmethod(_ss_output)
     partials = staticmethod(_ss_partials)
+
+
+def check_matrix_size(rows, cols, what, instead):
+    """Refuse a ``rows x cols`` matrix a block would build from its parameters beyond
+    ``MAX_ARRAY_ELEMENTS`` values (the limit of an array parameter), before it is allocated:
+    a transfer function's ``den`` of 6,501 coefficients (a 19.6 KB request) built a 6,500 x
+    6,500 state matrix, 4.2 s and 650 MB, and 256 KiB of coefficients would ask for 58 GB.
+    ``what`` names the matrix, ``instead`` says what to do; raise ``ValueError``."""
+    n = int(rows) * int(cols)
+    if n > limits.MAX_ARRAY_ELEMENTS:
+        raise ValueError(f"{what} would be a {rows} x {cols} matrix ({n:,} values, "
+                         f"{8 * n / 1e6:,.0f} MB), more than the limit of "
+                         f"{limits.MAX_ARRAY_ELEMENTS:,} values of an array "
+                         f"(MAX_ARRAY_ELEMENTS); {instead}")
 
 
 def numerator(params):
@@ -214,6 +234,11 @@ class TransferFunction(Block):
     @classmethod
     def check(cls, params):
         num, den = numerator(params), params["den"]
+        n = len(den) - 1
+        check_matrix_size(n, n, f"the state matrix A of this transfer function (den of "
+                                f"degree {n}, realised in controllable canonical form)",
+                          f"at most degree {math.isqrt(limits.MAX_ARRAY_ELEMENTS)}: split it "
+                          f"into a cascade of lower-order TransferFunction blocks")
         if den[0] == 0:
             raise ValueError("the leading coefficient of 'den' must not be 0")
         if len(num) > len(den):

@@ -3,9 +3,10 @@
 Every route but ``GET /health``, ``/`` and the page's static files needs
 ``Authorization: Bearer <token>`` (401 otherwise); a job of another user answers 404 as an
 unknown one. Limits answer 413 (body size, a signal answer of more than ``max_points``
-values), 422 (run length, logged signals, bad request, a non-finite number) and 429 (active
-jobs per user, with ``Retry-After``) and 507 (the user's disk quota ``max_user_mb``), each
-with a ``detail`` message; the files of a job finished more than ``keep_days`` ago, or
+values), 422 (run length, logged signals, bad request, a non-finite number, nesting deeper
+than ``MAX_DEPTH``) and 429 (active jobs or open event streams per user, with
+``Retry-After``) and 507 (the user's disk quota ``max_user_mb``), each with a ``detail``
+message; the files of a job finished more than ``keep_days`` ago, or
 deleted by its user (``DELETE /jobs/{id}``), are removed and its result routes answer 410
 Gone. ``GET /usage`` gives the user's disk use and quota.
 
@@ -24,6 +25,7 @@ import re
 import shutil
 import threading
 import time
+import weakref
 import zipfile
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -38,8 +40,10 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 import spidersim
 from spidersim.errors import SpidersimError
 from spidersim.outputs import BARE_NAME
+from spidersim.text.limits import MAX_DEPTH
 from spidersim.text.yamlio import lone_surrogate
 
+from .body import BodyLimit
 from .commands import prepare
 from .execute import finite_json
 from .library import BadName, Library, UnknownModel
@@ -53,6 +57,7 @@ class Limits(BaseModel):
     max_t_end: float = 60.0              # s of simulated time per run
     max_signals: int = 64                # signals a request's 'log' may name
     max_active: int = 8                  # queued + running jobs per user
+    max_streams: int = 8                 # open event streams per user
     max_record_mb: float = 256.0         # recording budget of one job [MB = 1e6 bytes]
     max_points: int = 200_000            # values (samples x elements) of one /signals answer
     keep_days: float = 7.0               # days a finished job's files are kept
@@ -100,6 +105,34 @@ def non_finite_field(v, where="body"):
         elif isinstance(x, list):
             stack += [(y, f"{w}[{i}]") for i, y in enumerate(x)]
     return None
+
+
+def too_deep(v, where="body", limit=MAX_DEPTH):
+    """Where (``body.parameters.motor.R``) lists and objects of a parsed request nest more
+    than ``limit`` deep, or None; counted without recursion (a value 328 lists deep made
+    the diagram loader's recursion fail: a 500 and a 195 KB traceback in the log)."""
+    stack = [(v, where, 1)]
+    while stack:
+        x, w, d = stack.pop()
+        if isinstance(x, (dict, list)):
+            if d > limit:
+                return w
+            items = x.items() if isinstance(x, dict) else enumerate(x)
+            stack += [(y, (f"{w}.{k}" if isinstance(x, dict) else f"{w}[{k}]")
+                       if d < 4 else w, d + 1) for k, y in items]
+    return None
+
+
+def shallow(v, limit=MAX_DEPTH):
+    """``v`` with lists and objects nested deeper than ``limit`` replaced by ``"[...]"``:
+    a 422 quotes the input, and encoding one nested 483 deep failed (a 500)."""
+    if isinstance(v, (dict, list)) and limit <= 0:
+        return "[...]"
+    if isinstance(v, dict):
+        return {k: shallow(x, limit - 1) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [shallow(x, limit - 1) for x in v]
+    return v
 
 
 # ---------------------------------------------------------------------------- request types
@@ -176,7 +209,12 @@ class RunRequest(BaseModel):
         """Refuse texts holding a lone surrogate (JSON ``\\ud800`` escapes): not a
         character, it cannot be printed, stored or written to a file; and non-finite
         numbers (``1e999`` overflows to inf; ``Infinity``, ``NaN``): not JSON, they cannot
-        be answered back (an infinite value is given as the text ``"inf"``)."""
+        be answered back (an infinite value is given as the text ``"inf"``); and lists or
+        objects nested more than ``MAX_DEPTH`` deep (checked first, without recursion)."""
+        deep = too_deep(data)
+        if deep is not None:
+            raise ValueError(f"{deep}: lists and objects nested more than {MAX_DEPTH} deep "
+                             f"(the limit MAX_DEPTH of diagram files)")
         bad = non_finite_field(data)
         if bad is not None:
             raise ValueError(f"{bad}: a non-finite number (1e999 overflows to inf, Infinity, "
@@ -198,12 +236,17 @@ class RunRequest(BaseModel):
         return data
 
 
+def bearer(authorization):
+    """The token of an ``Authorization: Bearer <token>`` header, or None."""
+    if authorization and authorization.lower().startswith("bearer "):
+        return authorization[7:].strip()
+    return None
+
+
 def current_user(request: Request,
                  authorization: Annotated[Optional[str], Header()] = None):
     """The (user id, name) of the request's bearer token; 401 without a valid one."""
-    tok = None
-    if authorization and authorization.lower().startswith("bearer "):
-        tok = authorization[7:].strip()
+    tok = bearer(authorization)
     u = request.app.state.store.user_for_token(tok) if tok else None
     if u is None:
         raise HTTPException(401, "a valid token is required: send 'Authorization: Bearer "
@@ -344,10 +387,14 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
             out["plots"] = sorted(os.listdir(pl))
         return out
 
-    def _public(job):
+    def _public(job, request=True):
+        """A job as answered; ``request=False`` leaves out the stored request (the job list
+        and the event stream: 1000 listed jobs of 256 KiB requests built 260 MB per call;
+        GET /jobs/{id} has it)."""
         j = {k: job[k] for k in ("id", "model", "state", "t_end", "progress", "message",
                                  "created", "started", "finished", "version", "diagram_hash")}
-        j["request"] = job["request"]
+        if request:
+            j["request"] = job["request"]
         j["fraction"] = min(1.0, job["progress"] / job["t_end"]) if job["t_end"] > 0 else 1.0
         j["expired"] = expired(job)
         j["bytes"] = 0 if j["expired"] else job["bytes"]
@@ -388,21 +435,13 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
         """FastAPI's 422, written as ASCII JSON: the errors quote the input, and an input
         holding a lone surrogate (a JSON \\ud800 escape) cannot be encoded as UTF-8 (the
         default response failed with a 500)."""
-        text = json.dumps(finite_json({"detail": jsonable_encoder(exc.errors())}),
+        errors = [{**e, "input": shallow(e["input"])} if "input" in e else e
+                  for e in exc.errors()]
+        text = json.dumps(finite_json({"detail": jsonable_encoder(errors)}),
                           ensure_ascii=True, allow_nan=False)
         return Response(text, status_code=422, media_type="application/json")
 
-    @app.middleware("http")
-    async def body_limit(request: Request, call_next):
-        if request.method in ("POST", "PUT", "PATCH"):
-            n = request.headers.get("content-length")
-            if n is not None and (not n.isdigit() or int(n) > limits.max_body):
-                return JSONResponse({"detail": f"request body of {n} bytes is larger than "
-                                     f"the limit of {limits.max_body} bytes"}, status_code=413)
-            if n is None:
-                return JSONResponse({"detail": "a request body needs a Content-Length "
-                                     "header"}, status_code=411)
-        return await call_next(request)
+    app.add_middleware(BodyLimit, max_body=limits.max_body)
 
     def model_or_error(name):
         try:
@@ -490,7 +529,8 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
 
     @app.get("/jobs")
     def jobs_list(u: User, limit: int = 100):
-        return [_public(j) for j in store.list_jobs(u[0], max(1, min(limit, 1000)))]
+        return [_public(j, request=False)
+                for j in store.list_jobs(u[0], max(1, min(limit, 1000)), request=False)]
 
     @app.get("/jobs/{job_id}")
     def job_get(job_id: str, u: User):
@@ -530,24 +570,60 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                 state["runner"].wake()
         return _public(store.get_job(job_id))
 
+    streams = {}            # user id -> open event streams
+
+    def open_stream(user_id):
+        """Count an event stream of the user (429 beyond ``max_streams``); return the
+        function that ends it (idempotent)."""
+        if streams.get(user_id, 0) >= limits.max_streams:
+            raise HTTPException(429, f"you have {streams[user_id]} open event streams, the "
+                                     f"limit is {limits.max_streams}: close one (or poll "
+                                     f"GET /jobs/{{id}})", headers={"Retry-After": "2"})
+        streams[user_id] = streams.get(user_id, 0) + 1
+        done = []
+
+        def close():
+            if not done:
+                done.append(True)
+                streams[user_id] -= 1
+                if not streams[user_id]:
+                    del streams[user_id]
+        return close
+
     @app.get("/jobs/{job_id}/events")
-    async def job_events(job_id: str, u: User):
+    async def job_events(job_id: str, u: User,
+                         authorization: Annotated[Optional[str], Header()] = None):
+        """Server-sent events of a job's status until it ends; the token is checked again
+        at every poll (a revoked user's open stream ends with an ``error`` event), at most
+        ``max_streams`` open per user."""
         own_job(job_id, u)
+        token = bearer(authorization)
+        close = open_stream(u[0])
 
         async def stream():
             last = None
-            while True:
-                job = store.get_job(job_id)
-                pub = _public(job)
-                key = (pub["state"], pub["progress"], pub["message"])
-                if key != last:
-                    last = key
-                    yield f"event: {pub['state']}\ndata: {dumps_strict(pub)}\n\n"
-                if job["state"] not in ("queued", "running"):
-                    return
-                await asyncio.sleep(0.25)
+            try:
+                while True:
+                    if store.user_for_token(token) is None:
+                        yield ("event: error\ndata: " + dumps_strict(
+                            {"detail": "the token is no longer valid (revoked): stream "
+                                       "ended"}) + "\n\n")
+                        return
+                    job = store.get_job(job_id)
+                    pub = _public(job, request=False)
+                    key = (pub["state"], pub["progress"], pub["message"])
+                    if key != last:
+                        last = key
+                        yield f"event: {pub['state']}\ndata: {dumps_strict(pub)}\n\n"
+                    if job["state"] not in ("queued", "running"):
+                        return
+                    await asyncio.sleep(0.25)
+            finally:
+                close()
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
+        events = stream()
+        weakref.finalize(events, close)       # a stream never started is released too
+        return StreamingResponse(events, media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache",
                                           "X-Accel-Buffering": "no"})
 

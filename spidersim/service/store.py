@@ -247,7 +247,8 @@ class Store:
         if row is None:
             return None
         j = {k: row[k] for k in _JOB_COLS}
-        j["request"] = json.loads(j["request"])
+        if j["request"] is not None:
+            j["request"] = json.loads(j["request"])
         j["cancel"] = bool(row["cancel"])
         return j
 
@@ -309,9 +310,13 @@ class Store:
             args.append(user_id)
         return self._job(self._conn().execute(q, args).fetchone())
 
-    def list_jobs(self, user_id, limit=100):
-        rows = self._conn().execute("SELECT * FROM jobs WHERE user_id = ? ORDER BY seq DESC "
-                                    "LIMIT ?", (user_id, limit)).fetchall()
+    def list_jobs(self, user_id, limit=100, request=True):
+        """The user's ``limit`` newest jobs, newest first; with ``request=False`` without
+        their requests (neither read nor parsed: up to 256 KiB each)."""
+        cols = "*" if request else \
+            ", ".join(c for c in _JOB_COLS if c != "request") + ", cancel, NULL AS request"
+        rows = self._conn().execute(f"SELECT {cols} FROM jobs WHERE user_id = ? ORDER BY "
+                                    f"seq DESC LIMIT ?", (user_id, limit)).fetchall()
         return [self._job(r) for r in rows]
 
     def claim_next(self):

@@ -94,7 +94,9 @@ def test_a_stored_non_finite_value_never_poisons_an_answer(tmp_path):
             assert r.status_code == 200, r.text
             j = strict(r.text)
             j = j[0] if isinstance(j, list) else j
-            assert j["request"]["parameters"]["V_max"] is None and j["progress"] is None
+            assert j["progress"] is None
+            if route != "/jobs":            # the list leaves the requests out
+                assert j["request"]["parameters"]["V_max"] is None
         ev = c.get(f"/jobs/{job['id']}/events").text
         data = [ln[6:] for ln in ev.splitlines() if ln.startswith("data: ")]
         assert len(data) == 1 and strict(data[0])["progress"] is None
