@@ -188,8 +188,23 @@ def _binop(node, names, text):
     a = _int_as_float(_operand(_eval(node.left, names, text), text))
     b = _int_as_float(_operand(_eval(node.right, names, text), text))
     if isinstance(a, list) or isinstance(b, list):
-        return op(np.asarray(a, float), np.asarray(b, float)).tolist()
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        _check_size(np.broadcast_shapes(a.shape, b.shape), node, text)
+        return op(a, b).tolist()
     return op(a, b)
+
+
+def _check_size(shape, node, text):
+    """Refuse an element-wise result of more than :data:`limits.MAX_ARRAY_ELEMENTS` values
+    *before* it is computed: broadcasting ``[[1],[1]] + [1, 1]``-like operands multiplies
+    their sizes, and four short nested lists (a 2 KB expression) asked for gigabytes."""
+    n = math.prod(shape)
+    if n > limits.MAX_ARRAY_ELEMENTS:
+        dims = " x ".join(str(k) for k in shape) if len(shape) <= 8 else \
+            f"{len(shape)} dimensions"
+        raise ExprError(f"'{_short(ast.unparse(node))}' would give {n:.3g} elements "
+                        f"({dims}), more than the limit of {limits.MAX_ARRAY_ELEMENTS}, "
+                        f"in '{_short(text)}'")
 
 
 def _unaryop(node, names, text):

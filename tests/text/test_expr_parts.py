@@ -172,3 +172,24 @@ def test_a_ragged_list_from_an_expression_is_refused(text):
     with pytest.raises(ExprError, match="must be a number list or a matrix .* ragged"):
         evaluate(text, NAMES)
     assert evaluate("[[1, 2], [3, a]]", NAMES) == [[1.0, 2.0], [3.0, 2.0]]
+
+
+def _axis_list(n, k, dims=4):
+    """A nested list literal with ``n`` zeros along axis ``k`` and 1 along the others."""
+    def build(d):
+        if d == dims:
+            return "0"
+        return "[" + ",".join(build(d + 1) for _ in range(n if d == k else 1)) + "]"
+    return build(0)
+
+
+def test_broadcasting_is_refused_before_it_allocates():
+    """Four short nested lists broadcast to 98^4 = 9.2e7 elements (a 1,979-character
+    expression that took 4.7 GB in the service): refused at the operation that would make
+    them, naming the shape, before numpy computes it; a result within the limit is made."""
+    e = "+".join(_axis_list(98, k) for k in range(4))
+    assert len(e) < 2000
+    with pytest.raises(ExprError, match=r"9\.22e\+07 elements \(98 x 98 x 98 x 98\)"):
+        evaluate(e, {})
+    assert np.shape(evaluate("+".join(_axis_list(30, k) for k in range(4)), {})) == (30,) * 4
+    assert evaluate("[1, 2] + [[1], [2]]", {}) == [[2.0, 3.0], [3.0, 4.0]]
