@@ -62,6 +62,36 @@ def parse_at(text):
         raise DiagramError(f"--at expects a time [s], 'initial' or 'trim', got '{text}'")
 
 
+#: a pole faster than this [rad/s] marks a badly scaled model (a parameter many orders of
+#: magnitude off: ``motor.J = 1e-30`` put a pole at 5.5e62 rad/s and read "DC gain inf")
+FAST_POLE = 1e12
+
+
+def check_scaling(sys):
+    """Refuse a linear model with non-finite matrices (an overflow in the linearization:
+    the figures would be NaN) and warn (:class:`~spidersim.errors.LinearizationWarning`,
+    printed as a note) when a pole is faster than :data:`FAST_POLE`: the frequency
+    response and margins of such a model are not computed to any useful accuracy."""
+    import warnings
+
+    import control
+
+    from .errors import LinearizationWarning, SpidersimError
+    mats = [np.asarray(m, dtype=float) for m in (sys.A, sys.B, sys.C, sys.D)]
+    if not all(np.isfinite(m).all() for m in mats):
+        raise SpidersimError("the linear model has non-finite entries (an overflow: a "
+                             "parameter many orders of magnitude off, such as a tiny "
+                             "inertia or inductance, or an operating point far outside "
+                             "the model's range)")
+    if sys.nstates:
+        fast = max(abs(p) for p in control.poles(sys))
+        if not np.isfinite(fast) or fast > FAST_POLE:
+            warnings.warn(LinearizationWarning(
+                f"a pole at {fast:.3g} rad/s: the model is badly scaled (a parameter many "
+                f"orders of magnitude off?); the frequency-domain figures below are not "
+                f"reliable"))
+
+
 def report(sys, title="", loop=False):
     """Text: poles of the whole model, then the figures of each input/output pair (margins
     and stability notes only when ``sys`` is a loop transfer)."""
@@ -71,6 +101,7 @@ def report(sys, title="", loop=False):
 
     lines = [f"linear model{(' ' + title) if title else ''}: {sys.nstates} states, "
              f"{sys.ninputs} inputs, {sys.noutputs} outputs"]
+    check_scaling(sys)
     poles = control.poles(sys) if sys.nstates else []
     lines.append("  poles [rad/s]: " + (", ".join(
         f"{p.real:.6g}{p.imag:+.6g}j" if abs(p.imag) > 1e-12 * max(1, abs(p)) else
@@ -78,11 +109,12 @@ def report(sys, title="", loop=False):
     for j, u in enumerate(sys.input_labels):
         for i, y in enumerate(sys.output_labels):
             sub = control.ss(sys.A, sys.B[:, [j]], sys.C[[i], :], sys.D[[i], [j]])
-            fig = siso_figures(sub)
-            if loop:
-                fig["notes"] = loop_notes(sub)
-            else:
-                fig["peak"] = peak_gain(sub)
+            with np.errstate(all="ignore"):    # overflows of a badly scaled model: NaN
+                fig = siso_figures(sub)
+                if loop:
+                    fig["notes"] = loop_notes(sub)
+                else:
+                    fig["peak"] = peak_gain(sub)
             lines.append(format_figures(fig, f"{u} -> {y}:", loop=loop))
     return "\n".join(lines)
 

@@ -159,3 +159,23 @@ def test_analysis_name_with_math_text_is_refused_before_any_folder(tmp_path, cap
         rc, _out, err = _run(capsys, *argv)
         assert rc == 2 and "lin.yaml:8" in err and "an analysis name is an identifier" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("J, rc, expect", [
+    (1e-160, 2, "the frequency response cannot be evaluated"),   # internal error before
+    (1e-30, 0, "poles [rad/s]"),                                  # figures, with the note
+])
+def test_a_badly_scaled_model_is_named_not_crashed(tmp_path, capsys, J, rc, expect):
+    """A motor inertia 150 orders of magnitude off: a note names the fastest pole and says
+    the figures are not reliable; where no frequency can be evaluated the run stops with a
+    clear error (exit 2), never an internal error or numpy's raw overflow warnings. The
+    shipped value gives no note."""
+    code, out, err = _run(capsys, "linearize", SERVO, "--input", "ref.y", "--output",
+                          "motor.phi", "--set", f"motor.J={J}", "--out", tmp_path / "o")
+    assert code == rc
+    assert "badly scaled" in err and "rad/s" in err
+    assert expect in out + err
+    assert "RuntimeWarning" not in err and "internal error" not in err
+    code, out, err = _run(capsys, "linearize", SERVO, "--input", "ref.y", "--output",
+                          "motor.phi", "--out", tmp_path / "p")
+    assert code == 0 and "badly scaled" not in err

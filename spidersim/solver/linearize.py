@@ -167,6 +167,9 @@ def peak_gain(sys, n=800):
                                   [m for m in marks if lo <= m <= hi]]))
     with np.errstate(all="ignore"):
         logm = g.log_mag_phase(w)[0]
+    if np.all(np.isnan(logm)):
+        raise SpidersimError("the frequency response cannot be evaluated (NaN at every "
+                             "frequency): the model is badly scaled")
     k = int(np.nanargmax(logm))
     best, w_best = float(logm[k]), float(w[k])
     a, b = math.log(w[max(k - 1, 0)]), math.log(w[min(k + 1, w.size - 1)])
