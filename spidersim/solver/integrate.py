@@ -182,6 +182,8 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         kw["jac_sparsity"] = csr_matrix(system.jac_sparsity)
     st = dict(stats or {})
     st.update(method=method, rtol=rtol, atol=atol, max_step=max_step, t_end=t_end)
+    if METHODS[method] != method:        # an interpreted DP54 / ROS34PW2 / NDF: say what ran
+        st["stepper"] = f"SciPy {METHODS[method]} (the interpreted form of {method})"
     with np.errstate(all="ignore"):
         result = SciPyLoop(system, _scipy_stepper(method), kw, t0, t_end, output_interval,
                            progress, should_stop, st).run()

@@ -309,7 +309,7 @@ class Result:
         lines = [f"status: {self.status}"]
         if self.message:
             lines.append(f"message: {self.message}")
-        keys = ["diagram", "method", "rtol", "atol", "max_step", "t_end", "t_reached", "steps",
+        keys = ["diagram", "method", "stepper", "rtol", "atol", "max_step", "t_end", "t_reached", "steps",
                 "rhs_calls", "newton_iterations", "jacobian_calls", "lu_decompositions",
                 "time_events", "events", "samples", "compile_time", "from_cache", "wall_time",
                 "jit", "structure_key"]

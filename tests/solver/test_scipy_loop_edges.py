@@ -51,3 +51,17 @@ def test_a_first_step_longer_than_a_segment_is_cut_to_it(method):
     r = spidersim.loads(FIRST_STEP).simulate(method=method)
     exact = 0.1 * sum(np.sin(2 * np.pi * 0.1 * k) for k in range(10))
     assert r["x.y"][-1] == pytest.approx(exact, abs=1e-8)
+
+
+@pytest.mark.parametrize("method, stepper", [("DP54", "RK45"), ("ROS34PW2", "Radau"),
+                                             ("NDF", "BDF")])
+def test_an_interpreted_compiled_method_says_which_stepper_ran(method, stepper):
+    """Interpreted (jit off), DP54 / ROS34PW2 / NDF run SciPy's RK45 / Radau / BDF: the
+    report says so under ``stepper`` (it showed the compiled method's name alone); a
+    compiled run and a SciPy method have no such line."""
+    d = spidersim.loads(FIRST_STEP)
+    r = d.simulate(method=method, jit=False)
+    assert r.stats["stepper"] == f"SciPy {stepper} (the interpreted form of {method})"
+    assert f"stepper: SciPy {stepper}" in r.report()
+    assert "stepper" not in d.simulate(method=method).stats
+    assert "stepper" not in d.simulate(method="LSODA", jit=False).stats
