@@ -402,6 +402,12 @@ def _parse_exposed_ports(data, file):
     for k, v in _section(data, "outputs", LineDict, file).items():
         line = data["outputs"].line_of(k)
         _check_port_name(k, "output", file, line)
+        if k in inputs:                  # 'inst.u' would name both, told apart by its side
+            raise DiagramError(f"exposed output '{k}' has the name of an exposed input "
+                               f"(line {port_lines[('in', k)]}): give the two ports different "
+                               f"names (a log or plot entry 'instance.{k}' names an output, a "
+                               f"connection's side decides which port it means)",
+                               file=file, line=line)
         outputs[k] = parse_address(v, file, line, f"exposed output '{k}'")
         port_lines[("out", k)] = line
     return inputs, outputs, port_lines
