@@ -53,6 +53,36 @@ def zeno_message(block, name, t):
 ARMED, DISARMED, ARMED_UP, ARMED_DOWN = 1.0, 0.0, 2.0, -2.0
 
 
+#: a guard that has just fired and is left within this fraction of its values at the crossing
+#: step's ends from zero *on the side it came from* is on zero (:func:`snap_band`): a guard
+#: fed by an algebraic loop is only as exact as the loop's Newton tolerance, and the event
+#: located a hair early left it there, to fire a second time a few ulps later
+SNAP_BAND = 1e-9
+
+
+@njit_borrowed
+def snap_band(g_before, g_after):
+    """The band of a guard that crossed from ``g_before`` to ``g_after``: signed, on the side
+    it came from (see :data:`SNAP_BAND`); 0 for a guard that started on zero."""
+    b = SNAP_BAND * max(abs(g_before), abs(g_after))
+    if g_before > 0.0:
+        return b
+    if g_before < 0.0:
+        return -b
+    return 0.0
+
+
+@njit_borrowed
+def snapped(g, band):
+    """``g`` taken as zero when it lies within the signed ``band`` (:func:`snap_band`), on
+    the band's side."""
+    if band > 0.0 and 0.0 < g <= band:
+        return 0.0
+    if band < 0.0 and band <= g < 0.0:
+        return 0.0
+    return g
+
+
 @njit_borrowed
 def rearm_after(direction_fired):
     """The arming of a guard that has just fired in ``direction_fired`` (+1 rising, -1

@@ -33,7 +33,8 @@ import numpy as np
 from ..errors import AlgebraicLoopError, IntegrationError
 from .events import (ARMED, CHATTER_COUNT, MAX_EVENTS_AT_ONE_TIME, STALL_COUNT, STALL_STEP,
                      UNSEEN_PROBE, UNSEEN_STEP, crossed, crossings, left_zero_unseen, locate,
-                     rearm_after, zeno_message, zero_start_candidates)
+                     rearm_after, snap_band, snapped, zeno_message,
+                     zero_start_candidates)
 from . import record_budget
 from .result import Result
 
@@ -137,6 +138,9 @@ class SciPyLoop:
         n_g = self.n_g = system.n_g
         self.directions = np.array([d for _, _, d in system.event_table], dtype=float)
         self.armed = np.full(n_g, ARMED)      # events.ARMED and its kin, per guard
+        #: guards that have just fired -> their snap band (:func:`.events.snap_band`) for
+        #: the next segment's start
+        self.snap = {}
         self.h_cap = None                 # max_step of the next segment's first solver
         self.armed_all = True
         self.hit_buf = np.empty(max(1, n_g), dtype=np.int64)
@@ -256,6 +260,7 @@ class SciPyLoop:
         for i in sorted(now):
             block, name, _d = s.event_table[i]
             directions[i] = np.sign(g_new[i] - g_old[i]) or 1.0
+            self.snap[int(i)] = snap_band(g_old[i], g_new[i])
             s.apply_event(t_ev, x_ev, int(i), directions[i])
             self._log([(float(t_ev), block, name)])
             self._chatter(block, name, t_ev, x_ev)
@@ -489,6 +494,9 @@ class SciPyLoop:
         except ValueError as exc:
             self._fail(str(exc), t, x)
         g_old = s.guards(t, x) if self.n_g else None
+        for i, band in self.snap.items():    # fired, a hair back on its old side: on zero
+            g_old[i] = snapped(g_old[i], band)
+        self.snap = {}
         while solver.status == "running":
             t_old = self._step(solver)
             recorded = False

@@ -139,24 +139,29 @@ def _corner_loop_exact(kind, A, K, t):
 
 @pytest.mark.parametrize("method", ALL_METHODS)
 @pytest.mark.parametrize("kind, A, K", [("sat", 1.5, 1.0), ("sat", 2.0, 1.0), ("sat", 3.0, 3.0),
-                                        ("dz", 2.0, 3.0), ("dz", 2.0, 0.5)])
+                                        ("sat", 4.0, 2.0), ("sat", 2.5, 1.0),
+                                        ("dz", 2.0, 3.0), ("dz", 2.0, 0.5), ("dz", 1.0, 1.0),
+                                        ("dz", 3.0, 0.5)])
 def test_corners_inside_an_algebraic_loop(method, kind, A, K):
     """A Saturation or DeadZone inside an algebraic loop, its input a sine through the loop:
     the output follows the closed form and the integral of three periods returns to zero
     within 1e-4 (default tolerances 1e-6 / 1e-8; the failures were off by 0.15 to 0.8),
     with corner events at four instants per period (the compiled methods may log one
-    corner twice a few ulps apart: a known duplicate, README "Algebraic loops, events and
+    corner twice, within 1e-6 s: a known duplicate, README "Algebraic loops, events and
     sampled blocks") (configurations where every SciPy
     method ended wrong with exit status 0, or failed as chattering at one instant: the event
-    was placed at the step's end past a warm-started loop's stale guard, and the mode it set
-    was undone by an input a round-off on the other side of the corner)."""
+    was placed at the step's end past a warm-started loop's stale guard, the mode it set
+    was undone by an input a round-off on the other side of the corner, and a guard left a
+    hair on its old side fired again at the same instant: sat 4.0/2.0 on BDF, dz 1.0/1.0 on
+    Radau, dz 3.0/0.5 on RK45)."""
     block = ("Saturation, lower: -0.4, upper: 0.4" if kind == "sat"
              else "DeadZone, start: -0.4, end: 0.4")
     r = spidersim.loads(CORNER_IN_LOOP % (A, block, K)).simulate(method=method)
     assert np.max(np.abs(r["nl.y"] - _corner_loop_exact(kind, A, K, r.t))) < 1e-4
     assert abs(r["x.y"][-1]) < 1e-4
-    instants = np.unique(np.round([e[0] for e in r.events if e[1] == "nl"], 9))
-    assert len(instants) == 12
+    times = np.sort([e[0] for e in r.events if e[1] == "nl"])
+    assert 1 + np.count_nonzero(np.diff(times) > 1e-6) == 12       # instants
+    assert len(times) <= 24                                           # a duplicate at most
 
 
 @pytest.mark.parametrize("method, A, K", [("RK23", 2.0, 2.0), ("RK23", 4.0, 5.0),
