@@ -168,21 +168,8 @@ def test_second_signal_while_writing_stops_at_once(tmp_path, monkeypatch, capsys
 # ------------------------------------------------------------------ interrupted sweeps
 # run 0 (Ts = 0.1) takes milliseconds, run 1 (Ts = 1e-9: a billion samples) far longer
 # than the test: the signal comes while run 1 integrates
-SWEEP = """\
-name: held
-parameters: {a: -1.0}
-blocks:
-  x: {type: Integrator, x0: 1}
-  g: {type: Gain, k: a}
-  z: {type: ZeroOrderHold, Ts: 0.1}
-connections:
-  - x.y -> g.u
-  - g.y -> x.u
-  - x.y -> z.u
-simulation: {t_end: 1.0}
-metrics:
-  x_end: {signal: x.y, reduce: final}
-"""
+with open(os.path.join(os.path.dirname(__file__), "data", "held_sweep.yaml")) as _fh:
+    SWEEP = _fh.read()
 
 
 def _sweep_interrupted(tmp_path, workers, sig=signal.SIGINT):

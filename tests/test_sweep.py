@@ -398,21 +398,8 @@ def test_sweep_and_cli_say_a_varied_parameter_changes_nothing(grow_file, tmp_pat
 
 # ------------------------------------------------------------------ wall-time limit
 # z.Ts = 1e-9 asks for a billion samples: a run that would take hours
-HELD = """\
-name: held
-parameters: {a: -1.0}
-blocks:
-  x: {type: Integrator, x0: 1}
-  g: {type: Gain, k: a}
-  z: {type: ZeroOrderHold, Ts: 0.1}
-connections:
-  - x.y -> g.u
-  - g.y -> x.u
-  - x.y -> z.u
-simulation: {t_end: 1.0}
-metrics:
-  x_end: {signal: x.y, reduce: final}
-"""
+with open(os.path.join(os.path.dirname(__file__), "data", "held_sweep.yaml")) as _fh:
+    HELD = _fh.read()
 
 
 def test_run_timeout_stops_a_run_and_the_sweep_goes_on(tmp_path, capsys):

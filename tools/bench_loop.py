@@ -441,6 +441,20 @@ def make_ros34pw2(f):
             b[i] /= M[i, i]
 
     @njit
+    def jacobian(t, y, f0, ys, fp, J):
+        """``J = df/dy`` by forward differences, column by column (Hairer's increment)."""
+        n = y.size
+        for j in range(n):
+            for i in range(n):
+                ys[i] = y[i]
+            dj = math.sqrt(2.220446049250313e-16 * max(1e-5, abs(y[j])))
+            ys[j] = y[j] + dj
+            dj = ys[j] - y[j]
+            f(t, ys, fp)
+            for i in range(n):
+                J[i, j] = (fp[i] - f0[i]) / dj
+
+    @njit
     def rms(v, y, rtol, atol):
         s = 0.0
         for i in range(v.size):
@@ -484,15 +498,7 @@ def make_ros34pw2(f):
         while t < t_end:
             h = min(h, max_step)
             if age < 0 or age >= 20:
-                for j in range(n):                  # forward differences, column j
-                    for i in range(n):
-                        ys[i] = y[i]
-                    dj = math.sqrt(2.220446049250313e-16 * max(1e-5, abs(y[j])))
-                    ys[j] = y[j] + dj
-                    dj = ys[j] - y[j]
-                    f(t, ys, fp)
-                    for i in range(n):
-                        J[i, j] = (fp[i] - f0[i]) / dj
+                jacobian(t, y, f0, ys, fp, J)
                 nfev += n
                 njev += 1
                 age = 0
@@ -546,15 +552,7 @@ def make_ros34pw2(f):
                         fac = 1.0
                     break
                 if age > 0:                         # an older Jacobian: refresh it here
-                    for j in range(n):
-                        for i in range(n):
-                            ys[i] = y[i]
-                        dj = math.sqrt(2.220446049250313e-16 * max(1e-5, abs(y[j])))
-                        ys[j] = y[j] + dj
-                        dj = ys[j] - y[j]
-                        f(t, ys, fp)
-                        for i in range(n):
-                            J[i, j] = (fp[i] - f0[i]) / dj
+                    jacobian(t, y, f0, ys, fp, J)
                     nfev += n
                     njev += 1
                     age = 0
