@@ -170,6 +170,17 @@ def server(tmp_path_factory, models_dir):
     s.stop()
 
 
+def wait_progress(http, job, above=0.0, timeout=60):
+    """The job once its run has passed ``t = above`` [s] (or it has ended)."""
+    t0 = time.time()
+    while True:
+        j = http.get(f"/jobs/{job}").json()
+        if j["progress"] > above or j["state"] not in ("queued", "running"):
+            return j
+        assert time.time() - t0 < timeout, j
+        time.sleep(0.05)
+
+
 def wait_state(http, job, states=("done", "failed", "cancelled"), timeout=120):
     t0 = time.time()
     while time.time() - t0 < timeout:

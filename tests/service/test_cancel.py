@@ -19,19 +19,13 @@ import spidersim
 from spidersim.service import execute
 from spidersim.service.runner import CANCEL_GRACE
 
-from .conftest import ROOT, SLOW, Server, add_user, wait_state
+from .conftest import ROOT, SLOW, Server, add_user, wait_progress, wait_state
 
 RIGID = os.path.join(ROOT, "diagrams", "force_control_rigid.yaml")
 
 
 def _wait_progress(http, job, timeout=60):
-    t0 = time.time()
-    while True:
-        j = http.get(f"/jobs/{job}").json()
-        if j["progress"] > 0 or j["state"] not in ("queued", "running"):
-            return j
-        assert time.time() - t0 < timeout, j
-        time.sleep(0.05)
+    return wait_progress(http, job, timeout=timeout)
 
 
 @pytest.fixture(scope="module")

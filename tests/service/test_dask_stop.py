@@ -24,7 +24,7 @@ from spidersim.service.runner import CANCEL_GRACE, _dask_names, _dask_task
 
 from spidersim.service.store import Store
 
-from .conftest import Server, add_user, wait_state
+from .conftest import Server, add_user, wait_progress, wait_state
 
 
 @pytest.fixture(scope="module")
@@ -42,13 +42,7 @@ def cluster():
 def _wait_progress(http, job, timeout=60):
     """The job once its run has passed t = 0.5 s (its steps at max_step: the rows of a
     cancelled run then equal a run to that time)."""
-    t0 = time.time()
-    while True:
-        j = http.get(f"/jobs/{job}").json()
-        if j["progress"] > 0.5 or j["state"] not in ("queued", "running"):
-            return j
-        assert time.time() - t0 < timeout, j
-        time.sleep(0.05)
+    return wait_progress(http, job, above=0.5, timeout=timeout)
 
 
 def _npz(http, job):
