@@ -16,31 +16,15 @@ from .base import Block, Event, Mode, Param, Port
 _ZC = Param(True, kind="bool", doc="switch modes at the corners by zero-crossing events")
 
 
-#: relative width of a corner for :func:`_corner_modes`: an input this close to a corner is
-#: on it (an input solved by an algebraic loop is only as exact as the loop's Newton
-#: tolerance, 1e-3 of the integrator's: 1e-9 relative at the default rtol of 1e-6)
-CORNER_BAND = 1e-9
-
-
 def _corner_modes(lo, hi, u, m):
-    """Modes from the input: +1 above ``hi``, -1 below ``lo``, 0 between. On a corner
-    (within :data:`CORNER_BAND` of it, relative) either adjacent mode is right: the current
-    one is kept if it is adjacent (an event has just set it; deciding by an input that an
-    algebraic loop put a hair on the other side undid the event, and the limit held with
-    the input back inside)."""
+    """Modes from the input: +1 above ``hi``, -1 below ``lo``, 0 between. Exactly on a
+    corner either adjacent mode is right: the current one is kept if it is adjacent (an
+    event may have just set it). (An input an algebraic loop puts a hair past the corner
+    after an event is the event loop's to handle: see ``SciPyLoop._keep_event_modes``.)"""
     for i in range(u.size):
-        v = u[i]
-        b_hi = CORNER_BAND * max(abs(hi), abs(v))
-        b_lo = CORNER_BAND * max(abs(lo), abs(v))
-        on_hi = hi - b_hi <= v <= hi + b_hi          # false for an infinite limit (nan)
-        on_lo = lo - b_lo <= v <= lo + b_lo
-        if hi > lo and ((on_hi and m[i] > 0.5) or (on_lo and m[i] < -0.5)):
-            continue                                 # at the limit the event chose
-        if (on_hi or on_lo) and -0.5 <= m[i] <= 0.5:
-            m[i] = 0.0                               # linear, on a corner
-        elif v > hi:
+        if u[i] > hi or (u[i] == hi and m[i] > 0.5 and hi > lo):
             m[i] = 1.0
-        elif v < lo:
+        elif u[i] < lo or (u[i] == lo and m[i] < -0.5 and hi > lo):
             m[i] = -1.0
         else:
             m[i] = 0.0
@@ -238,7 +222,7 @@ class Switch(Block):
               "u2": Port("*", doc="control input"),
               "u3": Port("@y", size=None, doc="passed while u2 < threshold")}
     outputs = {"y": Port("*", size="@u1", feedthrough=("u1", "u2", "u3"), doc="selected input")}
-    modes = {"first": Mode(initial=1.0, doc="1 while u1 is passed")}
+    modes = {"first": Mode(doc="1 while u1 is passed")}
     events = {"switch": Event(0, "u2 crosses the threshold")}
 
     @classmethod
@@ -266,18 +250,19 @@ class Switch(Block):
 
     @staticmethod
     def initialize(t, threshold, u2, first):
-        """The side of the threshold ``u2`` is on; exactly on it the current mode is kept:
-        ``u1`` at the start (the initial mode, as ``u2 >= threshold`` says), and after a
-        crossing the side the event chose (``u2`` sits on the threshold at a located
-        crossing: re-deciding there by ``>=`` undid every downward switch)."""
-        if u2[0] > threshold:
-            first[0] = 1.0
-        elif u2[0] < threshold:
-            first[0] = 0.0
+        first[0] = 1.0 if u2[0] >= threshold else 0.0
 
     @staticmethod
-    def guard(t, threshold, u2, zc):
-        zc[0] = u2[0] - threshold
+    def guard(t, threshold, u2, first, zc):
+        """``u2 - threshold``; while ``u1`` is passed, ``u2`` exactly on the threshold is
+        still on its side (``u2 >= threshold``): the guard is then the smallest positive
+        number, so that only ``u2`` strictly below the threshold is a crossing (a crossing
+        located exactly on it was undone by ``initialize``, and the switch stayed on ``u1``
+        while ``u2`` went on down)."""
+        g = u2[0] - threshold
+        if g == 0.0 and first[0] > 0.5:
+            g = 5e-324
+        zc[0] = g
 
     @staticmethod
     def on_event(t, which, direction, first):

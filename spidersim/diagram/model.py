@@ -473,6 +473,11 @@ class Diagram:
                                 sig0=self.initial_signals(), loops=self.loop_info(),
                                 tables=tables, shared=self._shared(mod))
         system.jacobian_reason = self._jacobian_reason()
+        #: block path -> its modes' span in ``modes`` (the SciPy loop keeps the modes an
+        #: event chose: :meth:`~spidersim.solver.scipy_loop.SciPyLoop._keep_event_modes`)
+        system.mode_slices = {bl.path: (min(a for a, _ in bl.modes.values()),
+                                        max(b for _, b in bl.modes.values()))
+                              for bl in L.blocks.values() if bl.modes}
         a, r = L.p_loop_tol
         system.p[a] = LOOP_TOL_FACTOR * self.simulation["atol"]
         system.p[r] = LOOP_TOL_FACTOR * self.simulation["rtol"]
