@@ -613,9 +613,11 @@ def ineffective_parameters(file, base, vary, uses):
         if "." in path or len(values) < 2:
             continue
         if not uses[path]:
-            notes.append(f"--vary {path}: no block parameter depends on '{path}'"
+            notes.append(f"--vary {path}: no block parameter changes with '{path}' over "
+                         f"these values (nothing depends on it"
                          + (" once the --set values are applied" if base else "")
-                         + ": its values change nothing in the runs")
+                         + ", or its values give the same block parameters): its values "
+                         "change nothing in the runs")
             continue
         others = [(p, v) for p, v in vary if p != path]
         if not others:

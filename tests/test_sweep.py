@@ -352,9 +352,13 @@ outputs: {y: k.y}
     ([("a", [1, 2]), ("g.k", [1, 2]), ("c.value", [1, 2]), ("j.k.k", [1])], {"h.k": 2},
      "(g.k, j.k.k) are set themselves by --vary g.k, --vary j.k.k; vary one"),
     ([("unused", [1, 2]), ("a", [1, 2])], {},
-     "--vary unused: no block parameter depends on 'unused': its values change nothing"),
+     "--vary unused: no block parameter changes with 'unused' over these values (nothing "
+     "depends on it, or its values give the same block parameters): its values change "
+     "nothing"),
     ([("a", [1, 2])], {"g.k": 1, "h.k": 1, "j.gain": 1},
-     "no block parameter depends on 'a' once the --set values are applied"),
+     "no block parameter changes with 'a' over these values (nothing depends on it once "
+     "the --set values are applied"),
+    ([("a", [1, 1.0])], {}, "its values give the same block parameters"),
     # one use left (h.k through a*b, j's gain): a real grid, nothing said
     ([("a", [1, 2]), ("g.k", [1, 2]), ("j.gain", [1])], {}, None),
     ([("a", [1, 2]), ("g.k", [1, 2]), ("h.k", [1])], {}, None),

@@ -107,7 +107,8 @@ class Resolver(Block):
                     structural=True),
         "noise": Param(0.0, "rad", "standard deviation of the angle noise (sampled only)",
                        ge=0.0),
-        "seed": Param(1, "1", "noise stream", kind="int", ge=0),
+        "seed": Param(1, "1", "noise stream (at most 2^53: an exact float)", kind="int",
+                      ge=0, le=2 ** 53),
     }
     inputs = {"theta": Port("rad", doc="true angle"),
               "w": Port("rad/s", optional=True, doc="true speed")}

@@ -66,6 +66,10 @@ class Limits(BaseModel):
     @model_validator(mode="after")
     def _quota_holds_a_job(self):
         """Every job reserves ``max_record_mb`` of the quota: a smaller quota takes none."""
+        for name in ("max_user_mb", "max_record_mb", "keep_days", "max_t_end"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v}")
         if self.max_user_mb < self.max_record_mb:
             raise ValueError(f"max_user_mb = {self.max_user_mb:g} is less than max_record_mb "
                              f"= {self.max_record_mb:g}: no job could be submitted")

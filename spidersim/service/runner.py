@@ -457,7 +457,13 @@ class DaskRunner(Runner):
         except BaseException:
             _give_up(fut, cancel)
             raise
-        if res is GIVEN_UP:                 # it stops at its Event and clears it when it ends
+        if res is GIVEN_UP:
+            # a running task stops at its Event and clears it when it ends; one that never
+            # started (cancelled while queued on the cluster) never would: clear them once
+            # any task has had time to read the Event
+            t = threading.Timer(KILL_GRACE, _dask_clear, args=(var, cancel, limit))
+            t.daemon = True
+            t.start()
             return
         _dask_clear(var, cancel, limit)
         if res is None:                     # finished in the store already

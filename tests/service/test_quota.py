@@ -6,6 +6,7 @@ version before the quota is migrated. In-process app, no workers, jobs of a few 
 written by hand: fast."""
 from __future__ import annotations
 
+import math
 import os
 import sqlite3
 import time
@@ -259,3 +260,19 @@ def test_the_remote_client_shows_the_quota_message(tmp_path, models_dir, capsys)
         assert c.delete(slow)["expired"] and c.usage()["stored_bytes"] == 0
     finally:
         srv.stop()
+
+
+@pytest.mark.parametrize("field", ["max_user_mb", "max_record_mb", "keep_days", "max_t_end"])
+@pytest.mark.parametrize("value", [math.inf, math.nan, 0.0, -1.0])
+def test_limits_refuse_values_that_switch_a_limit_off(field, value):
+    """``Limits`` from Python refuses what ``serve`` refuses on its command line: a nan
+    quota was never exceeded (``x > nan`` is false) and an infinite one made ``GET /usage``
+    answer 500."""
+    from pydantic import ValidationError
+
+    from spidersim.service.app import Limits
+    kw = {field: value}
+    if field == "max_record_mb":
+        kw["max_user_mb"] = 1e9
+    with pytest.raises(ValidationError, match=f"{field} must be a finite number > 0"):
+        Limits(**kw)
