@@ -63,11 +63,13 @@ SNAP_BAND = 1e-9
 @njit_borrowed
 def snap_band(g_before, g_after):
     """The band of a guard that crossed from ``g_before`` to ``g_after``: signed, on the side
-    it came from (see :data:`SNAP_BAND`); 0 for a guard that started on zero."""
+    it came from (see :data:`SNAP_BAND`; a guard that started on zero came from the side
+    opposite ``g_after``)."""
     b = SNAP_BAND * max(abs(g_before), abs(g_after))
-    if g_before > 0.0:
+    side = g_before if g_before != 0.0 else -g_after    # from zero: the side it left
+    if side > 0.0:
         return b
-    if g_before < 0.0:
+    if side < 0.0:
         return -b
     return 0.0
 

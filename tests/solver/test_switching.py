@@ -225,11 +225,13 @@ def test_an_input_starting_a_hair_past_a_limit_is_past_it(engine):
 
 @pytest.mark.parametrize("method", ["RK45", "RK23", "LSODA", "BDF", "DOP853", "Radau", "DP54"])
 @pytest.mark.parametrize("lower, upper", [(0.0, 0.4), (-0.4, 0.0)])
-def test_a_limit_at_zero_inside_an_algebraic_loop(method, lower, upper):
-    """A Saturation with one limit at 0 inside the loop (A = 2, K = 2): the closed form to
-    1e-6 (a tolerance relative to the limit was no help at 0: 0.4 off on the SciPy
-    methods)."""
-    text = CORNER_IN_LOOP % (2.0, f"Saturation, lower: {lower}, upper: {upper}", 2.0)
+@pytest.mark.parametrize("A, K", [(2.0, 2.0), (4.0, 5.0)])
+def test_a_limit_at_zero_inside_an_algebraic_loop(method, lower, upper, A, K):
+    """A Saturation with one limit at 0 inside the loop, its input starting exactly on that
+    limit (the sine at t = 0): the closed form to 1e-6 (a tolerance relative to the limit
+    was no help at 0, and a guard that fired from exactly zero had no band: 0.4 to 0.67 off
+    on the SciPy methods)."""
+    text = CORNER_IN_LOOP % (A, f"Saturation, lower: {lower}, upper: {upper}", K)
     r = spidersim.loads(text).simulate(method=method)
-    u = 2.0 * np.sin(2 * np.pi * r.t)
-    assert np.max(np.abs(r["nl.y"] - np.clip(u / 3.0, lower, upper))) < 1e-6
+    u = A * np.sin(2 * np.pi * r.t)
+    assert np.max(np.abs(r["nl.y"] - np.clip(u / (1 + K), lower, upper))) < 1e-6
