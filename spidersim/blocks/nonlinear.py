@@ -14,6 +14,8 @@ import numpy as np
 from .base import Block, Event, Mode, Param, Port
 
 _ZC = Param(True, kind="bool", doc="switch modes at the corners by zero-crossing events")
+#: the smallest positive float: a guard on its threshold that is still on its positive side
+_TINY = 5e-324
 
 
 def _corner_modes(lo, hi, u, m):
@@ -261,7 +263,7 @@ class Switch(Block):
         while ``u2`` went on down)."""
         g = u2[0] - threshold
         if g == 0.0 and first[0] > 0.5:
-            g = 5e-324
+            g = _TINY
         zc[0] = g
 
     @staticmethod

@@ -500,7 +500,6 @@ def _state_events(fn, meth, t, h, x, x1, K, B, xs, G, g_dir,
     for i in range(ng):                  # blocks that fired: their guards must leave zero
         if bmask[g_block[i]]:            # (a guard that fired may turn back at once)
             G[G_ARMED, i] = _events.rearm_after(G[G_FIRED, i])
-        G[G_FIRED, i] = 0.0
     return t_ev, code
 
 
