@@ -14,8 +14,11 @@ where ``k`` is ``K1 delta_e`` (linear) or the three-slope law inverted from PHYS
            = T1/K1 + (T-T1)/K2    T1 < |T| <= T2
            = T1/K1 + (T2-T1)/K2 + (T-T2)/K3 above   (odd in T)
 
-Contact starts when ``|delta|`` reaches ``b/2`` and ends when the contact torque would
-pull (``tau_s`` changes sign): both are events. Outputs: ``tau_l`` drives the load,
+Contact starts when ``|delta|`` is past ``b/2`` and the contact torque there would push
+(the guard ``min(K1 (delta - b/2), tau_s)``, mirrored on the negative side: closing teeth
+touch at ``b/2``; teeth parted by the damper, still past ``b/2``, touch again when the
+torque turns back) and ends when the contact torque would pull (``tau_s`` changes sign):
+both are events. Outputs: ``tau_l`` drives the load,
 ``tau_m`` is the torque the gearbox applies against the motor (connect it to the motor's
 ``tau_load``), ``tau_f`` is the LuGre friction (zero with ``friction: false``)::
 
@@ -112,8 +115,8 @@ class HarmonicDrive(Block):
                                   doc="phi_m / ratio - phi_l")}
     states = {"z": State("rad", doc="LuGre bristle deflection")}
     modes = {"contact": Mode(doc="-1 / +1 teeth in contact on either side, 0 in the gap")}
-    events = {"contact_pos": Event(1, "deflection reaches +b/2"),
-              "contact_neg": Event(-1, "deflection reaches -b/2"),
+    events = {"contact_pos": Event(1, "deflection past +b/2 with a pushing contact torque"),
+              "contact_neg": Event(-1, "deflection past -b/2 with a pushing contact torque"),
               "separate": Event(-1, "the contact torque would pull")}
 
     @classmethod
@@ -229,12 +232,18 @@ class HarmonicDrive(Block):
         zc[2] = 1.0
         if half > 0.0:
             de = phi_m[0] / ratio - phi_l[0]
+            wr = w_m[0] / ratio - w_l[0]
             if contact[0] == 0.0:
-                zc[0] = de - half
-                zc[1] = de + half
+                # in the gap: a side touches when its deflection is past b/2 and the contact
+                # torque there would push (a separation by damping leaves |delta| > b/2 with
+                # the torque just turned: the teeth close again when it turns back)
+                zc[0] = min(K1 * (de - half), spring_jit(de, wr, 1.0, half, linear > 0.5,
+                                                          K1, K2, K3, T1, T2, d))
+                zc[1] = max(K1 * (de + half), spring_jit(de, wr, -1.0, half, linear > 0.5,
+                                                          K1, K2, K3, T1, T2, d))
             else:
-                zc[2] = contact[0] * spring_jit(de, w_m[0] / ratio - w_l[0], contact[0], half,
-                                                linear > 0.5, K1, K2, K3, T1, T2, d)
+                zc[2] = contact[0] * spring_jit(de, wr, contact[0], half, linear > 0.5, K1,
+                                                K2, K3, T1, T2, d)
 
     @staticmethod
     def on_event(t, which, direction, contact):

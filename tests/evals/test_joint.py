@@ -28,6 +28,10 @@ also guard a fixed block bug: HarmonicDrive.initialize, which the engine runs af
 event, put the gear back in contact whenever |delta| > b/2. At a separation delta is still
 beyond b/2 (by d |ddelta/dt| / K1), so contact was re-entered at once and the gear pulled
 through the whole gap. It now engages only where the contact torque would push.
+test_backlash_contact_lost_by_damping_returns_past_the_edge and
+test_motor_pushing_a_load_through_backlash_stays_engaged guard the converse (found by a
+review): teeth parted by the damper while still past b/2 never touched again, since the
+gap's guard watched only the deflection crossing b/2.
 """
 from __future__ import annotations
 
@@ -648,6 +652,93 @@ def test_backlash_slow_reversal_two_events():
     assert tau[0] > 0 and tau[-1] < 0
     between = (r.t > ev[0][0]) & (r.t < ev[1][0])
     assert np.all(tau[between] == 0.0)
+
+
+REBOUND = """
+name: rebound
+blocks:
+  pm:   {{type: Sine, amplitude: {amp}, f: {f}, phase: 1.5707963267948966}}
+  wm:   {{type: Sine, amplitude: {wamp}, f: {f}, phase: 3.141592653589793}}
+  pl:   {{type: Constant, value: {off}}}
+  w0:   {{type: Constant, value: 0}}
+  gear: {{type: HarmonicDrive, ratio: {N}, K1: {K1}, d: {d}, backlash: {b}, friction: false}}
+connections:
+  - pm.y -> gear.phi_m
+  - wm.y -> gear.w_m
+  - pl.y -> gear.phi_l
+  - w0.y -> gear.w_l
+"""
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_backlash_contact_lost_by_damping_returns_past_the_edge(jit):
+    """Teeth parted by the damper while the deflection stays past b/2: delta = c + a cos(w t)
+    with c - a > b/2 all the time, the contact torque K1 (delta - b/2) + d ddelta/dt turning
+    negative and back within each period. The teeth separate and touch again where that
+    torque crosses zero (brentq), twice per period, with tau_l = 0 in between and the
+    contact torque otherwise. Before, the gap's guard watched only delta crossing b/2, which
+    never happened: after the first separation the gear transmitted nothing for good (a
+    motor pushing a load through its Harmonic Drive ran away, deflection 0.29 rad)."""
+    N, K1, d, b = GEAR["ratio"], GEAR["K1"], 2000.0, B_GAP
+    c, a, f = b / 2 + 2e-5, 1e-5, 20.0
+    w = 2 * math.pi * f
+    text = REBOUND.format(amp=N * a, wamp=N * a * w, f=f, off=-c, N=N, K1=K1, d=d, b=b)
+    r = spidersim.loads(text).simulate(t_end=2 / f, rtol=1e-10, atol=1e-14, jit=jit,
+                                       method="DP54", output_interval=1e-4)
+
+    def ts(t):
+        return K1 * (c + a * math.cos(w * t) - b / 2) - d * a * w * math.sin(w * t)
+    grid = np.linspace(0.0, 2 / f, 4001)
+    vals = np.array([ts(t) for t in grid])
+    roots = [brentq(ts, grid[k], grid[k + 1], xtol=1e-15)
+             for k in range(grid.size - 1) if vals[k] * vals[k + 1] < 0]
+    ev = [(t, e) for t, blk, e in r.events if blk == "gear"]
+    assert [e for _, e in ev] == ["separate", "contact_pos"] * 2, ev
+    np.testing.assert_allclose([t for t, _ in ev], roots, atol=1e-9)
+    de = r["gear.deflection"]
+    assert de.min() > b / 2                                   # never back inside the gap
+    tau = r["gear.tau_l"]
+    apart = ((r.t > ev[0][0]) & (r.t < ev[1][0])) | ((r.t > ev[2][0]) & (r.t < ev[3][0]))
+    assert np.all(tau[apart] == 0.0)
+    touch = ~apart & (np.abs(r.t[:, None] - [t for t, _ in ev]).min(axis=1) > 1e-6)
+    np.testing.assert_allclose(tau[touch], [ts(t) for t in r.t[touch]], rtol=1e-8, atol=1e-8)
+
+
+PUSHED_THROUGH_BACKLASH = """
+name: pushed
+blocks:
+  gear: {{type: HarmonicDrive, ratio: 160, backlash: 2.9e-4, friction: false}}
+  mot:  {{type: Inertia, J: 1e-4}}
+  load: {{type: Inertia, J: 2.56, w0: {w0}}}
+  push: {{type: Constant, value: 0.3}}
+  s:    {{type: Sum, signs: "+-"}}
+connections: [mot.phi -> gear.phi_m, mot.w -> gear.w_m, load.phi -> gear.phi_l,
+              load.w -> gear.w_l, push.y -> s.u1, gear.tau_m -> s.u2, s.y -> mot.tau,
+              gear.tau_l -> load.tau]
+simulation: {{t_end: 0.6, rtol: 1e-10, atol: 1e-13}}
+"""
+
+
+@pytest.mark.parametrize("w0", [-0.1, -0.2, -0.5, -0.7])
+@pytest.mark.parametrize("method", ["LSODA", "DP54"])
+def test_motor_pushing_a_load_through_backlash_stays_engaged(method, w0):
+    """A motor pushing 0.3 N.m into a load coming back at it (the reviewer's case, default
+    damping d = 20): after the impacts the teeth stay engaged and both sides accelerate
+    together at N tau / (J_l + N^2 J_m) = 9.375 rad/s^2, the deflection about b/2 plus the
+    load's share J_l a / K1 (5.9e-4 rad), and angular momentum N J_m w_m + J_l w_l grows at
+    N tau exactly. Before, 0.2 and 0.7 rad/s (and 3 more of 30 closing speeds) ended apart
+    for good, the deflection 0.29 rad and growing."""
+    r = spidersim.loads(PUSHED_THROUGH_BACKLASH.format(w0=w0)).simulate(method=method)
+    N, J_m, J_l, K1, tau = 160.0, 1e-4, 2.56, 5.4e4, 0.3
+    acc = N * tau / (J_l + N ** 2 * J_m)
+    de = r["gear.deflection"]
+    assert np.abs(de).max() < 1e-2, np.abs(de).max()      # impacts: |w0| sqrt(m/K1) + b/2
+    late = r.t > 0.45
+    steady = 2.9e-4 / 2 + J_l * acc / K1
+    assert np.all(np.abs(de[late] - steady) < 0.3 * steady), de[late].min()
+    assert np.all(r["gear.tau_l"][late] > 0)
+    mom = N * J_m * r["mot.w"] + J_l * r["load.w"]
+    np.testing.assert_allclose(mom - mom[0], N * tau * r.t, atol=1e-6)
 
 
 # ============================================================================= joint
