@@ -215,7 +215,7 @@ ABLATIONS = {
         ("            ok = _row(fn, t_new, x1, tbuf, buf, ist, s_idx, x_idx, sig, p, modes)",
          "            if ist[I_METHOD] == METHOD_DP54 and t + h == t_new:\n"
          "                r = ist[I_ROWS]\n"
-         "                ok = _sf._copy_row(x1, sig, s_idx, x_idx, buf, r)\n"
+         "                ok = _sf.copy_row(x1, sig, s_idx, x_idx, buf, r)\n"
          "                tbuf[r] = t_new\n"
          "                ist[I_ROWS] = r + 1\n"
          "            else:\n"

@@ -672,16 +672,26 @@ def _guards_at_step_end(fn, meth, t_new, x1, grid, tbuf, buf, ist, G, s_idx, x_i
                         modes):
     """``G[G_NEW]`` = the guards at the step's end ``(t_new, x1)``; without an output grid
     the step's row is recorded from the same evaluation. Returns False when the row is not
-    finite."""
-    if grid and meth != METHOD_ROS34PW2:
-        # DP54's last stage and NDF's f1 were evaluated at (t_new, x1): sig holds its outputs
-        _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
-        return True
+    finite.
+
+    DP54's last stage and NDF's ``f1`` were evaluated at ``(t_new, x1)``: ``sig`` holds
+    its outputs, so the guards and the row are taken from it without evaluating the system
+    again (one evaluation of seven per DP54 step); ROS34PW2's last evaluation was
+    elsewhere, so it evaluates the outputs."""
+    reuse = meth != METHOD_ROS34PW2
     if grid:
-        _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
+        if reuse:
+            _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
+        else:
+            _sf.guards(fn, t_new, x1, sig, p, modes, G[G_NEW])
         return True
     row0 = ist[I_ROWS]
-    ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0, G[G_NEW])
+    if reuse:
+        _sf.guards_at_sig(fn, t_new, x1, sig, p, modes, G[G_NEW])
+        ok = _sf.copy_row(x1, sig, s_idx, x_idx, buf, row0)
+    else:
+        ok = _sf.record_guards(fn, t_new, x1, sig, p, modes, s_idx, x_idx, buf, row0,
+                               G[G_NEW])
     tbuf[row0] = t_new
     ist[I_ROWS] = row0 + 1
     return ok

@@ -193,18 +193,21 @@ def record(fn, t, x, sig, p, modes, s_idx, x_idx, buf, row):
     """Outputs at ``(t, x)``, then the logged signals ``sig[s_idx]`` and states
     ``x[x_idx]`` into ``buf[row]``; False when ``x`` or a logged value is not finite."""
     call(fn, OUTPUTS, t, x, sig, p, modes, sig, 0, 0.0)
-    return _copy_row(x, sig, s_idx, x_idx, buf, row)
+    return copy_row(x, sig, s_idx, x_idx, buf, row)
 
 
 @njit_borrowed
 def record_guards(fn, t, x, sig, p, modes, s_idx, x_idx, buf, row, g):
     """:func:`record` and the guards into ``g`` from one evaluation of the outputs."""
     call(fn, GUARDS, t, x, sig, p, modes, g, 0, 0.0)
-    return _copy_row(x, sig, s_idx, x_idx, buf, row)
+    return copy_row(x, sig, s_idx, x_idx, buf, row)
 
 
 @njit_borrowed
-def _copy_row(x, sig, s_idx, x_idx, buf, row):
+def copy_row(x, sig, s_idx, x_idx, buf, row):
+    """The logged signals ``sig[s_idx]`` and states ``x[x_idx]`` into ``buf[row]`` (``sig``
+    must hold the outputs of ``(t, x)``); False when ``x`` or a logged value is not
+    finite."""
     ok = True
     for i in range(x.size):
         if not math.isfinite(x[i]):
