@@ -45,8 +45,10 @@ def zeno_message(block, name, t):
 
 #: values of a guard's arming (the loops' ``armed`` arrays): a guard that starts a step
 #: exactly at zero fires when it leaves zero to a side it is armed for. ARMED: either side
-#: (the start, and once the guard has been nonzero); DISARMED: neither (a guard of a block
-#: whose own event has just fired, not the guard that fired); ARMED_UP / ARMED_DOWN: only
+#: (the start, once the guard has been nonzero, and the other guards of a block whose event
+#: has just fired: :func:`rearm_after`); DISARMED: neither (the settling of a jump at an
+#: event instant, which compares the guards across the instant instead, and the default of
+#: :func:`crossed`); ARMED_UP / ARMED_DOWN: only
 #: back to the side it came from (the guard that fired, left on zero by its crossing: moving
 #: on the way it crossed is the same crossing, turning back is a new one, as in a sliding
 #: mode where the switched output drives the input straight back)
@@ -87,13 +89,16 @@ def snapped(g, band):
 
 @njit_borrowed
 def rearm_after(direction_fired):
-    """The arming of a guard that has just fired in ``direction_fired`` (+1 rising, -1
-    falling; 0: it did not fire, only its block did): back the way it came, or neither."""
+    """The arming of a guard of a block that has just fired: the guard that fired in
+    ``direction_fired`` (+1 rising, -1 falling) back the way it came; the block's other
+    guards (``direction_fired`` 0) armed: one the event left exactly on zero (a new guard
+    of the new mode, such as a clamped PI's "leave" at the limit it has just reached) fires
+    as soon as it moves to its firing side."""
     if direction_fired > 0.0:
         return ARMED_DOWN
     if direction_fired < 0.0:
         return ARMED_UP
-    return DISARMED
+    return ARMED
 
 
 @njit_borrowed

@@ -199,3 +199,70 @@ def test_clamping_in_a_closed_loop_does_not_stall(ctrl):
     assert np.any(r["c.y"] == 1.3)                      # it did saturate
     assert r["plant.y"].max() < 1.15
     assert r["plant.y"][-1] == pytest.approx(1.0, abs=1e-2)
+
+
+ALL_METHODS = ["DP54", "ROS34PW2", "NDF", "RK45", "RK23", "DOP853", "LSODA", "BDF", "Radau"]
+CLAMPED_LOOP = """\
+blocks:
+  r:  {type: Constant, value: 1}
+  e:  {type: Sum, signs: "+-"}
+  c:  {type: %s, kp: 0.2, ki: 10, y_max: 0.5, y_min: -0.5}
+  pl: {type: Integrator}
+connections: [r.y -> e.u1, pl.y -> e.u2, e.y -> c.e, c.y -> pl.u]
+"""
+
+
+def _clamped_loop_reference(t_end=5.0, kp=0.2, ki=10.0, y_max=0.5):
+    """The loop of CLAMPED_LOOP by the clamping model of controllers.py: linear until
+    v = kp e + I reaches y_max at t1 (solve_ivp, an event); then the output held at y_max
+    while the error falls (the integral sliding, I = y_max - kp e) until e = 0 at
+    t2 = t1 + (1 - pl(t1)) / y_max, where the release sets I = y_max; then linear again
+    (pl' = kp (1 - pl) + I, I' = ki (1 - pl)). Returns pl(t_end)."""
+    from scipy.integrate import solve_ivp
+
+    def f(t, z):
+        pl, i = z
+        return [kp * (1 - pl) + i, ki * (1 - pl)]
+
+    def hit(t, z):
+        return kp * (1 - z[0]) + z[1] - y_max
+    hit.terminal, hit.direction = True, 1
+    a = solve_ivp(f, (0, t_end), [0.0, 0.0], events=hit, rtol=1e-12, atol=1e-14)
+    t1, pl1 = a.t_events[0][0], a.y_events[0][0][0]
+    t2 = t1 + (1 - pl1) / y_max
+    b = solve_ivp(f, (t2, t_end), [1.0, y_max], rtol=1e-12, atol=1e-14)
+    return b.y[0, -1]
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_clamped_output_leaving_its_limit_at_once_is_seen(method, ctrl):
+    """A PI/PID clamped at y_max whose v = kp e + I falls back below it at once (the plant
+    integrates the limited output, so the error falls as soon as the clamp is on): its
+    "leave" guard starts the clamped mode exactly on zero and goes straight to its firing
+    side; it fires there, the controller slides on the limit until the error reverses and
+    the run follows the reference above (solve_ivp, 1e-12). Before, a guard of the block
+    that had just fired had to leave zero first: the leave never fired when the guard was
+    exactly 0.0 (DP54, RK45, LSODA, DOP853), pl(5) = 1.0744 instead of 0.9966, exit 0."""
+    r = spidersim.loads(CLAMPED_LOOP % ctrl).simulate(t_end=5.0, method=method, rtol=RTOL,
+                                                      atol=ATOL)
+    assert r["pl.y"][-1] == pytest.approx(_clamped_loop_reference(), abs=1e-6)
+    names = [n for _t, b, n in r.events if b == "c"]
+    assert names[:3] == ["clamp_upper", "leave", "clamp_upper"] and "release" in names
+
+
+@pytest.mark.parametrize("ctrl", ["PI", "PID"])
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_clamped_sine_error_closed_form(method, ctrl):
+    """e = sin(pi t) into kp = 1, ki = 2, limits (-0.7, 1.5): clamped at 1.5 over each
+    positive half period (leave and clamp again at the same instant past the peak, the
+    integral sliding), released at t = 1, 2, 3 with I = y_max - kp e = 1.5; from t = 3,
+    I = 1.5 - (2 / pi)(1 + cos(3.3 pi)) at t = 3.3 and y = sin(3.3 pi) + I (0.4285589).
+    DP54, NDF and ROS34PW2 ended at -0.498, -0.117 and -0.554 before (a re-clamp missed)."""
+    text = ("blocks:\n  r: {type: Sine, amplitude: 1, f: 0.5}\n"
+            f"  c: {{type: {ctrl}, kp: 1, ki: 2, y_max: 1.5, y_min: -0.7}}\n"
+            "connections: [r.y -> c.e]\n")
+    r = spidersim.loads(text).simulate(t_end=3.3, method=method, rtol=RTOL, atol=ATOL)
+    i_end = 1.5 - (2 / np.pi) * (1 + np.cos(3.3 * np.pi))
+    assert r["c.y"][-1] == pytest.approx(np.sin(3.3 * np.pi) + i_end, abs=1e-6)
+    assert r["c.I"][-1] == pytest.approx(i_end, abs=1e-6)
