@@ -1,7 +1,8 @@
 """The HTTP application (FastAPI): models, jobs, results, the web page.
 
 Every route but ``GET /health``, ``/`` and the page's static files needs
-``Authorization: Bearer <token>`` (401 otherwise); a job of another user answers 404 as an
+``Authorization: Bearer <token>`` (401 otherwise; for a request with a body, before any
+of it is read); a job of another user answers 404 as an
 unknown one. Limits answer 413 (body size, a signal answer of more than ``max_points``
 values), 422 (run length, logged signals, bad request, a non-finite number, nesting deeper
 than ``MAX_DEPTH``) and 429 (active jobs or open event streams per user, with
@@ -247,17 +248,36 @@ def bearer(authorization):
     return None
 
 
+#: the 401 detail
+NO_TOKEN = ("a valid token is required: send 'Authorization: Bearer <token>' (an "
+            "administrator makes one with 'spidersim serve --add-user NAME')")
+
+
 def current_user(request: Request,
                  authorization: Annotated[Optional[str], Header()] = None):
     """The (user id, name) of the request's bearer token; 401 without a valid one."""
     tok = bearer(authorization)
     u = request.app.state.store.user_for_token(tok) if tok else None
     if u is None:
-        raise HTTPException(401, "a valid token is required: send 'Authorization: Bearer "
-                                 "<token>' (an administrator makes one with 'spidersim "
-                                 "serve --add-user NAME')",
-                            headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPException(401, NO_TOKEN, headers={"WWW-Authenticate": "Bearer"})
     return u
+
+
+def token_gate(store, public, under=()):
+    """The :class:`BodyLimit` gate: a request to a path neither in ``public`` (a set of
+    paths) nor starting with one of ``under`` (a tuple) is refused with 401 unless its
+    first ``Authorization`` header holds a valid bearer token, before its body is read."""
+    def gate(scope):
+        path = scope["path"]
+        if path in public or path.startswith(under):
+            return None
+        auth = next((v.decode("latin-1") for k, v in scope["headers"]
+                     if k.lower() == b"authorization"), None)
+        tok = bearer(auth)
+        if tok and store.user_for_token(tok) is not None:
+            return None
+        return 401, NO_TOKEN, [(b"www-authenticate", b"Bearer")]
+    return gate
 
 
 User = Annotated[tuple, Depends(current_user)]
@@ -445,7 +465,11 @@ def create_app(data_dir, models=None, runner_factory=None, limits: Limits | None
                           ensure_ascii=True, allow_nan=False)
         return Response(text, status_code=422, media_type="application/json")
 
-    app.add_middleware(BodyLimit, max_body=limits.max_body)
+    # the token is checked before a body is read (FastAPI reads it before the dependency)
+    public = {"/", "/health", app.openapi_url, app.docs_url, app.redoc_url,
+              app.swagger_ui_oauth2_redirect_url} - {None}
+    app.add_middleware(BodyLimit, max_body=limits.max_body,
+                       gate=token_gate(store, public, ("/static/",)))
 
     def model_or_error(name):
         try:

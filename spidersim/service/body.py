@@ -6,12 +6,18 @@ announcing 10 bytes sent 2 GB that the app read (the server went from 316 MB to 
 before its token was checked. :class:`BodyLimit` refuses such conflicting framing with 400
 before any byte of the body is read, and counts the body as it arrives in the ASGI
 receive channel: once over the limit the request is answered 413, whatever its headers.
+
+The token is checked here too, before the body: FastAPI reads a route's body (up to the
+limit) before its dependencies run, so an anonymous client could make the server read
+``--max-body`` bytes per request only to be told 401. :class:`BodyLimit` takes a ``gate``
+(the app's token check) that refuses such a request from its headers.
 """
 from __future__ import annotations
 
 import json
 
 from fastapi import HTTPException
+from starlette.concurrency import run_in_threadpool
 
 #: methods whose body is read (and limited)
 WITH_BODY = ("POST", "PUT", "PATCH")
@@ -44,31 +50,37 @@ def too_large(n, max_body):
     return f"request body of {n} bytes is larger than the limit of {max_body} bytes"
 
 
-async def answer(send, status, detail):
-    """Send a whole JSON answer ``{"detail": ...}`` with ``status``."""
+async def answer(send, status, detail, headers=()):
+    """Send a whole JSON answer ``{"detail": ...}`` with ``status`` (and ``headers``, a list
+    of ``(name, value)`` byte pairs)."""
     body = json.dumps({"detail": detail}).encode()
     await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", b"application/json"),
                             (b"content-length", str(len(body)).encode()),
-                            (b"connection", b"close")]})
+                            (b"connection", b"close"), *headers]})
     await send({"type": "http.response.body", "body": body})
 
 
 class BodyLimit:
     """ASGI middleware: a request body of at most ``max_body`` bytes.
 
-    The headers are checked first (:func:`framing_error`); then the body's bytes are
-    counted as the app receives them, and the first chunk taking the count over the limit
-    ends the request with 413 (raised to the app as an :class:`HTTPException`, which
-    FastAPI passes on; any answer the app starts afterwards is replaced by the 413)."""
+    The headers are checked first (:func:`framing_error`), then ``gate(scope)`` (run in
+    a thread: a token check may hash), which returns None to let the body be read or
+    ``(status, detail, headers)`` to refuse the request without reading any of it; then
+    the body's bytes are counted as the app receives them, and the first chunk taking the
+    count over the limit ends the request with 413 (raised to the app as an
+    :class:`HTTPException`, which FastAPI passes on; any answer the app starts afterwards
+    is replaced by the 413)."""
 
-    def __init__(self, app, max_body):
-        self.app, self.max_body = app, int(max_body)
+    def __init__(self, app, max_body, gate=None):
+        self.app, self.max_body, self.gate = app, int(max_body), gate
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http" or scope["method"] not in WITH_BODY:
             return await self.app(scope, receive, send)
         refusal = framing_error(scope["headers"], self.max_body)
+        if refusal is None and self.gate is not None:
+            refusal = await run_in_threadpool(self.gate, scope)
         if refusal is not None:
             return await answer(send, *refusal)
         seen = {"bytes": 0, "over": False, "started": False}

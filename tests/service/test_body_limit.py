@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
+import select
 import socket
 import threading
 import time
@@ -18,6 +20,22 @@ from spidersim.service.app import Limits, create_app
 from spidersim.service.body import BodyLimit
 
 from .conftest import SERVO
+
+
+def read_answer(s):
+    """The whole HTTP answer on socket ``s``: its head, then its ``Content-Length`` bytes
+    or up to the end (one ``recv`` could return the head alone, a flaky failure)."""
+    text = b""
+    while True:
+        head, sep, body = text.partition(b"\r\n\r\n")
+        if sep:
+            n = re.search(rb"(?im)^content-length: *(\d+)", head)
+            if n and len(body) >= int(n.group(1)):
+                return text.decode("latin-1")
+        got = s.recv(4096)
+        if not got:
+            return text.decode("latin-1")
+        text += got
 
 
 def post_chunked(server, token, mb, content_length="10"):
@@ -45,7 +63,7 @@ def post_chunked(server, token, mb, content_length="10"):
     th.start()
     s.settimeout(30)
     try:
-        text = s.recv(4000).decode("latin-1")
+        text = read_answer(s)
     finally:
         dt = time.time() - t0
         s.close()
@@ -95,21 +113,100 @@ def drive(app, headers, chunks):
 
 def test_body_bytes_are_counted_whatever_the_headers(tmp_path):
     """A body larger than its Content-Length (a server framing it otherwise) is cut at the
-    limit: 413 after the first chunk over it, the rest never read; with or without a
-    token (the body is read before the token check)."""
+    limit: 413 after the first chunk over it, the rest never read."""
     from spidersim.service.store import Store
     tok = Store(str(tmp_path)).add_user("eve")
     app = create_app(str(tmp_path), [SERVO], None, Limits(max_body=5000))
     chunks = [b'{"model":"servo"'] + [b" " * 1000] * 1000
-    for auth in ([(b"authorization", f"Bearer {tok}".encode())], []):
-        headers = [(b"content-type", b"application/json"), (b"content-length", b"10")] + auth
-        status, detail, used = drive(app, headers, chunks)
-        assert status == 413, detail
-        assert "limit of 5000 bytes" in detail
-        assert used == 6            # 16 + 5 x 1000 bytes: the chunk taking it over 5000
-    # the middleware alone, before any app: the same
+    headers = [(b"content-type", b"application/json"), (b"content-length", b"10"),
+               (b"authorization", f"Bearer {tok}".encode())]
+    status, detail, used = drive(app, headers, chunks)
+    assert status == 413, detail
+    assert "limit of 5000 bytes" in detail
+    assert used == 6            # 16 + 5 x 1000 bytes: the chunk taking it over 5000
+    # the middleware without a gate, before the app: the same at its own limit
     status, detail, used = drive(BodyLimit(app, 2000), headers, chunks)
     assert (status, used) == (413, 3)
+
+
+@pytest.mark.parametrize("auth", [None, "Bearer sst_nosuch_token", "Basic ZXZlOng=",
+                                  "Bearer "])
+def test_no_valid_token_is_401_before_any_body_byte(tmp_path, auth):
+    """Without a valid token a POST is refused from its headers: no chunk of its body is
+    consumed (FastAPI read the body, up to the limit, before the token dependency ran)."""
+    app = create_app(str(tmp_path), [SERVO], None, Limits(max_body=5000))
+    headers = [(b"content-type", b"application/json"), (b"content-length", b"4000")]
+    if auth is not None:
+        headers.append((b"authorization", auth.encode()))
+    status, detail, used = drive(app, headers, [b'{"model":"servo"'] + [b" " * 100] * 50)
+    assert (status, used) == (401, 0), detail
+    assert detail.startswith("a valid token is required")
+
+
+def test_public_routes_need_no_token(tmp_path):
+    """The page, its static files, /health and the API description answer as before
+    without a token; a POST to them is still 405, not 401."""
+    from fastapi.testclient import TestClient
+    app = create_app(str(tmp_path), [SERVO], None, Limits())
+    with TestClient(app) as c:
+        for path in ("/", "/health", "/static/app.js", "/openapi.json", "/docs"):
+            assert c.get(path).status_code == 200, path
+        assert c.post("/health", content=b"{}").status_code == 405
+        assert c.post("/static/app.js", content=b"{}").status_code == 405
+        r = c.post("/jobs", json={"model": "servo"})
+        assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
+        assert c.post("/no/such/route", content=b"{}").status_code == 401
+
+
+def stream_post(port, token, size, piece=1024, first_wait=2.0):
+    """POST /jobs announcing ``size`` bytes, sent ``piece`` bytes at a time only while no
+    answer has arrived (``first_wait`` s allowed before the first piece); return
+    ``(status code, body bytes sent, answer text)``."""
+    head = b'{"model":"nosuch","t_end":0.1'
+    body_sent = 0
+    with socket.create_connection(("127.0.0.1", port)) as s:
+        auth = f"Authorization: Bearer {token}\r\n" if token else ""
+        s.sendall((f"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                   f"{auth}Content-Length: {size}\r\nConnection: close\r\n\r\n").encode())
+        wait = first_wait
+        while body_sent < size:
+            if select.select([s], [], [], wait)[0]:
+                break                                   # the server answered
+            wait = 0
+            part = (head if body_sent == 0 else b"") + b" " * piece
+            part = part[:size - body_sent - 1] + (b"}" if body_sent + len(part) >= size - 1
+                                                 else b"")
+            try:
+                s.sendall(part)
+            except OSError:
+                break
+            body_sent += len(part)
+        s.settimeout(30)
+        text = read_answer(s)
+    return int(text.split(" ", 2)[1]), body_sent, text
+
+
+def test_anonymous_streaming_body_refused_after_a_few_kb(tmp_path, models_dir):
+    """Over loopback, against a server taking bodies of 8 MB: an anonymous POST /jobs and
+    one with a wrong token announcing 8 MB are answered 401 with at most a few KB of the
+    body sent (the client sends each KB only while no answer has come); with a valid token
+    the same request is read whole (the method counts what the server reads: 404, no
+    model 'nosuch'). Before the fix the anonymous request was read whole too."""
+    from .conftest import Server, add_user
+    data = tmp_path / "data"
+    srv = Server(data, models_dir, ["--workers", "1", "--max-body", "8000000"])
+    tok = add_user(data, "erin")
+    srv.start()
+    try:
+        for token in (None, "sst_nosuch_token"):
+            status, sent, text = stream_post(srv.port, token, 8_000_000)
+            assert status == 401, text
+            assert sent <= 4096, f"{sent} body bytes sent before the 401"
+        status, sent, text = stream_post(srv.port, tok, 8_000_000)
+        assert status == 404 and "nosuch" in text, text
+        assert sent == 8_000_000
+    finally:
+        srv.stop()
 
 
 def test_headers_refused_before_the_body():

@@ -53,16 +53,71 @@ async function login() {
 $("login").onclick = login;
 $("token").addEventListener("keydown", (e) => { if (e.key === "Enter") login(); });
 
+let LISTED = 0;           // the latest job-list request: an earlier one answering late is dropped
 async function refreshJobs() {
+  const seq = ++LISTED;
   const jobs = await json("/jobs?limit=15");
+  if (seq !== LISTED) return;
   const ul = $("jobs"); ul.innerHTML = "";
   for (const j of jobs) {
-    const li = el("li", {class: "job-" + j.state,
-      text: `${j.model} ${j.state} ${new Date(j.created * 1000).toLocaleTimeString()}`});
+    const when = new Date(j.created * 1000).toLocaleTimeString();
+    const li = el("li", {class: "job-" + (j.expired ? "expired" : j.state), "data-id": j.id,
+      text: `${j.model} ${j.state} ${when}` + (j.expired ? " (files removed)" :
+                                                 j.bytes ? ` (${size(j.bytes)})` : "")});
     li.onclick = async () => { if (!MODEL || MODEL.name !== j.model) await openModel(j.model);
                                watch(j.id); };
+    if (!j.expired && !["queued", "running"].includes(j.state)) {
+      const b = el("button", {class: "del", title: "delete this job's result files",
+                              text: "Delete"});
+      b.onclick = (e) => { e.stopPropagation(); deleteJob(j, `${j.model} ${j.state} ${when}`); };
+      li.prepend(b);
+    }
     ul.append(li);
   }
+  refreshUsage();
+}
+
+// bytes as kB, MB or GB (powers of 1000, the unit of the service's limits): "12.3 MB"
+function size(n) {
+  const [d, u] = n >= 1e9 ? [1e9, "GB"] : n >= 1e6 ? [1e6, "MB"] : [1e3, "kB"];
+  const v = n / d;
+  return (v >= 100 ? Math.round(v) : +v.toPrecision(3)) + " " + u;
+}
+
+// the disk quota (GET /usage): use, reservations of active jobs, and whether a run fits
+let USAGE = 0;
+async function refreshUsage() {
+  const seq = ++USAGE;
+  let u;
+  try { u = await json("/usage"); } catch (e) { $("usage").textContent = e.message; return; }
+  if (seq !== USAGE) return;
+  const n = u.active_jobs;
+  $("usage").textContent = `Disk: used ${size(u.used_bytes)} of ${size(u.quota_bytes)}` +
+    (n ? ` (${n} queued or running job${n > 1 ? "s" : ""} reserve${n > 1 ? "" : "s"} ` +
+         `${size(u.reserved_bytes)})` : "");
+  const room = u.quota_bytes - u.reserve_per_job_bytes;     // above it a run does not fit
+  $("usage").append(el("meter", {min: 0, max: u.quota_bytes, value: u.used_bytes,
+                                 low: room, high: room, optimum: 0}));
+  const full = u.free_bytes < u.reserve_per_job_bytes;
+  $("usage-full").hidden = !full;
+  $("usage-full").textContent = full ? `Quota full: a new run needs ` +
+    `${size(u.reserve_per_job_bytes)} free, ${size(u.free_bytes)} left. Delete jobs you ` +
+    `no longer need` + (n ? ", or wait for the active ones to finish" : "") +
+    `; results are removed ${u.keep_days} day(s) after their job ends.` : "";
+}
+
+async function deleteJob(j, label) {
+  $("jobs-error").textContent = "";
+  if (!confirm(`Delete the results of job ${label}?\nIts files are removed for good; ` +
+               `it stays listed.`)) return;
+  try {
+    await json("/jobs/" + j.id, {method: "DELETE"});
+    if (JOB === j.id) { $("results").hidden = true; $("message").textContent = "results deleted"; }
+  } catch (e) {
+    $("jobs-error").textContent = `Could not delete job ${label}: ${e.message}`;
+  }
+  try { await refreshJobs(); } catch (e) {       // a refusal already shown is not repeated
+    if (!$("jobs-error").textContent) $("jobs-error").textContent = e.message; }
 }
 
 // ---------------------------------------------------------------- model page
@@ -192,7 +247,7 @@ $("run").onclick = async () => {
   try {
     const job = await json("/jobs", {method: "POST", body: JSON.stringify(body),
                                      headers: {"Content-Type": "application/json"}});
-    watch(job.id);
+    watch(job.id); refreshJobs();
   } catch (e) { $("message").textContent = e.message; }
 };
 $("cancel").onclick = async () => { if (JOB) await json(`/jobs/${JOB}/cancel`, {method: "POST"}); };
