@@ -33,6 +33,15 @@ Contract for block implementers
        compiled loop asks again only after events, the only places modes change.
    ``time_event(t, <states>, <inputs>, <params>, <modes>)``
        applied at that time; may change the block's own modes and states only.
+   ``time_output(t, <states>, <params>, <modes>)``
+       optional, for a sampled block whose output at a sample does not depend on the
+       sample it takes (a ``UnitDelay``, a strictly proper ``DiscreteTransferFunction``):
+       updates the held outputs without reading any input. At a sampling instant every due
+       block's ``time_output`` runs first, then the outputs are evaluated again, then the
+       ``time_event`` kernels take their samples in schedule order: a block that reads such
+       an output at the same instant, itself included through a loop, sees the new value
+       (``y[k+1] = y[k] + 1`` counts 1, 2, 3, ...; taking the sample and moving the output
+       in one kernel counted 0, 1, 1, 2, 2, ...).
    ``guard(t, <states>, <inputs>, <params>, <modes>, zc)``
        writes the zero-crossing functions of the block's ``events`` into ``zc`` (one after
        the other, each of its declared size); an event fires when its guard crosses zero in
@@ -136,8 +145,8 @@ REQUIRED = object()
 REGISTRY: dict[str, type["Block"]] = {}
 
 #: the kernels a block may define, and the argument names every kernel may use
-KERNELS = ("output", "derivative", "next_time", "time_event", "guard", "on_event",
-           "initialize", "partials")
+KERNELS = ("output", "derivative", "next_time", "time_output", "time_event", "guard",
+           "on_event", "initialize", "partials")
 RESERVED = ("t", "direction", "zc", "which", "inputs_ready")
 #: the matrices of the ``partials`` kernel (contract item 4), reserved names too
 PARTIALS = ("dfdx", "dfdu", "dydx", "dydu")
@@ -346,6 +355,10 @@ def _check_kernel_set(cls):
     if cls.events and not (cls.has_kernel("guard") and cls.has_kernel("on_event")):
         raise _definition_error(cls, "declares events but does not define both 'guard' and "
                                      "'on_event'")
+    if cls.has_kernel("time_output") and not (cls.has_kernel("next_time")
+                                              and cls.has_kernel("time_event")):
+        raise _definition_error(cls, "defines 'time_output' but not both 'next_time' and "
+                                     "'time_event'")
 
 
 def _default_params(cls):
@@ -428,6 +441,14 @@ def _check_partials(cls, fn):
                                      f"available to it")
 
 
+def _check_time_output(cls, fn):
+    """``time_output`` reads no input (it runs before the samples are taken)."""
+    bad = [a for a in inspect.signature(fn).parameters if a in cls.inputs]
+    if bad:
+        raise _definition_error(cls, f"kernel 'time_output' argument '{bad[0]}' is an "
+                                     f"input: the output update at a sample reads none")
+
+
 def _check_kernels(cls, roles, derived):
     """The kernels ``cls`` itself defines are static methods with known arguments (see
     :func:`_check_kernel_args`; skipped for blocks with dynamic names)."""
@@ -439,6 +460,8 @@ def _check_kernels(cls, roles, derived):
             raise _definition_error(cls, f"kernel '{kernel}' must be a @staticmethod")
         if kernel == "partials":
             _check_partials(cls, fn.__func__)
+        if kernel == "time_output":
+            _check_time_output(cls, fn.__func__)
         if _has_dynamic_names(cls):
             continue
         _check_kernel_args(cls, kernel, fn.__func__, roles, derived,

@@ -64,9 +64,13 @@ class UnitDelay(_Sampled):
              "last": Mode(size="@u", initial="x0", doc="sample to output next"), "k": _K}
 
     @staticmethod
-    def time_event(t, u, held, last, k):
-        for i in range(u.size):
+    def time_output(t, held, last):
+        for i in range(held.size):
             held[i] = last[i]
+
+    @staticmethod
+    def time_event(t, u, last, k):
+        for i in range(u.size):
             last[i] = u[i]
         k[0] += 1.0
 
@@ -100,6 +104,12 @@ class DiscreteTransferFunction(_Sampled):
         num = numerator(params)
         b[len(den) - len(num):] = num / params["den"][0]
         return {"a_n": den, "b_n": b}
+
+    @staticmethod
+    def time_output(t, b_n, s, held):
+        # strictly proper (b_0 = 0): y_k = s_0 before the sample is taken
+        if b_n[0] == 0.0:
+            held[0] = s[0] if s.size > 0 else 0.0
 
     @staticmethod
     def time_event(t, u, a_n, b_n, s, held, k):

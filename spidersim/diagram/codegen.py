@@ -254,6 +254,21 @@ class Generator:
         reads, writes = _access_sets(parts)
         return Call(name, tuple(e for e, _ in parts), reads, writes)
 
+    def _time_output_lines(self, timed):
+        """The ``time_output`` calls of the due timed blocks that have one (contract item 4
+        of :mod:`spidersim.blocks.base`), before any sample is taken; empty without
+        such blocks. The outputs are evaluated again when one ran."""
+        lines = []
+        for bl in timed:
+            if bl.cls.has_kernel("time_output"):
+                lines += [f"    if {self.call(bl, 'next_time', '')} <= t + tol:",
+                          self.call(bl, "time_output", "        "),
+                          "        moved = True"]
+        if not lines:
+            return []
+        return (["    moved = False"] + lines
+                + ["    if moved:", "        outputs(t, x, sig, p, modes)"])
+
     def call(self, bl, kernel, indent="    "):
         name = self.kernel_name(bl, kernel)
         args = bl.cls.kernel_args(kernel, bl.params)
@@ -323,8 +338,11 @@ def _loop{lp.index}_solve(t, x, sig, p, modes):
         timed = _timed_blocks(L)
         nt_lines = emit(group([self.call_info(bl, "next_time") for bl in timed]), tables,
                         body=lambda c: [f"v = {c}", "if v < tn:", "    tn = v"])
-        # the caller of TIME_EVENTS leaves the outputs of (t, x) in sig
-        te_lines = sequenced_lines(
+        # the caller of TIME_EVENTS leaves the outputs of (t, x) in sig; the held outputs
+        # that do not depend on the sample move first (time_output), then every sample is
+        # taken from the outputs evaluated again
+        te_lines = self._time_output_lines(timed)
+        te_lines += sequenced_lines(
             self, timed, "time_event", True,
             when=lambda k, bl: f"{self.call(bl, 'next_time', '')} <= t + tol",
             done=lambda k: f"fired[{k}] = 1")

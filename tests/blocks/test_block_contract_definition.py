@@ -3,7 +3,7 @@ kernel argument fails at once, naming the class and the argument, not at code ge
 import pytest
 
 from spidersim.blocks import REGISTRY
-from spidersim.blocks.base import Block, BlockDefinitionError, Event, Param, Port, State
+from spidersim.blocks.base import Block, BlockDefinitionError, Event, Mode, Param, Port, State
 
 
 def _define(**body):
@@ -37,6 +37,12 @@ def test_unknown_kernel_argument_names_class_and_argument():
     (dict(outputs={"y": Port()}, output=lambda t, y: None), "@staticmethod"),
     (dict(outputs={"z": Port()}, parameters={"z0": Param(0.0)}, implicit={"z": ("r", "z0")}),
      "residual port 'r'"),
+    (dict(outputs={"y": Port()}, modes={"h": Mode()},
+          time_output=staticmethod(lambda t, h: None)), "'time_output' but not both"),
+    (dict(inputs={"u": Port()}, outputs={"y": Port()}, modes={"h": Mode()},
+          next_time=staticmethod(lambda t, h: 0.0),
+          time_event=staticmethod(lambda t, u, h: None),
+          time_output=staticmethod(lambda t, u, h: None)), "'time_output' argument 'u'"),
 ])
 def test_contract_violations(body, words):
     with pytest.raises(BlockDefinitionError, match=words):

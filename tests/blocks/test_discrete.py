@@ -165,3 +165,36 @@ def test_chained_samplers_pass_a_sample_on_at_once(method):
     assert np.count_nonzero(np.diff(r.t) == 0.0) == 10
     for name in ("a", "b", "c"):
         np.testing.assert_allclose(_held(r, f"{name}.y"), expected, rtol=0, atol=1e-12)
+
+
+FEEDBACK = {
+    "counter": ("  one: {type: Constant, value: 1}\n  s: {type: Sum, signs: '++'}\n"
+                "  ud: {type: UnitDelay, Ts: 0.1}\n",
+                "[one.y -> s.u1, ud.y -> s.u2, s.y -> ud.u]", "ud.y",
+                lambda k: k),                                  # y[k+1] = y[k] + 1
+    "two_delays": ("  one: {type: Constant, value: 1}\n  s: {type: Sum, signs: '++'}\n"
+                   "  a: {type: UnitDelay, Ts: 0.1}\n  b: {type: UnitDelay, Ts: 0.1}\n",
+                   "[one.y -> s.u1, b.y -> s.u2, s.y -> a.u, a.y -> b.u]", "a.y",
+                   lambda k: (k + 1) // 2),        # a[k+1] = 1 + b[k], b[k+1] = a[k]
+    "integrator_dtf": ("  one: {type: Constant, value: 1}\n  s: {type: Sum, signs: '+-'}\n"
+                       "  tf: {type: DiscreteTransferFunction, num: [0.1], den: [1, -1],"
+                       " Ts: 0.1}\n",
+                       "[one.y -> s.u1, tf.y -> s.u2, s.y -> tf.u]", "tf.y",
+                       lambda k: 1 - 0.9 ** k),    # y[k+1] = y[k] + 0.1 (1 - y[k])
+}
+
+
+@pytest.mark.parametrize("method", ["DP54", "LSODA", "NDF", "RK45"])
+@pytest.mark.parametrize("case", sorted(FEEDBACK))
+def test_discrete_feedback_loop_samples_the_new_output(case, method):
+    """A sampled block whose output feeds its own input back (through a Sum, in discrete
+    time only): at each sample the held output moves first (``time_output``), then the
+    input is sampled from it, so the difference equations hold from k = 0 to 10. Before,
+    the sample and the output move were one kernel and the input was computed from the
+    previous output: the counter read 0, 1, 1, 2, 2, ... (5 at k = 10), the discrete
+    integrator 0.6926 instead of 1 - 0.9^10 = 0.6513, on every method."""
+    blocks, wires, name, want = FEEDBACK[case]
+    r = spidersim.loads(f"blocks:\n{blocks}connections: {wires}\n").simulate(
+        t_end=T_END, method=method, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(_held(r, name), [want(k) for k in range(11)], rtol=0,
+                               atol=1e-12)
