@@ -276,8 +276,9 @@ class PID(Block):
 
     @staticmethod
     def initialize(t, I, f, e, kp, kd, N, y_min, y_max, aw, clamp, armed):
+        # against the limits shifted by the derivative term D: v - D = kp e + I
         d = kd * N * (e[0] - f[0])
-        _clamp_init_jit(e[0], kp * e[0] + I[0] + d, kp, y_min - d, y_max - d, aw, I, clamp,
+        _clamp_init_jit(e[0], kp * e[0] + I[0], kp, y_min - d, y_max - d, aw, I, clamp,
                         armed)
 
 

@@ -266,3 +266,21 @@ def test_clamped_sine_error_closed_form(method, ctrl):
     i_end = 1.5 - (2 / np.pi) * (1 + np.cos(3.3 * np.pi))
     assert r["c.y"][-1] == pytest.approx(np.sin(3.3 * np.pi) + i_end, abs=1e-6)
     assert r["c.I"][-1] == pytest.approx(i_end, abs=1e-6)
+
+
+@pytest.mark.parametrize("method", ["DP54", "LSODA", "RK45", "NDF"])
+def test_pid_with_derivative_term_starts_below_its_limit(method):
+    """e = 1 into PID kp 0.5, ki 1, kd 0.005, N 100, y_max 1.2 (clamping): the filtered
+    derivative term is D = kd N exp(-N t) = 0.5 exp(-100 t), so v = 0.5 + t + D starts at
+    1.0, below the limit: I = t until v reaches 1.2 at t = 0.7, then y = 1.2 with I held
+    at 0.7. Before, the start compared kp e + I + 2 D (the term counted twice, against
+    limits already shifted by D) with 1.2, clamped at t = 0 and never released: I = 0,
+    y(1) = 0.5, exit 0."""
+    r = simulate("blocks:\n  e: {type: Constant, value: 1}\n"
+                 "  c: {type: PID, kp: 0.5, ki: 1, kd: 0.005, N: 100, y_max: 1.2}\n"
+                 "connections:\n  - e.y -> c.e\n", t_end=1.0, rtol=RTOL, atol=ATOL,
+                 method=method)
+    early = r.t < 0.69
+    np.testing.assert_allclose(r["c.I"][early], r.t[early], atol=1e-6)
+    assert r["c.I"][-1] == pytest.approx(0.7, abs=1e-6)
+    assert r["c.y"][-1] == pytest.approx(1.2, abs=1e-9)
