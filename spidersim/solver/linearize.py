@@ -89,6 +89,9 @@ def bandwidth(sys, w_max=None):
     w_max = w_max or 1e4 * max(mags)
     # from well below the slowest root (a pole at 0.05 rad/s beside one at 1e5 rad/s)
     w = np.logspace(np.log10(min(mags)) - 4, np.log10(w_max), 4000)
+    # with the points at every pole and zero magnitude (:meth:`.siso.Zpk.grid`): a notch
+    # narrower than the grid's spacing (zeros at 1 rad/s, damping 1e-4) fell between points
+    w = np.union1d(w, g.grid()[g.grid() <= w_max])
     m = g.log_mag_phase(w)[0]
     below = np.flatnonzero(m < level)
     if not len(below):

@@ -242,10 +242,21 @@ def _roots_of(f, w, values, target):
     d = values - target
     d[np.abs(d) < 1e-9] = 0.0       # on the target to round-off (1/s^2: -180 deg at all w)
     out = []
-    for i in np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) < 0):
-        out.append(float(brentq(lambda v: f(v) - target, w[i], w[i + 1],
-                                xtol=1e-14 * w[i + 1], rtol=4 * np.finfo(float).eps)))
+    for a, b in _sign_changes(d):
+        out.append(float(brentq(lambda v: f(v) - target, w[a], w[b],
+                                xtol=1e-14 * w[b], rtol=4 * np.finfo(float).eps)))
     return sorted(out)
+
+
+def _sign_changes(d):
+    """Index pairs ``(a, b)``, ``a < b``, of grid values of opposite signs with only zeros
+    between them: a crossing between two points, or on a point (or a run of points) taken
+    as zero. The grid holds every pole and zero magnitude, where a symmetric design
+    crosses exactly (``2 (s + 1)^2 / s^3`` at 1 rad/s: that crossing was missed); a run
+    of zeros with the same sign on both sides, or none, only touches (``1/s^2``)."""
+    nz = np.flatnonzero(d != 0.0)
+    s = np.sign(d[nz])
+    return [(int(nz[k]), int(nz[k + 1])) for k in np.flatnonzero(s[:-1] * s[1:] < 0)]
 
 
 def margins(zpk):

@@ -648,3 +648,40 @@ def test_peak_gain_at_the_ends_of_the_axis(num, den, peak, w_peak):
     from spidersim.solver.linearize import peak_gain
     pk, w = peak_gain(control.ss(control.tf(num, den)))
     assert pk == pytest.approx(peak, rel=1e-12) and w == w_peak
+
+
+@pytest.mark.parametrize("num, den, gm, pm", [
+    ([math.sqrt(2)], [1, 1], math.inf, 135.0),      # |L| = 1 exactly at 1 rad/s, a grid point
+    ([2, 4, 2], [1, 0, 0, 0], 0.25, None),          # -180 deg exactly at 1 rad/s
+    ([8, 16, 8], [1, 0, 0, 0], 0.0625, None),
+])
+def test_margins_of_crossings_on_a_pole_or_zero_magnitude(num, den, gm, pm):
+    """Crossovers that fall exactly on a pole or zero magnitude, where the search grid has
+    a point (a symmetric design such as 2 (s + 1)^2 / s^3): the margins equal
+    control.margin's. Before, a grid value within 1e-9 of the target was taken as
+    touching, not crossing: "phase crossover: none, gain margin: inf" for 0.25, and
+    "phase margin: inf" for 135 deg."""
+    sys = control.ss(control.tf(num, den))
+    fig = siso_figures(sys)
+    ref_gm, ref_pm, _wg, _wp = control.margin(sys)
+    assert fig["gain_margin"] == pytest.approx(gm if math.isfinite(gm) else ref_gm, rel=1e-6)
+    if math.isfinite(gm):
+        assert fig["phase_crossover"] == pytest.approx(1.0, rel=1e-9)
+    if pm is not None:
+        assert fig["phase_margin"] == pytest.approx(pm, rel=1e-6)
+        assert fig["phase_margin"] == pytest.approx(ref_pm, rel=1e-6)
+
+
+def test_bandwidth_finds_a_narrow_notch():
+    """|G| = |s^2 + 2e-4 s + 1| / |s^2 + 2e-3 s + 1| / |s/100 + 1|: a notch to 0.1 at
+    1 rad/s, narrower than the plain logarithmic grid's spacing; the first -3 dB point is
+    just below it (brentq on |G|), not the pole at 100 rad/s."""
+    s = control.tf("s")
+    g = control.ss((s ** 2 + 2e-4 * s + 1) / (s ** 2 + 2e-3 * s + 1) / (s / 100 + 1))
+    wb, _note = bandwidth(g)
+    from scipy.optimize import brentq
+
+    def mag(w):
+        return abs(complex(control.evalfr(g, 1j * w))) - 1 / math.sqrt(2)
+    assert wb == pytest.approx(brentq(mag, 0.99, 0.99999999), rel=1e-9)
+    assert wb == pytest.approx(0.99901, abs=1e-5)
