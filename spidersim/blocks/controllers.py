@@ -24,8 +24,12 @@ Clamping is event-driven (conditional integration), with modes ``clamp``:
   slides along ``v = y_max``, which an integrator without events can only crawl along.
   The block then holds ``y = y_max`` and ``I`` until the error reverses, and resets
   ``I := y_max - kp e`` there so that ``y`` is continuous. This is an approximation: the
-  exact sliding leaves the limit when ``kp de/dt + ki e`` turns negative, a little before
-  the error reverses, so the overshoot is slightly larger than the exact one.
+  exact sliding leaves the limit when ``kp de/dt + ki e`` turns negative (the block does
+  not see ``de/dt``), before the error reverses, so the command stays on the limit longer
+  and the overshoot is larger than the exact one. Not small in a loop that slides long: a
+  pulse of +-1.1 to 1.5 into a clamped PI and a second-order plant was off by 0.17 to 0.32
+  against exact conditional integration (peak 2.966 for 2.822); use ``backcalc`` where
+  the transient after saturation matters.
 
 (``-1``, ``-2`` symmetrically at ``y_min``.)
 """
