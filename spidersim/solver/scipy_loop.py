@@ -180,17 +180,21 @@ class SciPyLoop:
 
     def _log(self, entries):
         """Append ``entries`` to the event log, within the recording budget shared with
-        the rows (:mod:`.record_budget`; checked every 1024 events)."""
+        the rows (:mod:`.record_budget`; checked every 1024 events, or more often near
+        the budget, so that the log fills it before the run stops)."""
         n = len(self.events) + len(entries)
         if entries and n >= self._next_budget_check:
             rec = self.rec
-            if not record_budget.events_fit(n + 1024, rec.buf.nbytes + rec.tbuf.nbytes):
+            rows = rec.buf.nbytes + rec.tbuf.nbytes
+            ahead = 1024              # events reserved ahead: fewer when fewer fit
+            while ahead > 1 and not record_budget.events_fit(n + ahead, rows):
+                ahead //= 2
+            if not record_budget.events_fit(n + ahead - 1, rows):
                 raise RecordBudgetFull(record_budget.budget_message(
                     len(self.events), 3, entries[0][0], what="event log",
-                    entry_bytes=record_budget.PY_EVENT_BYTES,
-                    other_bytes=rec.buf.nbytes + rec.tbuf.nbytes))
-            rec.other_bytes = (n + 1024) * record_budget.PY_EVENT_BYTES
-            self._next_budget_check = n + 1024
+                    entry_bytes=record_budget.PY_EVENT_BYTES, other_bytes=rows))
+            rec.other_bytes = (n + ahead) * record_budget.PY_EVENT_BYTES
+            self._next_budget_check = n + ahead
         self.events.extend(entries)
 
     def _partial(self, msg=""):

@@ -142,10 +142,12 @@ def test_compiled_loop_event_log_stops_at_the_budget(budget_mb):
 
 def test_scipy_loop_event_log_stops_at_the_budget(monkeypatch):
     """The SciPy steppers' event log (a Python list, counted at 800 bytes an event, checked
-    every 1024 events) shares the budget with the rows: at 2 MB and 1010 grid rows it holds
-    2048 events of a sampled block every 0.1 ms (the check for the block of 1024 events after the
-    2048th fails), then the run stops with them, each at k * 0.1 ms (LSODA: about 60 us an event,
-    10^7 events in 1000 s would take 7 GB)."""
+    every 1024 events, more often near the budget) shares the budget with the rows: at 2 MB
+    and 1010 grid rows it holds a little over 2048 events of a sampled block every 0.1 ms,
+    then the run stops with them, each at k * 0.1 ms, the message counting them (LSODA:
+    about 60 us an event, 10^7 events in 1000 s would take 7 GB). Before, the log stopped at
+    the last multiple of 1024 that left room for 1024 more: at a budget below that, "0
+    entries" at t = 0."""
     monkeypatch.setenv(rb.ENV, "2")
     d = _sampled_every_0_1_ms()
     with pytest.raises(IntegrationError) as ei:
@@ -154,5 +156,11 @@ def test_scipy_loop_event_log_stops_at_the_budget(monkeypatch):
     assert "event log reached the memory budget" in str(ei.value)
     assert "sample less often" in str(ei.value)
     times = np.array([t for t, blk, kind in r.events])
-    assert len(times) == 2048
+    assert 2048 < len(times) < 2048 + 1024
+    assert f": {len(times)} entries" in str(ei.value)
     assert np.allclose(times, 1e-4 * np.arange(len(times)), rtol=0, atol=1e-12)
+    monkeypatch.setenv(rb.ENV, "0.3")      # room for fewer than 1024 events
+    with pytest.raises(IntegrationError) as ei:
+        d.simulate(t_end=1e3, method="LSODA", output_interval=1.0, jit=False)
+    n = len(ei.value.partial.events)
+    assert n > 100 and f": {n} entries" in str(ei.value)
