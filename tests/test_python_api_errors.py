@@ -220,6 +220,33 @@ def test_simulate_arguments_follow_the_simulation_section(d, key, value, line):
     assert in_call.value.message == want
 
 
+@pytest.mark.parametrize("method", ["NDF", "LSODA"])
+def test_first_step_below_the_stall_step_is_refused(method):
+    """A first_step of 1e-300 s passed check, then the run stalled (NDF, LSODA: 500
+    consecutive steps shorter than 1e-10 s while the step grew): refused at its line by the
+    run's rule, first_step >= 1e-10 s; 1e-10 s itself runs to the closed form x(t) = c (1 -
+    exp(-k t))."""
+    text = LAG.replace("rtol: 1e-8", f"method: {method}, first_step: %s, rtol: 1e-8")
+    for tiny in ("1e-300", "9.99e-11"):
+        with pytest.raises(DiagramError, match=r"simulation\.first_step must be at least "
+                                               r"1e-10 s \(the solvers take 500 consecutive "
+                                               r"steps shorter than 1e-10 s as a stall\)") as e:
+            spidersim.loads(text % tiny)
+        assert e.value.line == 9
+    r = spidersim.loads(text % "1e-10").simulate(jit=False)
+    assert r["x.y"][-1] == pytest.approx(C * (1 - math.exp(-K * 0.5)), rel=1e-6)
+
+
+def test_simulate_t_end_below_the_shortest_run_is_refused(d):
+    """simulate(t_end=1e-9) is refused by the rule a command's t_end follows (one checker:
+    at least 1e-7 s, the shortest run), naming the argument; 1e-7 s runs."""
+    with pytest.raises(DiagramError, match=r": t_end must be at least 1e-07 s \(the shortest "
+                                           r"run: the solvers take steps shorter than 1e-10 s "
+                                           r"as a stall\), got 1e-09$"):
+        d.simulate(t_end=1e-9, jit=False)
+    assert d.simulate(t_end=1e-7, jit=False).t[-1] == 1e-7
+
+
 def test_valid_simulate_forms(d):
     """NumPy scalars and ints where floats are expected (a NumPy boolean for jit), math.inf
     as max_step (no limit),
