@@ -338,6 +338,14 @@ connections: [c.y -> sat.u, sat.y -> f.u]
                         "got None"),
     # named no block
     ("sat.lower", 100, "block 'sat': set sat.lower: lower (100.0) must be below upper (1.0)"),
+    # NumPy booleans were read as 1 (Python's True is refused): refused alike
+    *[("sat.lower", v, "block 'sat': set sat.lower: parameter 'lower' must be a number, got "
+                       f"a boolean ({shown}; write 1 or 0 if you mean a number)")
+      for v, shown in ((True, "True"), (np.True_, "True"), (np.array(False), "False"))],
+    *[("c.value", v, "block 'c': set c.value: parameter 'value' must be a number, got a "
+                     f"boolean ({shown}; write 1 or 0 if you mean a number)")
+      for v, shown in (([np.True_], "[True]"), (np.array([True]), "[True]"),
+                       (np.array([1.0, np.False_], dtype=object), "[1.0, False]"))],
 ])
 def test_set_says_what_is_wrong_with_its_target_or_value(path, value, words):
     """``Diagram.set`` changes block parameters only; each other target says what it is

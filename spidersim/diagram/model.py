@@ -143,6 +143,19 @@ def sim_setting(key, v, what, file=None, line=None, text=True, shortest=True):
     return val
 
 
+def _python_bools(value):
+    """``value`` with its NumPy booleans (``np.True_``, an array of dtype bool, one inside
+    a list, a tuple or an object array) as Python ones, so that the parameter checks refuse
+    them as they refuse ``True`` (NumPy's were read as 1 and 0); anything else unchanged."""
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "bO":
+        return _python_bools(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_python_bools(v) for v in value]
+    return value
+
+
 def _positive_setting(sec, k, default, scope, err):
     """Setting ``k`` of a section (``default`` when absent): a number or an expression of
     the parameters in ``scope``, finite and > 0, as a float. Booleans are refused."""
@@ -349,7 +362,7 @@ class Diagram:
             raise ParameterError(f"set {path}: '{name}' is structural; reload with "
                                  f"spidersim.load(file, set={{'{path}': ...}})", block=block)
         user = {k: v for k, v in self.blocks[block].params.items()}
-        user[name] = value
+        user[name] = _python_bools(value)
         try:
             new = bl.cls.validate_params(user)
         except ParameterError as exc:       # the value, or its check against the others
