@@ -194,6 +194,46 @@ def test_damaged_result_npz_is_a_result_error(garbage):
         spidersim.Result.load(garbage)
 
 
+def _rewrite_meta(folder, change):
+    """Rewrite the metadata of ``folder/result.npz`` with ``change(meta)`` applied."""
+    import json
+    path = folder / "result.npz"
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(arrays["__meta__"].tobytes().decode("utf-8"))
+    change(meta)
+    arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)
+    np.savez(path, **arrays)
+
+
+@pytest.mark.parametrize("change, words", [
+    # raised a raw AttributeError ('list' object has no attribute 'items')
+    (lambda m: m.update(sizes=[1, 1]), "'sizes' must be a mapping, got a list of 2"),
+    # loaded: the column reshaped to (n, -1), a signal of the wrong shape
+    (lambda m: m["sizes"].update({"x.y": -1}),
+     "'sizes' must give each signal its number of columns (a whole number >= 0), got -1 "
+     "for 'x.y'"),
+    (lambda m: m["sizes"].update({"x.y": 1.5}), "got 1.5 for 'x.y'"),
+    (lambda m: m["sizes"].update({"x.y": True}), "got True for 'x.y'"),
+    (lambda m: m.pop("units"), "no 'units'"),
+    (lambda m: m.update(status=3), "'status' must be a text, got 3"),
+    (lambda m: m.update(events=[[0.0, "x"]]), "each event must be [t, block, event]"),
+    (lambda m: m.update(provenance=[]), "'provenance' must be a mapping"),
+])
+def test_result_with_malformed_metadata_is_a_result_error(r, tmp_path, change, words):
+    """A result.npz whose __meta__ is JSON but not what Result.save writes is a
+    ResultError naming the file and the problem; the file as saved loads unchanged."""
+    r.save(tmp_path)
+    assert np.array_equal(spidersim.Result.load(tmp_path)["x.y"], r["x.y"])
+    _rewrite_meta(tmp_path, change)
+    with pytest.raises(ResultError) as info:
+        spidersim.Result.load(tmp_path)
+    msg = str(info.value)
+    assert msg.startswith(f"Result.load: cannot read {tmp_path / 'result.npz'}: its "
+                          f"metadata (__meta__) is not one Result.save writes: ")
+    assert words in msg, msg
+
+
 def test_signal_error_is_a_key_error_too(r):
     """A missing signal stays a KeyError (code catching KeyError keeps working) and is a
     SpidersimError whose text is the message, not its repr."""
