@@ -194,6 +194,46 @@ def test_damaged_result_npz_is_a_result_error(garbage):
         spidersim.Result.load(garbage)
 
 
+def _rewrite_meta(folder, change):
+    """Rewrite the metadata of ``folder/result.npz`` with ``change(meta)`` applied."""
+    import json
+    path = folder / "result.npz"
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(arrays["__meta__"].tobytes().decode("utf-8"))
+    change(meta)
+    arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)
+    np.savez(path, **arrays)
+
+
+@pytest.mark.parametrize("change, words", [
+    # raised a raw AttributeError ('list' object has no attribute 'items')
+    (lambda m: m.update(sizes=[1, 1]), "'sizes' must be a mapping, got a list of 2"),
+    # loaded: the column reshaped to (n, -1), a signal of the wrong shape
+    (lambda m: m["sizes"].update({"x.y": -1}),
+     "'sizes' must give each signal its number of columns (a whole number >= 0), got -1 "
+     "for 'x.y'"),
+    (lambda m: m["sizes"].update({"x.y": 1.5}), "got 1.5 for 'x.y'"),
+    (lambda m: m["sizes"].update({"x.y": True}), "got True for 'x.y'"),
+    (lambda m: m.pop("units"), "no 'units'"),
+    (lambda m: m.update(status=3), "'status' must be a text, got 3"),
+    (lambda m: m.update(events=[[0.0, "x"]]), "each event must be [t, block, event]"),
+    (lambda m: m.update(provenance=[]), "'provenance' must be a mapping"),
+])
+def test_result_with_malformed_metadata_is_a_result_error(r, tmp_path, change, words):
+    """A result.npz whose __meta__ is JSON but not what Result.save writes is a
+    ResultError naming the file and the problem; the file as saved loads unchanged."""
+    r.save(tmp_path)
+    assert np.array_equal(spidersim.Result.load(tmp_path)["x.y"], r["x.y"])
+    _rewrite_meta(tmp_path, change)
+    with pytest.raises(ResultError) as info:
+        spidersim.Result.load(tmp_path)
+    msg = str(info.value)
+    assert msg.startswith(f"Result.load: cannot read {tmp_path / 'result.npz'}: its "
+                          f"metadata (__meta__) is not one Result.save writes: ")
+    assert words in msg, msg
+
+
 def test_signal_error_is_a_key_error_too(r):
     """A missing signal stays a KeyError (code catching KeyError keeps working) and is a
     SpidersimError whose text is the message, not its repr."""
@@ -218,6 +258,33 @@ def test_simulate_arguments_follow_the_simulation_section(d, key, value, line):
     if isinstance(value, list):      # a list is shown by its repr in the file, described here
         want = want.replace("[1]", "a list of 1 [1]")
     assert in_call.value.message == want
+
+
+@pytest.mark.parametrize("method", ["NDF", "LSODA"])
+def test_first_step_below_the_stall_step_is_refused(method):
+    """A first_step of 1e-300 s passed check, then the run stalled (NDF, LSODA: 500
+    consecutive steps shorter than 1e-10 s while the step grew): refused at its line by the
+    run's rule, first_step >= 1e-10 s; 1e-10 s itself runs to the closed form x(t) = c (1 -
+    exp(-k t))."""
+    text = LAG.replace("rtol: 1e-8", f"method: {method}, first_step: %s, rtol: 1e-8")
+    for tiny in ("1e-300", "9.99e-11"):
+        with pytest.raises(DiagramError, match=r"simulation\.first_step must be at least "
+                                               r"1e-10 s \(the solvers take 500 consecutive "
+                                               r"steps shorter than 1e-10 s as a stall\)") as e:
+            spidersim.loads(text % tiny)
+        assert e.value.line == 9
+    r = spidersim.loads(text % "1e-10").simulate(jit=False)
+    assert r["x.y"][-1] == pytest.approx(C * (1 - math.exp(-K * 0.5)), rel=1e-6)
+
+
+def test_simulate_t_end_below_the_shortest_run_is_refused(d):
+    """simulate(t_end=1e-9) is refused by the rule a command's t_end follows (one checker:
+    at least 1e-7 s, the shortest run), naming the argument; 1e-7 s runs."""
+    with pytest.raises(DiagramError, match=r": t_end must be at least 1e-07 s \(the shortest "
+                                           r"run: the solvers take steps shorter than 1e-10 s "
+                                           r"as a stall\), got 1e-09$"):
+        d.simulate(t_end=1e-9, jit=False)
+    assert d.simulate(t_end=1e-7, jit=False).t[-1] == 1e-7
 
 
 def test_valid_simulate_forms(d):
@@ -311,6 +378,14 @@ connections: [c.y -> sat.u, sat.y -> f.u]
                         "got None"),
     # named no block
     ("sat.lower", 100, "block 'sat': set sat.lower: lower (100.0) must be below upper (1.0)"),
+    # NumPy booleans were read as 1 (Python's True is refused): refused alike
+    *[("sat.lower", v, "block 'sat': set sat.lower: parameter 'lower' must be a number, got "
+                       f"a boolean ({shown}; write 1 or 0 if you mean a number)")
+      for v, shown in ((True, "True"), (np.True_, "True"), (np.array(False), "False"))],
+    *[("c.value", v, "block 'c': set c.value: parameter 'value' must be a number, got a "
+                     f"boolean ({shown}; write 1 or 0 if you mean a number)")
+      for v, shown in (([np.True_], "[True]"), (np.array([True]), "[True]"),
+                       (np.array([1.0, np.False_], dtype=object), "[1.0, False]"))],
 ])
 def test_set_says_what_is_wrong_with_its_target_or_value(path, value, words):
     """``Diagram.set`` changes block parameters only; each other target says what it is

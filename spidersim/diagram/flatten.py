@@ -23,6 +23,7 @@ from ..text import units as U
 from ..text.expr import ExprError, check_rectangular, evaluate
 from ..text.yamlio import file_problem
 from .spec import Address, DiagramSpec, parse_file
+from .units import related_names
 
 
 @dataclass
@@ -91,7 +92,9 @@ def _unit_factor(unit, decl, record):
 
     Without a declaration (a diagram or subsystem parameter) the value goes to coherent SI.
     For a parameter whose unit is inherited (``*`` or a rule, e.g. a Gain's ``k``) there is
-    no conversion: ``record(unit)`` keeps the unit for unit inference and None is returned.
+    no conversion: ``record(unit)`` keeps the unit for unit inference and None is returned
+    (:func:`_check_kept_units` then refuses one on a ``*`` parameter that no unit rule of
+    its block uses: TransferFunction ``num``, StateSpace ``A``).
 
     Raises
     ------
@@ -502,6 +505,9 @@ def _instantiate_block(level, bname, b, ov: BlockOverrides):
     except ParameterError as exc:
         exc.block = path
         raise
+    _check_kept_units(cls, params, punits, path, where,
+                      lambda n: (f"--set {level.prefix}{ov.own[n][0]}" if n in ov.own else
+                                 f"parameter '{n}'"))
     if path in flat.blocks:
         raise DiagramError(f"duplicate block path '{path}'", file=spec.file, line=b.line)
     if len(flat.blocks) >= limits.MAX_BLOCKS:
@@ -511,6 +517,31 @@ def _instantiate_block(level, bname, b, ov: BlockOverrides):
                            file=spec.file, line=b.line, block=path)
     flat.blocks[path] = Instance(path, cls, params, spec.file, b.line, dict(b.param_lines),
                                  {k: v for k, v in punits.items() if k in params})
+
+
+def _check_kept_units(cls, params, punits, path, where, what):
+    """A unit given with a parameter declared ``*`` (kept for unit inference, not
+    converted: see :func:`_unit_factor`) that no unit rule or relation of the block uses is
+    refused: it would be dropped, and the number used as written (a TransferFunction's
+    ``num: {value: [10], unit: percent}`` was 10, not 0.1). ``punits``: name -> unit text
+    kept; ``where(name)`` -> (file, line); ``what(name)`` starts the message (``parameter
+    'num'``, ``--set t.num``)."""
+    related = None
+    for name, unit in punits.items():
+        decl = cls.parameters.get(name)
+        if decl is None or cls.unit_of(decl, params) != U.ANY:
+            continue                      # a rule such as "@y": the unit joins the port's
+        related = related_names(cls, params) if related is None else related
+        if name in related:
+            continue
+        file, line = where(name)
+        if line is None:                  # a --set of a parameter the file leaves out
+            file, line = where(None)
+        raise ParameterError(
+            f"{what(name)}: {cls.type_name} keeps no unit for '{name}' (declared [*]: "
+            f"no port's unit depends on it), so [{unit}] would be dropped and the number "
+            f"used as written; give the plain number, converted by hand (10 percent is "
+            f"0.1, 5 mm is 0.005 in m)", file=file, line=line, block=path)
 
 
 class _LocalAddresses:

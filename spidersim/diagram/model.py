@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import DiagramError, ParameterError, SpidersimError, described
 from ..solver import CompiledSystem, integrate
 from ..solver.compiled import load_module
+from ..solver.events import MIN_SPAN, STALL_COUNT, STALL_STEP
 from ..solver.integrate import COMPILED, STIFF
 from ..solver.system import loop_compiled
 from .codegen import event_tables, generate
@@ -71,11 +72,32 @@ def check_rtol(rtol, what="simulation.rtol", file=None, line=None):
                            file=file, line=line)
 
 
-def sim_setting(key, v, what, file=None, line=None, text=True):
+#: the shortest ``t_end`` and ``first_step`` [s] of the solvers' rules: a run shorter than
+#: MIN_SPAN is refused by ``integrate``, and STALL_COUNT consecutive steps shorter than
+#: STALL_STEP are a stall (a first step of 1e-300 s grew too slowly: NDF and LSODA stalled)
+SHORTEST = {"t_end": (MIN_SPAN, f"the shortest run: the solvers take steps shorter than "
+                                f"{STALL_STEP:g} s as a stall"),
+            "first_step": (STALL_STEP, f"the solvers take {STALL_COUNT} consecutive steps "
+                                       f"shorter than {STALL_STEP:g} s as a stall")}
+
+
+def _check_shortest(key, val, what, file, line):
+    """A :class:`DiagramError` when ``val`` is below the shortest ``t_end`` or
+    ``first_step`` of :data:`SHORTEST`."""
+    lo, why = SHORTEST[key]
+    if val < lo:
+        raise DiagramError(f"{what} must be at least {lo:g} s ({why}), got {val:g}",
+                           file=file, line=line)
+
+
+def sim_setting(key, v, what, file=None, line=None, text=True, shortest=True):
     """A setting of the ``simulation`` section (``what`` names it in messages:
     ``simulation.t_end`` for the file, ``t_end`` for an argument of ``simulate``) checked
     and returned: ``method`` a name; the others (:data:`SIM_KEYS`) a finite number > 0 as a
-    float, ``rtol`` within :data:`RTOL_RANGE`. Booleans are refused (a YAML ``true`` is
+    float, ``rtol`` within :data:`RTOL_RANGE`, ``t_end`` and ``first_step`` at least their
+    :data:`SHORTEST` (1e-7 s, 1e-10 s) unless ``shortest`` is false (the file's ``t_end``,
+    a default that ``--t-end`` may replace: the run checks the one it uses). Booleans are
+    refused (a YAML ``true`` is
     not a time). With ``text`` (the file) a text is an expression (``2*0.5``); without it
     (Python arguments) a text, a list or an array is refused, so that nothing is read
     silently as something else, and ``max_step`` may be ``inf`` (no limit). Raises a
@@ -87,7 +109,8 @@ def sim_setting(key, v, what, file=None, line=None, text=True):
     if type(v) is float or type(v) is int:      # the common case, checked in a few ns
         val = float(v)
         if val > 0 and (math.isfinite(val) or (key == "max_step" and not text)) and (
-                key != "rtol" or RTOL_RANGE[0] <= val <= RTOL_RANGE[1]):
+                key != "rtol" or RTOL_RANGE[0] <= val <= RTOL_RANGE[1]) and (
+                not shortest or key not in SHORTEST or val >= SHORTEST[key][0]):
             return val                           # else the checks below say what is wrong
     from ..text.expr import ExprError, evaluate
 
@@ -115,7 +138,22 @@ def sim_setting(key, v, what, file=None, line=None, text=True):
                               if text else ""), file=file, line=line)
     if key == "rtol":
         check_rtol(val, what=what, file=file, line=line)
+    if shortest and key in SHORTEST:
+        _check_shortest(key, val, what, file, line)
     return val
+
+
+def _python_bools(value):
+    """``value`` with its NumPy booleans (``np.True_``, an array of dtype bool, one inside
+    a list, a tuple or an object array) as Python ones, so that the parameter checks refuse
+    them as they refuse ``True`` (NumPy's were read as 1 and 0); anything else unchanged."""
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "bO":
+        return _python_bools(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_python_bools(v) for v in value]
+    return value
 
 
 def _positive_setting(sec, k, default, scope, err):
@@ -201,7 +239,7 @@ class Diagram:
     # ------------------------------------------------------------------ set-up
     def _sim_value(self, key, v):
         return sim_setting(key, v, f"simulation.{key}", file=self.file,
-                           line=self.spec.simulation_lines.get(key))
+                           line=self.spec.simulation_lines.get(key), shortest=key != "t_end")
 
     def _param_array(self):
         p = np.zeros(self.layout.n_p)
@@ -324,7 +362,7 @@ class Diagram:
             raise ParameterError(f"set {path}: '{name}' is structural; reload with "
                                  f"spidersim.load(file, set={{'{path}': ...}})", block=block)
         user = {k: v for k, v in self.blocks[block].params.items()}
-        user[name] = value
+        user[name] = _python_bools(value)
         try:
             new = bl.cls.validate_params(user)
         except ParameterError as exc:       # the value, or its check against the others

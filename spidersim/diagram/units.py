@@ -112,6 +112,23 @@ def _declared(decl, params):
     return u(params) if callable(u) else u
 
 
+def related_names(cls, params) -> set:
+    """The names of block type ``cls`` (ports, states, real parameters) that a unit rule or
+    a unit relation of the block uses: ``k`` of a Gain (``y`` is ``@k*@u``). A unit given
+    with a parameter declared ``*`` takes part in unit inference only when its name is one
+    of them."""
+    names = _names(cls, params)
+    out = set()
+    for _kind, decl in names.values():
+        rule = _declared(decl, params)
+        if rule != U.ANY:
+            out.update(n for n, _p in U.rule_terms(rule)[0])
+    for _mode, target, sources in cls.unit_relations(params):
+        out.add(target)
+        out.update(sources)
+    return out
+
+
 def _describe(v):
     path, kind, name = v
     return f"{path}.{name}"
@@ -265,12 +282,9 @@ class _Problem:
         return out
 
 
-def _scale_of_number(unit):
-    """The factor of a compound unit that is a pure number (``rad/deg``: 57.3,
-    ``mN.m/(N.m)``: 0.001), else None (a unit of a dimension, a single unit such as ``deg``
-    or ``%``, or a factor of 1 such as ``rad/rad``)."""
-    if len(getattr(unit, "_units", {})) < 2:
-        return None
+def _pure_factor(unit):
+    """The factor of ``unit`` to a pure number when it is one and the factor is not 1
+    (``rad/deg``: 57.3), else None."""
     try:
         f = U.factor(unit, U.DIMENSIONLESS)
     except U.UnitError:
@@ -278,18 +292,64 @@ def _scale_of_number(unit):
     return None if abs(f - 1.0) <= 1e-12 else f
 
 
+def _pure_part(unit):
+    """The part of ``unit`` that is a pure number: its pure-number factors (``rad``,
+    ``deg``, ``%``) and each group of factors of one dimension whose powers cancel
+    (``mN/N``); ``rad/(s.deg)`` -> ``rad/deg``, ``N/%`` -> ``1/%``, ``mm/s`` -> ``1``."""
+    part, groups = U.DIMENSIONLESS, {}
+    for u, p in U.terms(unit):
+        if u.dimensionality == U.DIMENSIONLESS.dimensionality:
+            part = part * u ** p
+        else:
+            groups.setdefault(u.dimensionality, []).append((u, p))
+    for members in groups.values():
+        if len(members) > 1 and sum(p for _, p in members) == 0:
+            for u, p in members:
+                part = part * u ** p
+    return part
+
+
+def _scale_of_number(unit):
+    """``(part, factor)``: the scale by a pure number that ``unit`` carries without a user
+    having written it, else None.
+
+    Two shapes: a compound unit that is a pure number (``rad/deg``: 57.3, ``mN.m/(N.m)``:
+    0.001; the part is the whole unit), and a unit *per* a scaled pure number, whose
+    pure-number part (:func:`_pure_part`) has a factor in the denominator and is not 1
+    (``rad/(s.deg)``: ``rad/deg`` = 57.3, ``N/%``: ``1/%`` = 100). Not: a unit of a
+    dimension (``mm/s``), a single unit such as ``deg`` or ``%``, a pure number of factor 1
+    (``rad/rad``, ``rad/s``), or a scaled pure number that only multiplies (``deg/s``, the
+    rate of an angle in degrees)."""
+    if len(U.terms(unit)) >= 2:
+        f = _pure_factor(unit)
+        if f is not None:
+            return unit, f
+    part = _pure_part(unit)
+    if any(p < 0 for _, p in U.terms(part)):
+        f = _pure_factor(part)
+        if f is not None:
+            return part, f
+    return None
+
+
 def _refuse_scaled_number(v, unit, target, rule, inst):
-    """A free variable may not be inferred as a scaled pure number: a Constant 1 before a
-    Gain of 90 deg into a port in rad was given [rad/deg] and the port got 90 rad (the
-    user's 1 read as 1 rad/deg = 57.3) where pi/2 was meant."""
-    f = _scale_of_number(unit)
-    if f is not None:
-        raise UnitMismatchError(
-            f"{_describe(v)} would have to be [{U.text(unit)}], a pure number scaled by "
-            f"{f:.6g}, for '{target[2]} = {rule}' of block '{inst.path}' to hold: give its "
-            f"unit explicitly ({{value: ..., unit: ...}}), or the other terms in matching "
-            f"units (e.g. an angle gain in rad)", file=inst.file, line=inst.line,
-            block=inst.path)
+    """A free variable may not be inferred in a unit scaled by a pure number: a Constant 1
+    before a Gain of 90 deg into a port in rad was given [rad/deg] and the port got 90 rad
+    (the user's 1 read as 1 rad/deg = 57.3) where pi/2 was meant; into a port in rad/s it
+    was given [rad/(s.deg)] and a Gain of 50 % into a force gave the Constant [N/%] (its 1
+    read as 100 N, the force 50 N where 0.5 N was meant)."""
+    found = _scale_of_number(unit)
+    if found is None:
+        return
+    part, f = found
+    what = (f"a pure number scaled by {f:.6g}" if part is unit else
+            f"a unit per a scaled pure number ([{U.text(part)}] = {f:.6g})")
+    raise UnitMismatchError(
+        f"{_describe(v)} would have to be [{U.text(unit)}], {what}, for "
+        f"'{target[2]} = {rule}' of block '{inst.path}' to hold: give its unit explicitly "
+        f"({{value: ..., unit: ...}}), or the other terms in matching units (an angle gain "
+        f"in rad, a ratio as a plain number: 0.5, not 50 %)", file=inst.file,
+        line=inst.line, block=inst.path)
 
 
 def infer_units(flat) -> dict:

@@ -268,7 +268,8 @@ class Result:
 
         A :class:`~spidersim.errors.ResultError` when ``folder`` is not a folder path, does
         not exist, is a file, holds no ``result.npz``, or that file is not one
-        :meth:`save` wrote (damaged, truncated, another NPZ)."""
+        :meth:`save` wrote (damaged, truncated, another NPZ, metadata of other keys, types
+        or sizes: :func:`_meta_problem`)."""
         folder = _folder_name(folder, "Result.load: folder")
         path = os.path.join(folder, "result.npz")
         if not os.path.isdir(folder):
@@ -292,6 +293,10 @@ class Result:
             raw = z["__meta__"]         # UTF-8 bytes; a NumPy string in older files
             meta = json.loads(raw.tobytes().decode("utf-8") if raw.dtype == np.uint8
                               else str(raw))
+            problem = _meta_problem(meta)
+            if problem:
+                raise ResultError(f"Result.load: cannot read {path}: its metadata (__meta__) "
+                                  f"is not one Result.save writes: {problem}")
             t = z["t"]
             cols, slices, k = [], {}, 0
             for name, size in meta["sizes"].items():
@@ -344,6 +349,36 @@ class Result:
     def to_json(self):
         return json.dumps({"status": self.status, "message": self.message,
                            "stats": self.stats}, default=float, indent=1)
+
+
+#: the metadata keys :meth:`Result.load` needs, with the JSON type each must have
+META_TYPES = {"sizes": dict, "units": dict, "events": list, "stats": dict, "status": str,
+              "message": str}
+
+
+def _meta_problem(meta):
+    """What is wrong with the metadata of a ``result.npz`` (its keys, their types, the
+    signal sizes: whole numbers >= 0), or '' when nothing is."""
+    if not isinstance(meta, dict):
+        return f"a mapping was expected, got {described(meta)}"
+    for key, kind in META_TYPES.items():
+        if key not in meta:
+            return f"no '{key}'"
+        if not isinstance(meta[key], kind):
+            return f"'{key}' must be a {_JSON_NAMES[kind]}, got {described(meta[key])}"
+    if not isinstance(meta.get("provenance", {}), dict):
+        return f"'provenance' must be a mapping, got {described(meta['provenance'])}"
+    for name, size in meta["sizes"].items():
+        if isinstance(size, bool) or not isinstance(size, int) or size < 0:
+            return (f"'sizes' must give each signal its number of columns (a whole number "
+                    f">= 0), got {size!r} for '{name}'")
+    for e in meta["events"]:
+        if not (isinstance(e, list) and len(e) == 3):
+            return f"each event must be [t, block, event], got {str(e)[:60]}"
+    return ""
+
+
+_JSON_NAMES = {dict: "mapping", list: "list", str: "text"}
 
 
 #: rows of the CSV table converted at a time

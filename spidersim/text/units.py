@@ -300,6 +300,12 @@ def check_no_offset(unit: pint.Unit, why: str) -> None:
                         f"cannot carry; give the value in K")
 
 
+def terms(unit: pint.Unit) -> list:
+    """The factors of ``unit`` as ``(single unit, power)`` pairs: ``N.m/deg`` ->
+    ``[(N, 1), (m, 1), (deg, -1)]``."""
+    return [(_REGISTRY.Unit(name), power) for name, power in unit._units.items()]
+
+
 def base(unit: pint.Unit) -> pint.Unit:
     """The coherent SI unit of ``unit`` (``mOhm`` -> kg.m2/(A2.s3), ``deg`` -> ``rad``)."""
     return _REGISTRY.Quantity(1.0, unit).to_base_units().units

@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+import yaml
 
 import spidersim
 from spidersim.diagram.units import UNKNOWN, UnitMismatchError
@@ -246,3 +247,138 @@ def test_a_free_signal_is_not_inferred_as_a_scaled_number():
     r = spidersim.loads(_GAIN_DEG % (math.pi / 2, "rad", res, "res.theta")).simulate(
         jit=False)
     assert r["res.theta_m"][-1] == pytest.approx(math.pi / 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("text, part, f", [
+    ("rad/deg", "rad/deg", 180 / math.pi),          # a compound pure number (the whole unit)
+    ("mN.m/(N.m)", "mN/N", 1e-3),
+    ("rad/(s.deg)", "rad/deg", 180 / math.pi),      # a unit per a scaled pure number
+    ("N/percent", "1/percent", 100.0),
+    ("1/percent", "1/percent", 100.0),
+    ("N.m/deg", "1/deg", 180 / math.pi),
+    ("mN.s/N", "mN/N", 1e-3),                       # one dimension cancelling, not 1
+])
+def test_scale_of_number_finds_a_residual_scale(text, part, f):
+    from spidersim.diagram.units import _scale_of_number
+    got = _scale_of_number(U.parse(text))
+    assert got is not None and U.same(got[0], U.parse(part))
+    assert got[1] == pytest.approx(f, rel=1e-12)
+
+
+@pytest.mark.parametrize("text", ["deg", "percent", "deg/s", "deg.s", "mm/s", "rad/s",
+                                  "rad/rad", "N.m/rad", "rpm", "Hz", "km/h", "1", "V/A"])
+def test_scale_of_number_leaves_units_of_their_own(text):
+    """A single unit (deg, %), a scaled pure number that only multiplies (deg/s: the rate
+    of an angle in degrees, what an Integrator or a derivative of one gives), a unit of a
+    dimension (mm/s), a pure number of factor 1 (rad/s): nothing to refuse."""
+    from spidersim.diagram.units import _scale_of_number
+    assert _scale_of_number(U.parse(text)) is None
+
+
+_GAIN_INTO = """
+blocks:
+  one: {type: Constant, value: 1}
+  k: {type: Gain, k: %s}
+  %s
+connections:
+  - one.y -> k.u
+  - k.y -> %s
+simulation: {t_end: 0.1}
+"""
+
+
+def test_a_free_signal_is_not_inferred_per_a_scaled_number():
+    """A Constant 1 before a Gain of 90 deg into a Resolver's w [rad/s] was inferred
+    [rad/(s.deg)] and w read 90 rad/s, exit 0; a Gain of 50 % into a force made the
+    Constant [N/%] and the force 50 N where 0.5 N was meant (a hostile review, session 14).
+    Both refused at the Gain's line naming the scale; a gain in rad, or 0.5, gives what was
+    meant."""
+    res = "res: {type: Resolver, bits: 0}\n  th: {type: Constant, value: 0}"
+    rate = _GAIN_INTO.replace("  - k.y", "  - th.y -> res.theta\n  - k.y")
+    with pytest.raises(UnitMismatchError, match=r"k\.u would have to be \[rad/\(s\.deg\)\], a "
+                                                r"unit per a scaled pure number "
+                                                r"\(\[rad/deg\] = 57\.2958\)") as e:
+        spidersim.loads(rate % ("{value: 90, unit: deg}", res, "res.w"))
+    assert e.value.line == 4 and e.value.block == "k"
+    r = spidersim.loads(rate % (f"{{value: {math.pi / 2}, unit: rad}}", res, "res.w")).simulate(
+        jit=False)
+    assert r["res.w_m"][-1] == pytest.approx(math.pi / 2, rel=1e-12)
+    mass = "m: {type: MassOnStop, g: 0, x0: 0, x_stop: -1}"
+    with pytest.raises(UnitMismatchError, match=r"k\.u would have to be \[N/%\], a unit per "
+                                                r"a scaled pure number \(\[1/%\] = 100\)"):
+        spidersim.loads(_GAIN_INTO % ("{value: 50, unit: percent}", mass, "m.f"))
+    d = spidersim.loads(_GAIN_INTO % (0.5, mass, "m.f"))
+    r = d.simulate(t_end=1.0, jit=False)
+    assert r["m.x"][-1] == pytest.approx(0.5 * 0.5 * 1.0 ** 2, rel=1e-6)    # x = f t^2 / 2m
+
+
+def test_a_scaled_number_that_multiplies_is_still_inferred():
+    """A Sine of amplitude 10 deg integrated is in [deg.s], and a free Gain after it keeps
+    the unit: a signal measured in degrees is not refused, only a unit *per* a scaled
+    number (which a gain in deg or % makes of the free signal before it)."""
+    d = spidersim.loads("blocks:\n  s: {type: Sine, amplitude: {value: 10, unit: deg}}\n"
+                        "  i: {type: Integrator}\n"
+                        "connections: [s.y -> i.u]\n")
+    assert U.same(U.parse(d.units[("i", "out", "y")]), U.parse("deg.s"))
+
+
+#: block type and its other parameters, wire, parameter declared [*], a value for it
+_KEPT_CASES = [
+    ("TransferFunction, den: [1, 10]", "c.y[0] -> t.u", "num", "[10]"),
+    ("TransferFunction, num: [10]", "c.y[0] -> t.u", "den", "[1, 10]"),
+    ("DiscreteTransferFunction, den: [1, -0.5], Ts: 0.1", "c.y[0] -> t.u", "num", "[1]"),
+    ("DiscreteTransferFunction, num: [1], Ts: 0.1", "c.y[0] -> t.u", "den", "[1, -0.5]"),
+    *[("StateSpace, " + ", ".join(f"{q}: {v}" for q, v in (("A", "[[-1]]"), ("B", "[[1]]"),
+                                                           ("C", "[[1]]"), ("D", "[[0]]"),
+                                                           ("x0", "[0]")) if q != p),
+       "c.y[0] -> t.u", p, dict(A="[[-1]]", B="[[1]]", C="[[1]]", D="[[0]]", x0="[0]")[p])
+      for p in ("A", "B", "C", "D", "x0")],
+    ("WrenchSensor", "c.y -> t.wrench", "bias", "[0, 0, 1, 0, 0, 0]"),
+]
+_KEPT = ("blocks:\n  c: {type: Constant, value: [0, 0, 0, 0, 0, 0]}\n  t: {type: %s}\n"
+         "connections:\n  - %s\n")
+
+
+@pytest.mark.parametrize("unit", ["percent", "m/km", "kg", "'1'"])
+@pytest.mark.parametrize("typ, wire, name, value", _KEPT_CASES)
+def test_a_unit_no_rule_uses_is_refused(typ, wire, name, value, unit):
+    """A unit given with a parameter declared [*] that no unit rule of its block uses was
+    kept and dropped: a TransferFunction's num {value: [10], unit: percent} ran as 10 (0.1
+    meant); m/km, kg passed too. Refused at the parameter's line (from --set too), naming
+    the block, the parameter and the unit, even a unit of factor 1; the plain number is
+    accepted."""
+    with pytest.raises(ParameterError) as e:
+        spidersim.loads(_KEPT % (f"{typ}, {name}: {{value: {value}, unit: {unit}}}", wire))
+    msg = str(e.value)
+    assert e.value.line == 3 and e.value.block == "t"
+    assert (f"parameter '{name}': {typ.split(',')[0]} keeps no unit for '{name}'" in msg
+            and f"[{unit.strip(chr(39))}] would be dropped" in msg)
+    plain = _KEPT % (f"{typ}, {name}: {value}", wire)
+    with pytest.raises(ParameterError, match=f"--set t.{name}.*keeps no unit"):
+        spidersim.loads(plain, set={f"t.{name}": {"value": yaml.safe_load(value),
+                                                  "unit": unit.strip("'")}})
+    spidersim.loads(plain)
+
+
+def test_a_unit_a_rule_uses_is_kept():
+    """Where a rule of the block uses the parameter (a Gain's y = k u) its unit is kept
+    for inference, as before: k in V/A makes the output volts from amperes."""
+    d = spidersim.loads("blocks:\n  c: {type: Constant, value: {value: 2, unit: A}}\n"
+                        "  g: {type: Gain, k: {value: 4, unit: V/A}}\n"
+                        "connections: [c.y -> g.u]\n")
+    assert d.units[("g", "out", "y")] == "V"
+    assert d.blocks["g"].params["k"] == 4.0
+
+
+def test_a_gain_per_degree_is_inferred_only_when_given():
+    """A PI whose error is in deg and output in V: kp inferred [V/deg] is refused (its
+    plain 5 would be read per degree), kp given in V/deg is kept."""
+    text = ("blocks:\n  s: {type: Sine, amplitude: {value: 10, unit: deg}}\n"
+            "  c: {type: PI, kp: %s, ki: {value: 1, unit: V/(deg.s)}}\n  m: {type: DCMotor}\n"
+            "connections: [s.y -> c.e, c.y -> m.v]\n")
+    with pytest.raises(UnitMismatchError, match=r"c\.kp would have to be \[V/deg\], a unit "
+                                                r"per a scaled pure number \(\[1/deg\] = "
+                                                r"57\.2958\)"):
+        spidersim.loads(text % 5)
+    d = spidersim.loads(text % "{value: 5, unit: V/deg}")
+    assert d.units[("c", "param", "kp")] == "V/deg"

@@ -289,3 +289,16 @@ def test_request_numbers_refuse_booleans_and_texts(body):
     ok = RunRequest.model_validate_json('{"model": "servo", "t_end": 2, "command": {"kind": '
                                         '"table", "time": [0, 1.5], "value": [0, 1]}}')
     assert ok.t_end == 2.0 and ok.command.time == [0.0, 1.5]
+
+
+@pytest.mark.parametrize("t_end", [1e-300, 5e-324, 9.9e-8])
+def test_command_t_end_shorter_than_the_shortest_run_is_refused(t_end):
+    """A command's t_end below the solvers' shortest run (1e-7 s) passed check and failed
+    when run: refused by the rule of the file's simulation.t_end, at its line; 1e-7 s is
+    accepted."""
+    spec = SimpleNamespace(file="m.yaml")
+    with pytest.raises(ParameterError, match=r"command 'c': t_end must be at least 1e-07 s "
+                                             r"\(the shortest run") as ei:
+        C._command_entry("c", {"t_end": t_end}, spec, 5)
+    assert ei.value.file == "m.yaml" and ei.value.line == 5
+    assert C._command_entry("c", {"t_end": 1e-7}, spec, 5)["t_end"] == 1e-7
