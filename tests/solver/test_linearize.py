@@ -648,3 +648,47 @@ def test_peak_gain_at_the_ends_of_the_axis(num, den, peak, w_peak):
     from spidersim.solver.linearize import peak_gain
     pk, w = peak_gain(control.ss(control.tf(num, den)))
     assert pk == pytest.approx(peak, rel=1e-12) and w == w_peak
+
+
+# ------------------------------------------------------- consumers of another slice
+SLICES = """
+name: slices
+blocks:
+  c: {type: Constant, value: [1, 2]}
+  g: {type: Gain, k: 3}
+  h: {type: Gain, k: 5}
+  i: {type: Integrator, x0: [0, 0]}
+  j: {type: Integrator}
+connections: [c.y -> g.u, g.y -> i.u, "c.y[1] -> h.u", h.y -> j.u]
+"""
+
+
+def test_input_reaches_consumers_of_any_overlapping_slice():
+    # g reads all of c.y, h only c.y[1]: each element reaches exactly its readers
+    d = spidersim.loads(SLICES)
+    D = np.asarray(d.linearize(["c.y[0]"], ["g.y", "h.y"], jit=False).D)
+    np.testing.assert_allclose(D, [[3.0], [0.0], [0.0]], atol=1e-9)
+    D = np.asarray(d.linearize(["c.y"], ["g.y", "h.y"], jit=False).D)
+    np.testing.assert_allclose(D, [[3.0, 0.0], [0.0, 3.0], [0.0, 5.0]], atol=1e-9)
+    D = np.asarray(d.linearize(["c.y[0]", "c.y[1]"], ["g.y", "h.y"], jit=False).D)
+    np.testing.assert_allclose(D, [[3.0, 0.0], [0.0, 3.0], [0.0, 5.0]], atol=1e-9)
+
+
+VECTOR_LOOP = """
+name: vloop
+blocks:
+  r: {type: Constant, value: [1, 1]}
+  e: {type: Sum, signs: "+-"}
+  g: {type: Gain, k: 2}
+  x: {type: Integrator, x0: [0, 0]}
+connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
+"""
+
+
+def test_opening_one_element_of_a_signal_read_whole():
+    # e reads all of x.y: opening x.y[0] cuts element 0's loop only
+    d = spidersim.loads(VECTOR_LOOP)
+    sys = d.linearize(["r.y"], ["x.y"], open=["x.y[0]"], jit=False)
+    np.testing.assert_allclose(np.asarray(sys.A), np.diag([0.0, -2.0]), atol=1e-9)
+    loop = d.loop_transfer("x.y[0]", jit=False)
+    _assert_same_response(loop, control.ss(2 / S))
