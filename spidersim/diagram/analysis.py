@@ -429,9 +429,8 @@ class Linearizer:
             sys_.p[a:b] = u[k:k + b - a]
             k += b - a
         xdot = sys_.rhs(self.t, x)
-        y = np.concatenate([(sys_.sig if arr == "sig" else x)[a:b]
-                            for name, arr, a, b in self.out_slices])
-        return xdot, y
+        y = [(sys_.sig if arr == "sig" else x)[a:b] for name, arr, a, b in self.out_slices]
+        return xdot, (np.concatenate(y) if y else np.zeros(0))
 
     def state_space(self):
         import control
@@ -649,6 +648,18 @@ def _check_trim_residuals(d, res, resid, sol, tol):
                             + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
 
 
+def _check_trim_start(d, res, labels, given):
+    """The residuals ``res`` (named by ``labels``) at trim's starting point are finite, else
+    an :class:`AnalysisError` naming the first non-finite ones: the solver cannot start
+    from there (``given``: the start is the caller's ``x0``, else the initial state)."""
+    bad = [f"{k} = {v:g}" for k, v in zip(labels, res) if not math.isfinite(v)]
+    if bad:
+        start = "the given x0" if given else "the initial state"
+        raise AnalysisError(f"trim cannot start from {start}: the residuals there are not "
+                            f"finite ({', '.join(bad[:6])}); give an x0 of moderate values",
+                            file=d.file)
+
+
 def _named_inputs(lin, u):
     """The free inputs' values ``u`` by name: a float for a scalar, an array otherwise."""
     inputs = {}
@@ -701,10 +712,11 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
         xdot, y = lin.evaluate(x, u)
         return np.concatenate((xdot[rows], y - want))
 
-    sol = least_squares(residual, np.concatenate((x_start, np.zeros(nu))), xtol=1e-15,
-                        ftol=1e-15, gtol=1e-15, max_nfev=2000)
     labels = [f"d/dt {names[i]}" for i in rows] + [
         nm for n in outs for nm in _channel_names(n, np.size(targets[n]))]
+    z0 = np.concatenate((x_start, np.zeros(nu)))
+    _check_trim_start(d, residual(z0), labels, x0 is not None)
+    sol = least_squares(residual, z0, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
     res = residual(sol.x)
     resid = dict(zip(labels, res))
     _check_trim_residuals(d, res, resid, sol, tol)

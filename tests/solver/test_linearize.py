@@ -692,3 +692,30 @@ def test_opening_one_element_of_a_signal_read_whole():
     np.testing.assert_allclose(np.asarray(sys.A), np.diag([0.0, -2.0]), atol=1e-9)
     loop = d.loop_transfer("x.y[0]", jit=False)
     _assert_same_response(loop, control.ss(2 / S))
+
+
+LAG = """
+name: lag
+blocks:
+  r: {type: Constant, value: 2}
+  e: {type: Sum, signs: "+-"}
+  g: {type: Gain, k: 4}
+  x: {type: Integrator}
+connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
+"""
+
+
+def test_trim_with_free_inputs_and_no_targets():
+    # d/dt x = 4 (r + u - x) = 0: an equilibrium x = 2 + u (was a raw ValueError: no
+    # targets, so no outputs to evaluate)
+    op = spidersim.loads(LAG).trim(free_inputs=["r.y"], jit=False)
+    assert op.x[0] == pytest.approx(2.0 + op.inputs["r.y"], abs=1e-9)
+    assert op.residuals == {"d/dt x.y": pytest.approx(0.0, abs=1e-9)}
+
+
+def test_trim_from_a_start_with_non_finite_residuals_is_named():
+    # sq.y = x^2 overflows at x0 = 1e308 (was SciPy's raw ValueError)
+    d = spidersim.loads(CONST_INTO_INTEGRATOR)
+    with pytest.raises(AnalysisError, match=r"trim cannot start from the given x0: the "
+                       r"residuals there are not finite \(sq.y = inf\)"):
+        d.trim(targets={"sq.y": 1.0}, derivatives=[], x0=[1e308], jit=False)
