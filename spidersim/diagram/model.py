@@ -266,6 +266,7 @@ class Diagram:
             raise err(f"'signal' must be a signal name 'block.port', got {found(signal)}",
                       "signal")
         if signal in self.logged_sizes():
+            self._check_microgravity_unit(signal, err)
             return
         known = {r[0] for r in self._signal_table()}
         if signal in known:
@@ -274,6 +275,16 @@ class Diagram:
         near = difflib.get_close_matches(str(signal), sorted(known), n=3)
         hint = f"; did you mean {', '.join(near)}?" if near else ""
         raise err(f"no signal '{signal}'{hint}", "signal")
+
+    def _check_microgravity_unit(self, signal, err):
+        """The microgravity ``signal`` is a force (any force unit, converted to N by the
+        assessment; a signal with no stated unit is taken to be in N)."""
+        from ..microgravity import newtons_per_unit
+        unit = next((r[4] for r in self._signal_table() if r[0] == signal), None)
+        try:
+            newtons_per_unit(unit)
+        except ValueError as exc:
+            raise err(f"signal '{signal}': {exc}", "signal") from None
 
     def logged_sizes(self):
         """Logged signals (what a run's result holds) -> number of values of each."""
