@@ -287,22 +287,45 @@ def time_plot(result, spec, path):
     return path
 
 
+#: the fewest samples a spectrum window may hold (fewer give a handful of bins, not a
+#: spectrum)
+MIN_SPECTRUM_SAMPLES = 8
+
+
+def _too_few_samples(lo, hi, n, dt=None):
+    """The message for a spectrum window ``[lo, hi]`` holding ``n`` samples (every ``dt``)."""
+    every = f" (one every {dt:g} s)" if dt else ""
+    return (f"the spectrum window [{lo:g}, {hi:g}] s holds {n} sample(s){every}; a spectrum "
+            f"needs at least {MIN_SPECTRUM_SAMPLES}: widen t_min..t_max or shorten "
+            f"simulation.output_interval")
+
+
+def spectrum_window_problem(t_min, t_max, t_end, dt):
+    """The :func:`_too_few_samples` message when the window ``[t_min, t_max]`` (None: the
+    run's start or end ``t_end``) of a run sampled every ``dt`` from 0 holds fewer than
+    :data:`MIN_SPECTRUM_SAMPLES` samples; None when it holds enough."""
+    lo = 0.0 if t_min is None else max(float(t_min), 0.0)
+    hi = float(t_end) if t_max is None else min(float(t_max), float(t_end))
+    n = max(math.floor(hi / dt + 1e-9) - math.ceil(lo / dt - 1e-9) + 1, 0)
+    return _too_few_samples(lo, hi, n, dt) if n < MIN_SPECTRUM_SAMPLES else None
+
+
 def amplitude_spectrum(t, y, t_min=None, t_max=None, resample=False):
     """``(f [Hz], amplitude)`` of ``y(t)`` over the window (see the module docstring).
 
     The samples in the window must be uniform (a last row off the grid is dropped); a record
     that is not raises :class:`~spidersim.sampling.NonUniformRecord` unless ``resample=True``
-    (linear interpolation at the median step: right only for dense points)."""
+    (linear interpolation at the median step: right only for dense points). A window holding
+    fewer than :data:`MIN_SPECTRUM_SAMPLES` samples raises ValueError naming the window and
+    the count (it used to fall back to the whole record silently)."""
     from .sampling import uniform_window
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     lo = t[0] if t_min is None else t_min
     hi = t[-1] if t_max is None else t_max
-    sel = (t >= lo) & (t <= hi)
-    if sel.sum() < 8:               # window outside a (short) run: use what there is
-        lo, hi = t[0], t[-1]
-    if len(t) < 2:
-        return np.zeros(1), np.zeros(1)
+    n = int(((t >= lo) & (t <= hi)).sum())
+    if n < MIN_SPECTRUM_SAMPLES:
+        raise ValueError(_too_few_samples(lo, hi, n))
     dt, yu = uniform_window(t, y, lo, hi, resample=resample)
     n = len(yu)
     yu = yu - yu.mean()
@@ -401,7 +424,12 @@ def spectrum_plot(result, spec, path):
             traces += [(f"{s}[{i}]", y[:, i]) for i in range(y.shape[1])]
     peaks = []            # (amplitude, frequency, x, colour) of every trace's local maxima
     for label, y in traces:
-        f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
+        try:
+            f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
+        except ValueError as exc:         # a run cut short (--t-end) before the window
+            ax.text(0.5, 0.5, f"no spectrum: {exc}", ha="center", va="center", wrap=True,
+                    transform=ax.transAxes)
+            break
         sel = f <= f_max if f_max else np.ones_like(f, bool)
         f, a = f[sel], a[sel]
         unit = result.units.get(label.split('[')[0], '1')
@@ -416,7 +444,8 @@ def spectrum_plot(result, spec, path):
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("amplitude")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small")
+    if ax.lines:
+        ax.legend(fontsize="small")
     window = f"{spec.get('t_min', result.t[0]):g}-{spec.get('t_max', result.t[-1]):g} s"
     ax.set_title(f"{spec.get('title', 'Spectrum')} (Hann window, {window})")
     fig.tight_layout()

@@ -197,6 +197,7 @@ class Diagram:
         self._idle = {}
         self._log = self._log_spec(spec.log)
         self.microgravity = self._microgravity_spec(spec.microgravity)
+        self._check_spectrum_windows(spec)
 
     # ------------------------------------------------------------------ set-up
     def _sim_value(self, key, v):
@@ -232,6 +233,26 @@ class Diagram:
     def signals(self):
         """Names of every signal that can be logged."""
         return [r[0] for r in self._signal_table()]
+
+    def _check_spectrum_windows(self, spec):
+        """A spectrum plot's window holds enough samples of the run's output grid (see
+        :func:`spidersim.plots.spectrum_window_problem`); a :class:`DiagramError` at the
+        entry's line naming the window and the count. Entries whose window or grid is not
+        a number are left to the plot checks."""
+        from ..plots import spectrum_window_problem
+        dt, t_end = self.simulation.get("output_interval"), self.simulation.get("t_end")
+        if not _is_number(dt) or not _is_number(t_end) or not dt > 0:
+            return
+        lines = getattr(spec.data.get("plots") if hasattr(spec.data, "get") else None,
+                        "lines", None) or []
+        for k, p in enumerate(spec.plots):
+            if not isinstance(p, dict) or p.get("kind") != "spectrum" or not all(
+                    p.get(w) is None or _is_number(p.get(w)) for w in ("t_min", "t_max")):
+                continue
+            problem = spectrum_window_problem(p.get("t_min"), p.get("t_max"), t_end, dt)
+            if problem:
+                raise DiagramError(f"plots[{k}]: {problem}", file=self.file,
+                                   line=lines[k] if k < len(lines) else None)
 
     def _microgravity_spec(self, sec):
         """The ``microgravity`` section checked: ``{signal, mass, window, f_min, f_max}``
@@ -749,3 +770,8 @@ def loads(text, set=None, file="<string>") -> Diagram:
                            f"{described(text)}{hint}")
     file, overrides = _file_name(file, "loads: file"), _overrides(set, "loads")
     return Diagram(parse_text(text, file), overrides)
+
+
+def _is_number(v):
+    """A real number that is not a bool."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
