@@ -82,6 +82,19 @@ def signal_values(result, s):
 PLOT_EXTENSIONS = (".png", ".svg", ".pdf")
 
 
+#: plot file names a run writes itself (the microgravity assessment's plot): a plot's
+#: ``file`` may not take them; a plot whose title gives one is renamed (``_<k>``)
+RESERVED_PLOT_FILES = ("microgravity.png",)
+
+
+def _check_reserved_file(name, what, file=None, line=None):
+    """A plot's ``file`` is not one of :data:`RESERVED_PLOT_FILES` (the assessment's plot
+    overwrote it, and the run listed one file twice); raise DiagramError."""
+    if isinstance(name, str) and name.lower() in RESERVED_PLOT_FILES:
+        raise DiagramError(f"{what}: 'file' {name!r} is reserved for the microgravity "
+                           f"assessment's plot; choose another name", file=file, line=line)
+
+
 def check_plot_file(name, kind, what, file=None, line=None):
     """A plot's ``file:`` must be a bare file name (no folder, no ``..``) with an extension
     matplotlib writes (.png, .svg, .pdf; .gif for animations); raise DiagramError."""
@@ -227,6 +240,7 @@ def check_plot_entry(p, k, signals, file=None, line=None):
     kind = _check_plot_keys(p, k, file, line)
     if "file" in p:
         check_plot_file(p["file"], kind, f"plots[{k}]", file, _key_line(p, "file", line))
+        _check_reserved_file(p["file"], f"plots[{k}]", file, _key_line(p, "file", line))
     _check_plot_values(p, k, file, line)
     sigs = p.get("signals")
     if not isinstance(sigs, list) or not sigs:
@@ -458,7 +472,7 @@ def make_plots(result, plots, folder):
     """Draw every plot of ``plots`` into ``folder``; return the written paths."""
     os.makedirs(folder, exist_ok=True)
     written = []
-    used = set()
+    used = set(RESERVED_PLOT_FILES)     # a title 'Microgravity' is renamed microgravity_<k>
     for k, spec in enumerate(plots):
         kind = spec.get("kind", "time")
         ext = ".gif" if kind == "animation" else ".png"
