@@ -234,6 +234,34 @@ def _check_plot_signal(s, k, signals, file, line):
                            f"'{name}' has {size} element(s)", file=file, line=line)
 
 
+#: most lines (and legend entries) one time or spectrum plot draws: one per element of
+#: each signal (a 2000-element vector drew 2000 lines and legend entries in 16 s)
+MAX_PLOT_LINES = 64
+
+
+def _line_count(sigs, sizes):
+    """Lines a plot of ``sigs`` draws when ``sizes`` maps logged names to their number of
+    values: one per element (``name[i]`` is one); names of unknown size count as one."""
+    n = 0
+    for s in sigs:
+        name, idx = split_signal(s)
+        n += 1 if idx is not None else int(_logged_size(sizes, name) or 1)
+    return n
+
+
+def check_line_count(sigs, sizes, what, file=None, line=None):
+    """A time or spectrum plot of ``sigs`` draws at most :data:`MAX_PLOT_LINES` lines;
+    raise DiagramError naming the count and the largest signal otherwise."""
+    n = _line_count(sigs, sizes)
+    if n <= MAX_PLOT_LINES:
+        return
+    big = max(sigs, key=lambda s: _line_count([s], sizes))
+    raise DiagramError(f"{what}: the plot would draw {n} lines, one per element ('{big}' "
+                       f"has {_line_count([big], sizes)}); at most {MAX_PLOT_LINES}: plot "
+                       f"single elements ('{split_signal(big)[0]}[0]') or split the plot",
+                       file=file, line=line)
+
+
 def check_plot_entry(p, k, signals, file=None, line=None):
     """Validate plot entry ``p`` (number ``k``, at ``line``) against the logged
     ``signals`` (see :func:`check_plot_specs`); raise DiagramError."""
@@ -248,6 +276,8 @@ def check_plot_entry(p, k, signals, file=None, line=None):
                            line=line)
     for s in sigs:
         _check_plot_signal(s, k, signals, file, line)
+    if kind != "animation":
+        check_line_count(sigs, signals, f"plots[{k}]", file, line)
     if kind == "animation":
         from .animation import check_animation_spec
         check_animation_spec(p, _logged_size(signals, sigs[0]), f"plots[{k}]", file, line)
@@ -292,7 +322,7 @@ def time_plot(result, spec, path):
                     ax.plot(t[mask], y[mask, i], label=f"{s}[{i}]")
         ax.set_ylabel(spec.get("ylabel", "value") + f" [{unit}]")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="small")
+        ax.legend(loc="best", fontsize="small", ncol=-(-len(ax.lines) // 16))
     axes[-1, 0].set_xlabel("time [s]")
     axes[0, 0].set_title(spec.get("title", ", ".join(sigs)))
     fig.tight_layout()
@@ -468,6 +498,12 @@ def spectrum_plot(result, spec, path):
     return path
 
 
+def _values(result, name):
+    """Number of values of logged signal ``name`` of ``result`` (per time)."""
+    y = result[name]
+    return 1 if np.ndim(y) == 1 else int(np.shape(y)[1])
+
+
 def make_plots(result, plots, folder):
     """Draw every plot of ``plots`` into ``folder``; return the written paths."""
     os.makedirs(folder, exist_ok=True)
@@ -488,6 +524,9 @@ def make_plots(result, plots, folder):
             from .animation import arm_animation as draw
         else:
             draw = spectrum_plot if kind == "spectrum" else time_plot
+            names = {split_signal(n)[0] for n in spec["signals"]}
+            check_line_count(spec["signals"], {n: _values(result, n) for n in names
+                                               if n in result}, f"plots[{k}]")
         # drawn under a temporary name (same extension: it picks the format), then renamed
         final = os.path.join(folder, name)
         with atomic_path(final) as tmp:
