@@ -446,8 +446,9 @@ def _microgravity_report(d, r, out, plots=True):
               f"starts ({t0:g} s): no assessment", file=sys.stderr)
         return []
     try:
-        a = mg.assess(r.t, r[mg_spec["signal"]], mg_spec["mass"], window=(t0, t1),
-                      f_range=(mg_spec["f_min"], mg_spec["f_max"]))
+        newtons = mg.newtons_per_unit(r.units.get(mg_spec["signal"]))
+        a = mg.assess(r.t, r[mg_spec["signal"]] * newtons, mg_spec["mass"],
+                      window=(t0, t1), f_range=(mg_spec["f_min"], mg_spec["f_max"]))
     except ValueError as exc:
         print(f"spidersim: microgravity: {exc}", file=sys.stderr)
         return []

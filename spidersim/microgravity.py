@@ -7,7 +7,8 @@ ripple, disturb the station beyond what the microgravity experiments tolerate?
 Model
 -----
 The station is one rigid body of mass ``M`` [kg]; the force ``F(t)`` [N] the arm applies to
-its mounting accelerates it by ``a(t) = F(t) / M`` [m/s^2]; levels are given in micro-g,
+its mounting accelerates it by ``a(t) = F(t) / M`` [m/s^2] (a diagram's signal in another
+force unit is converted, see :func:`newtons_per_unit`; any other unit is refused); levels are given in micro-g,
 ``1 micro-g = 9.80665e-6 m/s^2``. Each axis is assessed separately and the worst axis decides
 each band.
 
@@ -210,6 +211,32 @@ class Assessment:
                            "limit_ug": num(lim), "margin_db": num(m)}
                           for b, lev, lim, m in zip(self.bands, self.worst, self.limit,
                                                     self.margin_db)]}
+
+
+#: units of a signal whose unit was not inferred (no unit anywhere on its path): read as N
+_UNSTATED = ("?", "*")
+
+
+def newtons_per_unit(unit):
+    """The factor that turns a force signal in ``unit`` (a unit text, as in a result's
+    ``units``) into newtons: ``kN`` -> 1000; a signal without a stated unit (``?``) is
+    taken to be in N (factor 1).
+
+    Raises
+    ------
+    ValueError
+        ``unit`` is not a force (``m``, ``N.m``, dimensionless ``1``): the assessment
+        divides a force by the station mass.
+    """
+    if unit is None or unit in _UNSTATED:
+        return 1.0
+    from .text import units as U
+    try:
+        return U.factor(U.parse(unit), U.parse("N"))
+    except U.UnitError:
+        raise ValueError(f"the signal is in {unit}, not a force (N, kN, ...): the "
+                         f"assessment is the force on the station divided by its mass"
+                         ) from None
 
 
 def assess(t, force, mass, window=None, f_range=LIMIT_RANGE, resample=False):

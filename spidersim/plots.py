@@ -82,6 +82,19 @@ def signal_values(result, s):
 PLOT_EXTENSIONS = (".png", ".svg", ".pdf")
 
 
+#: plot file names a run writes itself (the microgravity assessment's plot): a plot's
+#: ``file`` may not take them; a plot whose title gives one is renamed (``_<k>``)
+RESERVED_PLOT_FILES = ("microgravity.png",)
+
+
+def _check_reserved_file(name, what, file=None, line=None):
+    """A plot's ``file`` is not one of :data:`RESERVED_PLOT_FILES` (the assessment's plot
+    overwrote it, and the run listed one file twice); raise DiagramError."""
+    if isinstance(name, str) and name.lower() in RESERVED_PLOT_FILES:
+        raise DiagramError(f"{what}: 'file' {name!r} is reserved for the microgravity "
+                           f"assessment's plot; choose another name", file=file, line=line)
+
+
 def check_plot_file(name, kind, what, file=None, line=None):
     """A plot's ``file:`` must be a bare file name (no folder, no ``..``) with an extension
     matplotlib writes (.png, .svg, .pdf; .gif for animations); raise DiagramError."""
@@ -221,12 +234,41 @@ def _check_plot_signal(s, k, signals, file, line):
                            f"'{name}' has {size} element(s)", file=file, line=line)
 
 
+#: most lines (and legend entries) one time or spectrum plot draws: one per element of
+#: each signal (a 2000-element vector drew 2000 lines and legend entries in 16 s)
+MAX_PLOT_LINES = 64
+
+
+def _line_count(sigs, sizes):
+    """Lines a plot of ``sigs`` draws when ``sizes`` maps logged names to their number of
+    values: one per element (``name[i]`` is one); names of unknown size count as one."""
+    n = 0
+    for s in sigs:
+        name, idx = split_signal(s)
+        n += 1 if idx is not None else int(_logged_size(sizes, name) or 1)
+    return n
+
+
+def check_line_count(sigs, sizes, what, file=None, line=None):
+    """A time or spectrum plot of ``sigs`` draws at most :data:`MAX_PLOT_LINES` lines;
+    raise DiagramError naming the count and the largest signal otherwise."""
+    n = _line_count(sigs, sizes)
+    if n <= MAX_PLOT_LINES:
+        return
+    big = max(sigs, key=lambda s: _line_count([s], sizes))
+    raise DiagramError(f"{what}: the plot would draw {n} lines, one per element ('{big}' "
+                       f"has {_line_count([big], sizes)}); at most {MAX_PLOT_LINES}: plot "
+                       f"single elements ('{split_signal(big)[0]}[0]') or split the plot",
+                       file=file, line=line)
+
+
 def check_plot_entry(p, k, signals, file=None, line=None):
     """Validate plot entry ``p`` (number ``k``, at ``line``) against the logged
     ``signals`` (see :func:`check_plot_specs`); raise DiagramError."""
     kind = _check_plot_keys(p, k, file, line)
     if "file" in p:
         check_plot_file(p["file"], kind, f"plots[{k}]", file, _key_line(p, "file", line))
+        _check_reserved_file(p["file"], f"plots[{k}]", file, _key_line(p, "file", line))
     _check_plot_values(p, k, file, line)
     sigs = p.get("signals")
     if not isinstance(sigs, list) or not sigs:
@@ -234,6 +276,8 @@ def check_plot_entry(p, k, signals, file=None, line=None):
                            line=line)
     for s in sigs:
         _check_plot_signal(s, k, signals, file, line)
+    if kind != "animation":
+        check_line_count(sigs, signals, f"plots[{k}]", file, line)
     if kind == "animation":
         from .animation import check_animation_spec
         check_animation_spec(p, _logged_size(signals, sigs[0]), f"plots[{k}]", file, line)
@@ -278,7 +322,7 @@ def time_plot(result, spec, path):
                     ax.plot(t[mask], y[mask, i], label=f"{s}[{i}]")
         ax.set_ylabel(spec.get("ylabel", "value") + f" [{unit}]")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="small")
+        ax.legend(loc="best", fontsize="small", ncol=-(-len(ax.lines) // 16))
     axes[-1, 0].set_xlabel("time [s]")
     axes[0, 0].set_title(spec.get("title", ", ".join(sigs)))
     fig.tight_layout()
@@ -287,22 +331,45 @@ def time_plot(result, spec, path):
     return path
 
 
+#: the fewest samples a spectrum window may hold (fewer give a handful of bins, not a
+#: spectrum)
+MIN_SPECTRUM_SAMPLES = 8
+
+
+def _too_few_samples(lo, hi, n, dt=None):
+    """The message for a spectrum window ``[lo, hi]`` holding ``n`` samples (every ``dt``)."""
+    every = f" (one every {dt:g} s)" if dt else ""
+    return (f"the spectrum window [{lo:g}, {hi:g}] s holds {n} sample(s){every}; a spectrum "
+            f"needs at least {MIN_SPECTRUM_SAMPLES}: widen t_min..t_max or shorten "
+            f"simulation.output_interval")
+
+
+def spectrum_window_problem(t_min, t_max, t_end, dt):
+    """The :func:`_too_few_samples` message when the window ``[t_min, t_max]`` (None: the
+    run's start or end ``t_end``) of a run sampled every ``dt`` from 0 holds fewer than
+    :data:`MIN_SPECTRUM_SAMPLES` samples; None when it holds enough."""
+    lo = 0.0 if t_min is None else max(float(t_min), 0.0)
+    hi = float(t_end) if t_max is None else min(float(t_max), float(t_end))
+    n = max(math.floor(hi / dt + 1e-9) - math.ceil(lo / dt - 1e-9) + 1, 0)
+    return _too_few_samples(lo, hi, n, dt) if n < MIN_SPECTRUM_SAMPLES else None
+
+
 def amplitude_spectrum(t, y, t_min=None, t_max=None, resample=False):
     """``(f [Hz], amplitude)`` of ``y(t)`` over the window (see the module docstring).
 
     The samples in the window must be uniform (a last row off the grid is dropped); a record
     that is not raises :class:`~spidersim.sampling.NonUniformRecord` unless ``resample=True``
-    (linear interpolation at the median step: right only for dense points)."""
+    (linear interpolation at the median step: right only for dense points). A window holding
+    fewer than :data:`MIN_SPECTRUM_SAMPLES` samples raises ValueError naming the window and
+    the count (it used to fall back to the whole record silently)."""
     from .sampling import uniform_window
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     lo = t[0] if t_min is None else t_min
     hi = t[-1] if t_max is None else t_max
-    sel = (t >= lo) & (t <= hi)
-    if sel.sum() < 8:               # window outside a (short) run: use what there is
-        lo, hi = t[0], t[-1]
-    if len(t) < 2:
-        return np.zeros(1), np.zeros(1)
+    n = int(((t >= lo) & (t <= hi)).sum())
+    if n < MIN_SPECTRUM_SAMPLES:
+        raise ValueError(_too_few_samples(lo, hi, n))
     dt, yu = uniform_window(t, y, lo, hi, resample=resample)
     n = len(yu)
     yu = yu - yu.mean()
@@ -401,7 +468,12 @@ def spectrum_plot(result, spec, path):
             traces += [(f"{s}[{i}]", y[:, i]) for i in range(y.shape[1])]
     peaks = []            # (amplitude, frequency, x, colour) of every trace's local maxima
     for label, y in traces:
-        f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
+        try:
+            f, a = amplitude_spectrum(result.t, y, spec.get("t_min"), spec.get("t_max"))
+        except ValueError as exc:         # a run cut short (--t-end) before the window
+            ax.text(0.5, 0.5, f"no spectrum: {exc}", ha="center", va="center", wrap=True,
+                    transform=ax.transAxes)
+            break
         sel = f <= f_max if f_max else np.ones_like(f, bool)
         f, a = f[sel], a[sel]
         unit = result.units.get(label.split('[')[0], '1')
@@ -416,7 +488,8 @@ def spectrum_plot(result, spec, path):
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("amplitude")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small")
+    if ax.lines:
+        ax.legend(fontsize="small")
     window = f"{spec.get('t_min', result.t[0]):g}-{spec.get('t_max', result.t[-1]):g} s"
     ax.set_title(f"{spec.get('title', 'Spectrum')} (Hann window, {window})")
     fig.tight_layout()
@@ -425,11 +498,17 @@ def spectrum_plot(result, spec, path):
     return path
 
 
+def _values(result, name):
+    """Number of values of logged signal ``name`` of ``result`` (per time)."""
+    y = result[name]
+    return 1 if np.ndim(y) == 1 else int(np.shape(y)[1])
+
+
 def make_plots(result, plots, folder):
     """Draw every plot of ``plots`` into ``folder``; return the written paths."""
     os.makedirs(folder, exist_ok=True)
     written = []
-    used = set()
+    used = set(RESERVED_PLOT_FILES)     # a title 'Microgravity' is renamed microgravity_<k>
     for k, spec in enumerate(plots):
         kind = spec.get("kind", "time")
         ext = ".gif" if kind == "animation" else ".png"
@@ -445,6 +524,9 @@ def make_plots(result, plots, folder):
             from .animation import arm_animation as draw
         else:
             draw = spectrum_plot if kind == "spectrum" else time_plot
+            names = {split_signal(n)[0] for n in spec["signals"]}
+            check_line_count(spec["signals"], {n: _values(result, n) for n in names
+                                               if n in result}, f"plots[{k}]")
         # drawn under a temporary name (same extension: it picks the format), then renamed
         final = os.path.join(folder, name)
         with atomic_path(final) as tmp:

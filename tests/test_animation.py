@@ -89,3 +89,38 @@ def test_names_only_check_catches_the_signal_count(result):
                          set(result.names))
     check_plot_specs([{"kind": "animation", "signals": ["arm.flange_pos"]}],
                      set(result.names))
+
+
+ARM2 = """\
+name: two_links
+gravity: [0, 0, 0]
+links:
+  - {d: 0, a: 0.5, alpha: 0, mass: 1, com: [0.25, 0, 0], inertia: [0.01, 0.01, 0.01]}
+  - {d: 0, a: 0.5, alpha: 0, mass: 1, com: [0.75, 0, 0], inertia: [0.01, 0.01, 0.01]}
+"""
+
+ANIMATED = """\
+name: an
+blocks:
+  tau: {type: Constant, value: [0.1, 0.1]}
+  arm: {type: Arm, model: arm2.yaml}
+connections: [tau.y -> arm.tau]
+simulation: {t_end: 0.2}
+plots:
+  - {title: motion, kind: animation, signals: [arm.q], model: arm2.yaml, frames: 3}
+"""
+
+
+def test_animation_model_is_beside_the_diagram_like_the_arms(tmp_path, monkeypatch,
+                                                             capsys):
+    """``model: arm2.yaml`` names the file beside the diagram, as the Arm's own ``model``
+    does: run from another folder, check said 'arm data file not found: arm2.yaml'."""
+    from spidersim.cli import main
+    sub = tmp_path / "anim"
+    sub.mkdir()
+    (sub / "arm2.yaml").write_text(ARM2)
+    (sub / "an.yaml").write_text(ANIMATED)
+    monkeypatch.chdir(tmp_path)
+    assert main(["check", "anim/an.yaml"]) == 0, capsys.readouterr().err
+    assert main(["run", "anim/an.yaml", "--out", "o", "--no-jit"]) == 0
+    assert Image.open(tmp_path / "o" / "motion.gif").n_frames == 3

@@ -179,3 +179,31 @@ def test_a_badly_scaled_model_is_named_not_crashed(tmp_path, capsys, J, rc, expe
     code, out, err = _run(capsys, "linearize", SERVO, "--input", "ref.y", "--output",
                           "motor.phi", "--out", tmp_path / "p")
     assert code == 0 and "badly scaled" not in err
+
+
+LAG = """name: lag
+blocks:
+  r: {type: Constant, value: 2}
+  e: {type: Sum, signs: "+-"}
+  g: {type: Gain, k: 4}
+  x: {type: Integrator}
+connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
+simulation: {t_end: 0.5}
+analysis:
+  free: {inputs: [r.y], outputs: [x.y], at: {trim: {free_inputs: [r.y]}}}
+  huge: {inputs: [r.y], outputs: [x.y], at: {trim: {x0: [1e308]}}}
+"""
+
+
+@pytest.mark.parametrize("name, rc, words", [
+    ("free", 0, "DC gain:"),
+    ("huge", 2, "trim cannot start from the given x0: the residuals there are not finite "
+                "(d/dt x.y = -inf)"),
+])
+def test_trim_entries_that_were_internal_errors(tmp_path, capsys, name, rc, words):
+    """Free inputs without targets (a ValueError from an empty list of outputs) and an x0
+    whose residuals overflow (SciPy's ValueError): exit 3 'internal error' before."""
+    path = tmp_path / "lag.yaml"
+    path.write_text(LAG)
+    got, out, err = _run(capsys, "linearize", path, name, "--no-jit", "--out", tmp_path / "o")
+    assert got == rc and words in out + err and "internal error" not in err, err

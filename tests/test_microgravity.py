@@ -266,3 +266,52 @@ def test_window_too_short_for_any_band_is_refused_by_check(tmp_path, capsys, t1,
                  "--t-end", "1.2"]) == 0
     assert "verdict:" in capsys.readouterr().out
     assert len(_strict_json(out / "microgravity.json")["bands"]) == 1
+
+
+UNIT_DIAGRAM = """\
+name: mgunit
+blocks:
+  s: {{type: Sine, f: 5.0, amplitude: {amplitude}}}
+simulation: {{t_end: 4, method: DP54, output_interval: 1e-3}}
+microgravity: {{signal: s.y, mass: 4.2e5, f_min: 2, f_max: 20}}
+"""
+
+
+@pytest.mark.parametrize("amplitude", ["50", "{value: 50, unit: N}",
+                                       "{value: 0.05, unit: kN}"])
+def test_force_in_another_unit_is_converted_to_newtons(tmp_path, capsys, amplitude):
+    """A 0.05 kN sine is 50 N: the 5 Hz band holds 50 / sqrt(2) / M / micro-g = 8.585
+    micro-g in every spelling (kN was read as N: 1000 times too small, a false PASS)."""
+    from spidersim.cli import main
+    f = tmp_path / "mg.yaml"
+    f.write_text(UNIT_DIAGRAM.format(amplitude=amplitude))
+    out = tmp_path / "out"
+    assert main(["run", str(f), "--out", str(out), "--no-plots", "--no-jit"]) == 0
+    bands = {round(b["center_hz"], 1): b for b in _strict_json(out / "microgravity.json")
+             ["bands"]}
+    assert bands[5.0]["level_ug"] == pytest.approx(50 / 4.2e5 / mg.MICRO_G / np.sqrt(2),
+                                                   rel=0.01)
+
+
+@pytest.mark.parametrize("amplitude, unit", [("{value: 1, unit: m}", "m"),
+                                             ("{value: 1, unit: N.m}", "N.m")])
+def test_a_signal_that_is_not_a_force_is_refused(tmp_path, capsys, amplitude, unit):
+    """A position or a torque divided by the station mass is no acceleration: check and run
+    refuse it at the section's line (both passed, with a verdict)."""
+    from spidersim.cli import main
+    f = tmp_path / "mg.yaml"
+    f.write_text(UNIT_DIAGRAM.format(amplitude=amplitude))
+    for argv in (["check", str(f)], ["run", str(f), "--out", str(tmp_path / "o"),
+                                     "--no-plots", "--no-jit"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"mg.yaml:5: microgravity: signal 's.y': the signal is in {unit}, not a " \
+               f"force" in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_newtons_per_unit():
+    assert mg.newtons_per_unit("kN") == 1000.0 and mg.newtons_per_unit("N") == 1.0
+    assert mg.newtons_per_unit("?") == 1.0             # no stated unit: taken as N
+    with pytest.raises(ValueError, match="the signal is in 1, not a force"):
+        mg.newtons_per_unit("1")

@@ -349,3 +349,39 @@ def test_event_counts_of_a_list_and_of_the_compiled_log_agree():
                    ["h", "s", "b"], ["time", "time", "impact"])
     expect = [(("h", "time"), 2), (("b", "impact"), 1), (("s", "time"), 1)]
     assert event_counts(entries) == expect and event_counts(log) == expect
+
+
+MG_PLOT = """\
+name: mgp
+blocks:
+  s: {{type: Sine, f: 10, amplitude: 1}}
+simulation: {{t_end: 1, output_interval: 0.001, method: DP54}}
+microgravity: {{signal: s.y, mass: 1000, f_min: 5, f_max: 20}}
+plots:
+  - {plot}
+"""
+
+
+def test_a_plot_file_named_like_the_microgravity_plot_is_refused(tmp_path, capsys):
+    """``file: microgravity.png`` was overwritten by the assessment's plot (2 plots
+    reported, one file, listed twice): check and run refuse it at the key's line."""
+    f = tmp_path / "mgp.yaml"
+    f.write_text(MG_PLOT.format(plot="{title: my sine, signals: [s.y], "
+                                     "file: Microgravity.png}"))
+    for argv in (["check", str(f)], ["run", str(f), "--out", str(tmp_path / "o")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "mgp.yaml:7: plots[0]: 'file' 'Microgravity.png' is reserved for the " \
+               "microgravity assessment's plot" in err, err
+
+
+def test_a_plot_titled_microgravity_is_renamed(tmp_path, capsys):
+    import json
+    f = tmp_path / "mgp.yaml"
+    f.write_text(MG_PLOT.format(plot="{title: Microgravity, signals: [s.y]}"))
+    out = tmp_path / "o"
+    assert main(["run", str(f), "--out", str(out), "--no-jit"]) == 0
+    files = json.loads((out / "report.json").read_text())["files"]
+    assert "microgravity.png" in files and "microgravity_1.png" in files
+    assert len(files) == len(set(files))
+    assert (out / "microgravity_1.png").stat().st_size > 1000

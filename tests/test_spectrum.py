@@ -117,3 +117,38 @@ def test_a_drifting_line_keeps_the_curve_height():
     y2 = np.sin(2 * np.pi * 20 * t) + 0.8 * np.sin(2 * np.pi * 20.5 * t)
     f, a = amplitude_spectrum(t, y2)
     assert not hann_peak(f, a, int(np.argmax(a)))[2]
+
+
+SHORT_WINDOW = """\
+name: sp
+blocks:
+  s: {{type: Sine, f: 10}}
+simulation: {{t_end: 1, output_interval: 0.01, method: DP54}}
+plots:
+  - {{kind: spectrum, signals: [s.y], t_min: 0.5, t_max: {t_max}, file: spec.png}}
+"""
+
+
+@pytest.mark.parametrize("t_max, n", [(0.55, 6), (0.56, 7), (0.57, 8)])
+def test_window_with_too_few_samples_is_refused(tmp_path, capsys, t_max, n):
+    """A window of fewer than 8 samples was silently replaced by the whole record (the plot
+    titled '0.5-0.55 s' showed the whole run's 10 Hz line): check and run refuse it at the
+    entry's line with the window and the count; 8 samples are drawn."""
+    from spidersim.cli import main
+    f = tmp_path / "sp.yaml"
+    f.write_text(SHORT_WINDOW.format(t_max=t_max))
+    if n >= 8:
+        assert main(["check", str(f)]) == 0
+        return
+    for argv in (["check", str(f)], ["run", str(f), "--out", str(tmp_path / "o")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert (f"sp.yaml:6: plots[0]: the spectrum window [0.5, {t_max:g}] s holds {n} "
+                f"sample(s) (one every 0.01 s); a spectrum needs at least 8") in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_amplitude_spectrum_refuses_a_short_window():
+    t = np.arange(0, 1.0001, 0.01)
+    with pytest.raises(ValueError, match=r"window \[0.5, 0.55\] s holds 6 sample"):
+        amplitude_spectrum(t, np.sin(2 * np.pi * 10 * t), 0.5, 0.55)

@@ -134,43 +134,93 @@ class AnalysisPoint(NamedTuple):
     kind: str            #: ``"input"`` (a perturbation added) or ``"open"`` (loop cut)
     delta: str           #: path of the Constant holding the perturbation ``d``
     op_const: str | None  #: path of the Constant holding ``S_op`` (openings), else None
+    offset: int = 0      #: index in ``delta`` of the signal's first element
+
+
+def _port_size(d, path, port):
+    return d.layout.blocks[path].ports[("out", port)].size
 
 
 def _consumers(conns, ref, d):
-    """The connections that read exactly the signal ``ref`` (path, port, s0, s1, ...)."""
+    """The connections that read any element of the signal ``ref`` (path, port, s0, s1,
+    ...): a consumer of a slice that overlaps ``[s0, s1)`` of the same output port."""
     path, port, s0, s1 = ref[:4]
     return [c for c in conns if c.src[0] == path and c.src[1] == port and
-            _covers(c.src, s0, s1, d)]
+            _overlaps(c.src, s0, s1, d)]
+
+
+def _overlaps(src, s0, s1, d):
+    """True when the output slice ``src`` (path, port, start, stop) shares an element with
+    ``[s0, s1)`` of that port."""
+    a = 0 if src[2] is None else src[2]
+    b = _port_size(d, src[0], src[1]) if src[3] is None else src[3]
+    return a < s1 and s0 < b
+
+
+def _conn(src, dst, d):
+    return FlatConn(src, dst, d.file, 0, "")
+
+
+def _input_point(blocks, k, ref, d):
+    """Blocks and connections of an input at ``ref``: ``__lin_s{k} = S + __lin_d{k}`` over
+    the whole output port (the perturbation is zero outside the signal's elements);
+    ``(point signal path, new connections, delta, offset)``."""
+    path, port, s0 = ref[:3]
+    full = _port_size(d, path, port)
+    delta, add = f"__lin_d{k}", f"__lin_s{k}"
+    blocks[delta] = _instance(delta, "Constant", {"value": np.zeros(full)}, d.file)
+    blocks[add] = _instance(add, "Sum", {"signs": "++"}, d.file)
+    new = [_conn((path, port, None, None), (add, "u1"), d),
+           _conn((delta, "y", None, None), (add, "u2"), d)]
+    return add, new, delta, s0
+
+
+def _opening_point(blocks, k, ref, d):
+    """Blocks and connections of an opening at ``ref``: ``__lin_s{k} = __lin_op{k} +
+    __lin_d{k}`` (the signal's operating value plus the perturbation) for its elements; when
+    the signal is part of its output port, a Mux ``__lin_m{k}`` rebuilds the whole port
+    with the other elements read live. ``(point signal path, new connections, delta,
+    op_const)``."""
+    path, port, s0, s1, n = ref[:5]
+    full = _port_size(d, path, port)
+    delta, add, opc = f"__lin_d{k}", f"__lin_s{k}", f"__lin_op{k}"
+    for c in (delta, opc):
+        blocks[c] = _instance(c, "Constant", {"value": np.zeros(n)}, d.file)
+    blocks[add] = _instance(add, "Sum", {"signs": "++"}, d.file)
+    new = [_conn((opc, "y", None, None), (add, "u1"), d),
+           _conn((delta, "y", None, None), (add, "u2"), d)]
+    if n == full:
+        return add, new, delta, opc
+    mux = f"__lin_m{k}"
+    pieces = [(path, port, 0, s0), (add, "y", None, None), (path, port, s1, full)]
+    pieces = [p for p in pieces if p[0] == add or p[3] > p[2]]
+    blocks[mux] = _instance(mux, "Mux", {"n": len(pieces)}, d.file)
+    new += [_conn(p, (mux, f"u{i + 1}"), d) for i, p in enumerate(pieces)]
+    return mux, new, delta, opc
 
 
 def _insert_point(blocks, conns, k, name, kind, ref, d):
     """Insert analysis point number ``k`` at signal ``name`` (``ref`` from
     :func:`_signal_ref`) into ``blocks`` (in place) and return ``(conns, point)``.
 
-    A Sum ``__lin_s{k}`` adds the Constant ``__lin_d{k}`` (the perturbation) to the signal
-    (an input) or to the Constant ``__lin_op{k}`` holding its operating value (an opening);
-    every consumer of the signal then reads the Sum. Opening a signal nobody reads is an
-    :class:`AnalysisError`.
+    The point's blocks (:func:`_input_point`, :func:`_opening_point`) produce a signal of
+    the size of the whole output port; every consumer of a slice of that port overlapping
+    the signal then reads the same slice of it (consumers of other elements are unchanged).
+    Opening a signal nobody reads is an :class:`AnalysisError`.
     """
-    path, port, s0, s1, n, unit = ref
     consumers = _consumers(conns, ref, d)
     if not consumers and kind == "open":
         raise AnalysisError(f"cannot open '{name}': it is not a connection (no block "
                             f"reads it)", file=d.file)
-    delta, add, opc = f"__lin_d{k}", f"__lin_s{k}", None
-    blocks[delta] = _instance(delta, "Constant", {"value": np.zeros(n)}, d.file)
-    blocks[add] = _instance(add, "Sum", {"signs": "++"}, d.file)
     if kind == "open":
-        opc = f"__lin_op{k}"
-        blocks[opc] = _instance(opc, "Constant", {"value": np.zeros(n)}, d.file)
-        conns = conns + [FlatConn((opc, "y", None, None), (add, "u1"), d.file, 0, "")]
+        sig, new, delta, opc = _opening_point(blocks, k, ref, d)
+        point = AnalysisPoint(name, kind, delta, opc)
     else:
-        conns = conns + [FlatConn((path, port, s0, s1), (add, "u1"), d.file, 0, "")]
-    conns.append(FlatConn((delta, "y", None, None), (add, "u2"), d.file, 0, ""))
-    # consumers reading exactly this signal now read the sum (others are unchanged)
-    conns = [FlatConn((add, "y", None, None), c.dst, c.file, c.line, c.text)
+        sig, new, delta, offset = _input_point(blocks, k, ref, d)
+        point = AnalysisPoint(name, kind, delta, None, offset)
+    conns = [FlatConn((sig, "y", c.src[2], c.src[3]), c.dst, c.file, c.line, c.text)
              if c in consumers else c for c in conns]
-    return conns, AnalysisPoint(name, kind, delta, opc)
+    return conns + new, point
 
 
 def _with_analysis_points(d, inputs, open, refs):
@@ -304,9 +354,10 @@ class Linearizer:
                 raise _sampled_error(d, found)
             self.quantizers = [b for b in path if _quantized(blocks[b])]
             blocks = _unquantized(blocks)
-        #: (name, const path, size) of each input; (const path, (path, port, s0, s1)) of
+        #: (name, const path, offset, size) of each input; (const path, (path, port, s0,
+        #: s1)) of
         #: each opening
-        self.in_slots = [(p.name, p.delta, refs[p.name][4]) for p in points
+        self.in_slots = [(p.name, p.delta, p.offset, refs[p.name][4]) for p in points
                          if p.name in inputs]
         self.op_consts = [(p.op_const, refs[p.name][:4]) for p in points if p.kind == "open"]
         flat2 = type(d.flat)(blocks, conns, d.flat.subsystem_instances, d.flat.aliases)
@@ -332,8 +383,8 @@ class Linearizer:
     def _input_slots(self):
         """``(name, start, stop)`` of each input's perturbation in the parameter array."""
         slots = []
-        for name, delta, n in self.in_slots:
-            a0 = self.dlin.layout.blocks[delta].pslots["value"][0]
+        for name, delta, offset, n in self.in_slots:
+            a0 = self.dlin.layout.blocks[delta].pslots["value"][0] + offset
             slots.append((name, a0, a0 + n))
         return slots
 
@@ -378,9 +429,8 @@ class Linearizer:
             sys_.p[a:b] = u[k:k + b - a]
             k += b - a
         xdot = sys_.rhs(self.t, x)
-        y = np.concatenate([(sys_.sig if arr == "sig" else x)[a:b]
-                            for name, arr, a, b in self.out_slices])
-        return xdot, y
+        y = [(sys_.sig if arr == "sig" else x)[a:b] for name, arr, a, b in self.out_slices]
+        return xdot, (np.concatenate(y) if y else np.zeros(0))
 
     def state_space(self):
         import control
@@ -411,12 +461,6 @@ class Linearizer:
         why = diagnose(self.t, self.x) if diagnose is not None else ""
         raise AnalysisError("cannot linearize: the perturbed model has non-finite values"
                             + (f" ({why})" if why else ""), file=self.d.file)
-
-
-def _covers(src, s0, s1, d):
-    a = 0 if src[2] is None else src[2]
-    b = d.layout.blocks[src[0]].ports[("out", src[1])].size if src[3] is None else src[3]
-    return (a, b) == (s0, s1)
 
 
 def _instance(path, type_name, params, file):
@@ -604,6 +648,18 @@ def _check_trim_residuals(d, res, resid, sol, tol):
                             + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
 
 
+def _check_trim_start(d, res, labels, given):
+    """The residuals ``res`` (named by ``labels``) at trim's starting point are finite, else
+    an :class:`AnalysisError` naming the first non-finite ones: the solver cannot start
+    from there (``given``: the start is the caller's ``x0``, else the initial state)."""
+    bad = [f"{k} = {v:g}" for k, v in zip(labels, res) if not math.isfinite(v)]
+    if bad:
+        start = "the given x0" if given else "the initial state"
+        raise AnalysisError(f"trim cannot start from {start}: the residuals there are not "
+                            f"finite ({', '.join(bad[:6])}); give an x0 of moderate values",
+                            file=d.file)
+
+
 def _named_inputs(lin, u):
     """The free inputs' values ``u`` by name: a float for a scalar, an array otherwise."""
     inputs = {}
@@ -656,10 +712,11 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
         xdot, y = lin.evaluate(x, u)
         return np.concatenate((xdot[rows], y - want))
 
-    sol = least_squares(residual, np.concatenate((x_start, np.zeros(nu))), xtol=1e-15,
-                        ftol=1e-15, gtol=1e-15, max_nfev=2000)
     labels = [f"d/dt {names[i]}" for i in rows] + [
         nm for n in outs for nm in _channel_names(n, np.size(targets[n]))]
+    z0 = np.concatenate((x_start, np.zeros(nu)))
+    _check_trim_start(d, residual(z0), labels, x0 is not None)
+    sol = least_squares(residual, z0, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
     res = residual(sol.x)
     resid = dict(zip(labels, res))
     _check_trim_residuals(d, res, resid, sol, tol)

@@ -235,6 +235,7 @@ class Diagram:
         self._idle = {}
         self._log = self._log_spec(spec.log)
         self.microgravity = self._microgravity_spec(spec.microgravity)
+        self._check_spectrum_windows(spec)
 
     # ------------------------------------------------------------------ set-up
     def _sim_value(self, key, v):
@@ -271,6 +272,28 @@ class Diagram:
         """Names of every signal that can be logged."""
         return [r[0] for r in self._signal_table()]
 
+    def _check_spectrum_windows(self, spec):
+        """A spectrum plot's window holds enough samples of the run's output grid (see
+        :func:`spidersim.plots.spectrum_window_problem`); a :class:`DiagramError` at the
+        entry's line naming the window and the count. Entries whose window or grid is not
+        a number are left to the plot checks."""
+        from ..plots import spectrum_window_problem
+        dt, t_end = self.simulation.get("output_interval"), self.simulation.get("t_end")
+        if not _is_number(dt) or not _is_number(t_end) or not dt > 0:
+            return
+        lines = getattr(spec.data.get("plots") if hasattr(spec.data, "get") else None,
+                        "lines", None) or []
+        for k, p in enumerate(spec.plots):
+            if not isinstance(p, dict) or p.get("kind") != "spectrum" or not all(
+                    p.get(w) is None or _is_number(p.get(w)) for w in ("t_min", "t_max")):
+                continue
+            if p.get("t_min") is not None and p["t_min"] >= t_end:
+                continue        # a window after the run: run's window check names that
+            problem = spectrum_window_problem(p.get("t_min"), p.get("t_max"), t_end, dt)
+            if problem:
+                raise DiagramError(f"plots[{k}]: {problem}", file=self.file,
+                                   line=lines[k] if k < len(lines) else None)
+
     def _microgravity_spec(self, sec):
         """The ``microgravity`` section checked: ``{signal, mass, window, f_min, f_max}``
         with the mass evaluated (a number or an expression of the diagram's parameters),
@@ -304,6 +327,7 @@ class Diagram:
             raise err(f"'signal' must be a signal name 'block.port', got {found(signal)}",
                       "signal")
         if signal in self.logged_sizes():
+            self._check_microgravity_unit(signal, err)
             return
         known = {r[0] for r in self._signal_table()}
         if signal in known:
@@ -312,6 +336,16 @@ class Diagram:
         near = difflib.get_close_matches(str(signal), sorted(known), n=3)
         hint = f"; did you mean {', '.join(near)}?" if near else ""
         raise err(f"no signal '{signal}'{hint}", "signal")
+
+    def _check_microgravity_unit(self, signal, err):
+        """The microgravity ``signal`` is a force (any force unit, converted to N by the
+        assessment; a signal with no stated unit is taken to be in N)."""
+        from ..microgravity import newtons_per_unit
+        unit = next((r[4] for r in self._signal_table() if r[0] == signal), None)
+        try:
+            newtons_per_unit(unit)
+        except ValueError as exc:
+            raise err(f"signal '{signal}': {exc}", "signal") from None
 
     def logged_sizes(self):
         """Logged signals (what a run's result holds) -> number of values of each."""
@@ -776,3 +810,8 @@ def loads(text, set=None, file="<string>") -> Diagram:
                            f"{described(text)}{hint}")
     file, overrides = _file_name(file, "loads: file"), _overrides(set, "loads")
     return Diagram(parse_text(text, file), overrides)
+
+
+def _is_number(v):
+    """A real number that is not a bool."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool)

@@ -212,6 +212,21 @@ def _base_dir(file):
     return os.path.dirname(os.path.abspath(file)) if file != "<string>" else os.getcwd()
 
 
+def _animation_models_beside(plots, file):
+    """An animation's relative ``model:`` path (an arm data file) names a file beside the
+    diagram file, as ``Arm.model`` does: rewritten in place to that path. ``spider``,
+    absolute paths and diagrams read from text keep their value (the latter relative to the
+    current folder)."""
+    if not os.path.isfile(file or ""):
+        return
+    for p in plots:
+        model = p.get("model") if isinstance(p, dict) else None
+        if (p.get("kind") if isinstance(p, dict) else None) != "animation" or not isinstance(
+                model, str) or not model or model == "spider" or os.path.isabs(model):
+            continue
+        p["model"] = os.path.join(_base_dir(file), model)
+
+
 def _parse_parameters(data, file):
     """The ``parameters`` section (name -> unevaluated value, in order); every name must be
     an identifier (DiagramError at its line otherwise)."""
@@ -460,6 +475,7 @@ def _parse_data(data, file: str) -> DiagramSpec:
     sim = _parse_simulation(data, file)
     log = _parse_log(data, file)
     plots = _section(data, "plots", list, file)
+    _animation_models_beside(plots, file)
     analysis = _section(data, "analysis", LineDict, file)
     metrics = _section(data, "metrics", LineDict, file)
     microgravity = _section(data, "microgravity", LineDict, file)

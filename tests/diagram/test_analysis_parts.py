@@ -33,9 +33,13 @@ def test_input_point_feeds_every_reader_of_the_signal_through_a_sum():
     assert {("__lin_s0", ("g", "u")), ("__lin_s0", ("s", "u")), ("u", ("__lin_s0", "u1")),
             ("__lin_d0", ("__lin_s0", "u2")), ("g", ("h", "u"))} == edges
     assert len(d.flat.conns) == 3                     # the diagram's own list is untouched
-    conns, _ = A._insert_point(dict(d.flat.blocks), list(d.flat.conns), 0, "u.y[1]",
+    # an element: the Sum still spans the whole port (g and s read all of u.y), the
+    # perturbation of element 1 is entry 1 of the Constant
+    conns, p = A._insert_point(dict(d.flat.blocks), list(d.flat.conns), 0, "u.y[1]",
                                "input", A._signal_ref(d, "u.y[1]"), d)
-    assert ("u", "y", 1, 2) in [c.src for c in conns if c.dst == ("__lin_s0", "u1")]
+    assert ("u", "y", None, None) in [c.src for c in conns if c.dst == ("__lin_s0", "u1")]
+    assert p.offset == 1
+    assert {c.dst for c in conns if c.src[0] == "__lin_s0"} == {("g", "u"), ("s", "u")}
 
 
 def test_opening_reads_the_operating_value_and_needs_a_reader():
@@ -51,13 +55,31 @@ def test_opening_reads_the_operating_value_and_needs_a_reader():
         A._insert_point({}, list(d.flat.conns), 0, "h.y", "open", A._signal_ref(d, "h.y"), d)
 
 
-def test_consumers_match_the_slice_exactly():
-    """Only connections reading the whole signal (or exactly the slice) are consumers of
-    it: the reader of ``u.y`` is not a consumer of ``u.y[1]``."""
+def test_consumers_are_the_readers_of_any_overlapping_slice():
+    """A connection reading a slice that shares an element with the signal is a consumer of
+    it (the reader of ``u.y`` is one of ``u.y[1]``: an exact match left the element-wise
+    gains at 0); a reader of ``u.y[0]`` only is not a consumer of ``u.y[1]``."""
     d = spidersim.loads(CHAIN)
-    assert {c.dst for c in A._consumers(d.flat.conns, A._signal_ref(d, "u.y"), d)} == {
-        ("g", "u"), ("s", "u")}
-    assert A._consumers(d.flat.conns, A._signal_ref(d, "u.y[1]"), d) == []
+    whole = {("g", "u"), ("s", "u")}
+    for name in ("u.y", "u.y[1]"):
+        assert {c.dst for c in A._consumers(d.flat.conns, A._signal_ref(d, name), d)} == whole
+    first = A.FlatConn(("u", "y", 0, 1), ("x", "u"), d.file, 0, "")
+    conns = list(d.flat.conns) + [first]
+    assert first not in A._consumers(conns, A._signal_ref(d, "u.y[1]"), d)
+    assert first in A._consumers(conns, A._signal_ref(d, "u.y[0]"), d)
+
+
+def test_opening_an_element_rebuilds_the_port_with_a_mux():
+    """Opening ``u.y[1]``, read whole by g and s: they read a Mux of the live ``u.y[0]``
+    and the operating value plus perturbation of element 1."""
+    d = spidersim.loads(CHAIN)
+    blocks = dict(d.flat.blocks)
+    conns, p = A._insert_point(blocks, list(d.flat.conns), 0, "u.y[1]", "open",
+                               A._signal_ref(d, "u.y[1]"), d)
+    assert blocks["__lin_op0"].params["value"].tolist() == [0.0]
+    assert {c.dst for c in conns if c.src[0] == "__lin_m0"} == {("g", "u"), ("s", "u")}
+    assert {(c.src, c.dst[1]) for c in conns if c.dst[0] == "__lin_m0"} == {
+        (("u", "y", 0, 1), "u1"), (("__lin_s0", "y", None, None), "u2")}
 
 
 def test_derivative_rows():

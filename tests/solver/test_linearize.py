@@ -685,3 +685,74 @@ def test_bandwidth_finds_a_narrow_notch():
         return abs(complex(control.evalfr(g, 1j * w))) - 1 / math.sqrt(2)
     assert wb == pytest.approx(brentq(mag, 0.99, 0.99999999), rel=1e-9)
     assert wb == pytest.approx(0.99901, abs=1e-5)
+
+
+# ------------------------------------------------------- consumers of another slice
+SLICES = """
+name: slices
+blocks:
+  c: {type: Constant, value: [1, 2]}
+  g: {type: Gain, k: 3}
+  h: {type: Gain, k: 5}
+  i: {type: Integrator, x0: [0, 0]}
+  j: {type: Integrator}
+connections: [c.y -> g.u, g.y -> i.u, "c.y[1] -> h.u", h.y -> j.u]
+"""
+
+
+def test_input_reaches_consumers_of_any_overlapping_slice():
+    # g reads all of c.y, h only c.y[1]: each element reaches exactly its readers
+    d = spidersim.loads(SLICES)
+    D = np.asarray(d.linearize(["c.y[0]"], ["g.y", "h.y"], jit=False).D)
+    np.testing.assert_allclose(D, [[3.0], [0.0], [0.0]], atol=1e-9)
+    D = np.asarray(d.linearize(["c.y"], ["g.y", "h.y"], jit=False).D)
+    np.testing.assert_allclose(D, [[3.0, 0.0], [0.0, 3.0], [0.0, 5.0]], atol=1e-9)
+    D = np.asarray(d.linearize(["c.y[0]", "c.y[1]"], ["g.y", "h.y"], jit=False).D)
+    np.testing.assert_allclose(D, [[3.0, 0.0], [0.0, 3.0], [0.0, 5.0]], atol=1e-9)
+
+
+VECTOR_LOOP = """
+name: vloop
+blocks:
+  r: {type: Constant, value: [1, 1]}
+  e: {type: Sum, signs: "+-"}
+  g: {type: Gain, k: 2}
+  x: {type: Integrator, x0: [0, 0]}
+connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
+"""
+
+
+def test_opening_one_element_of_a_signal_read_whole():
+    # e reads all of x.y: opening x.y[0] cuts element 0's loop only
+    d = spidersim.loads(VECTOR_LOOP)
+    sys = d.linearize(["r.y"], ["x.y"], open=["x.y[0]"], jit=False)
+    np.testing.assert_allclose(np.asarray(sys.A), np.diag([0.0, -2.0]), atol=1e-9)
+    loop = d.loop_transfer("x.y[0]", jit=False)
+    _assert_same_response(loop, control.ss(2 / S))
+
+
+LAG = """
+name: lag
+blocks:
+  r: {type: Constant, value: 2}
+  e: {type: Sum, signs: "+-"}
+  g: {type: Gain, k: 4}
+  x: {type: Integrator}
+connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
+"""
+
+
+def test_trim_with_free_inputs_and_no_targets():
+    # d/dt x = 4 (r + u - x) = 0: an equilibrium x = 2 + u (was a raw ValueError: no
+    # targets, so no outputs to evaluate)
+    op = spidersim.loads(LAG).trim(free_inputs=["r.y"], jit=False)
+    assert op.x[0] == pytest.approx(2.0 + op.inputs["r.y"], abs=1e-9)
+    assert op.residuals == {"d/dt x.y": pytest.approx(0.0, abs=1e-9)}
+
+
+def test_trim_from_a_start_with_non_finite_residuals_is_named():
+    # sq.y = x^2 overflows at x0 = 1e308 (was SciPy's raw ValueError)
+    d = spidersim.loads(CONST_INTO_INTEGRATOR)
+    with pytest.raises(AnalysisError, match=r"trim cannot start from the given x0: the "
+                       r"residuals there are not finite \(sq.y = inf\)"):
+        d.trim(targets={"sq.y": 1.0}, derivatives=[], x0=[1e308], jit=False)
