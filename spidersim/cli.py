@@ -734,22 +734,26 @@ def cmd_check(args):
 
 def _check_commands(d, args):
     """The file's ``commands`` section as the service reads it, each argument naming a
-    parameter of the model, and each command's ``set`` values and argument defaults
+    parameter of the model in a unit that converts to the parameter's, and each
+    command's ``set`` values and argument defaults (in the argument's declared unit)
     applied to the model (a path the model does not have, or a value it refuses, is an
     error naming the command)."""
     from . import load
-    from .service.commands import check_argument_paths, named_commands
+    from .service.commands import (argument_value, check_argument_paths,
+                                   check_argument_units, named_commands)
     cmds = named_commands(d.spec)
     check_argument_paths(d, cmds)
+    check_argument_units(d, cmds)
     base = _parse_sets(args.set)
     line = d.spec.data.line_of("commands") if hasattr(d.spec.data, "line_of") else None
     for name, c in cmds.items():
         trial = {str(k): v for k, v in c["set"].items()}
-        trial.update({k: a["default"] for k, a in c["arguments"].items()
-                      if a["default"] is not None})
-        if not trial:
-            continue
         try:
+            trial.update({k: argument_value(d, k, a["default"], a["unit"],
+                                            f"argument '{k}': default")
+                          for k, a in c["arguments"].items() if a["default"] is not None})
+            if not trial:
+                continue
             load(args.file, set={**base, **trial})
         except SpidersimError as exc:
             raise SpidersimError(f"command '{name}': {exc.message}", file=d.file,

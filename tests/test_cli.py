@@ -157,10 +157,20 @@ def test_set_from_the_command_line(tmp_path, capsys):
     ("      ref.after: {doc: position after the step, unit: rad, default: [1, 2]}",
      "block 'ref': command 'position_step': parameter 'after' must be a scalar",
      "commands:"),
+    ("      ref.after: {doc: position after the step, unit: m}",
+     "argument 'ref.after' is declared in m, but the parameter is in rad: m does not "
+     "convert to rad", "      ref.after"),
+    ("      ref.after: {unit: rad}\n      motor.R: {doc: resistance, unit: degC}",
+     "argument 'motor.R' is declared in degC, but the parameter is in Ohm: degC does not "
+     "convert to Ohm", "      motor.R"),
+    ("      ref.after: {unit: rad}\n      e_pos.signs: {unit: K}",
+     "argument 'e_pos.signs' is declared in K: a str parameter takes no unit",
+     "      e_pos.signs"),
 ])
 def test_check_reads_the_named_commands(tmp_path, capsys, edit, message, at):
     """``spidersim check`` reads the ``commands`` section the service serves: a command
-    whose argument names a parameter the model does not have (at the argument's line) or
+    whose argument names a parameter the model does not have or is declared in a unit of
+    another kind than the parameter's (a K on a time passed; at the argument's line) or
     whose default the model refuses (at the section's line) fails at the check, with the
     file and the command's name, not at the first request to the service. The intact file
     lists its commands."""
