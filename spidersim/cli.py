@@ -13,8 +13,6 @@ import sys
 import time
 import warnings
 
-import yaml
-
 from .errors import DiagramError, SpidersimError, printable
 from .outputs import prepare_out, safe_stem
 
@@ -57,16 +55,16 @@ class Progress:
 
 
 def _parse_sets(items):
+    """``--set path=VALUE`` items -> ``{path: value}``, each value read by the rules of a
+    diagram file's values (:func:`~spidersim.text.yamlio.command_line_value`: ``010``
+    and ``1:30`` are refused as in a file; they were 8 and 90)."""
+    from .text.yamlio import command_line_value
     out = {}
     for item in items or []:
         if "=" not in item:
             raise SpidersimError(f"--set expects path=value, got '{item}'")
         k, v = item.split("=", 1)
-        try:
-            val = yaml.safe_load(v)
-        except yaml.YAMLError:
-            val = v
-        out[k.strip()] = val
+        out[k.strip()] = command_line_value(v, f"--set {k.strip()}")
     return out
 
 

@@ -48,6 +48,7 @@ import numpy as np
 from .errors import DiagramError, SpidersimError, SweepWarning
 from .outputs import safe_stem, save_figure, write_atomic
 from .plots import math_text_problem, signal_values, split_signal
+from .text.yamlio import number_problem
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
 
@@ -163,7 +164,8 @@ def _shown(v):
 
 
 def parse_vary(items) -> list[tuple[str, list]]:
-    """``["V_ci=20,28,36", "K=1e4,1e5"]`` -> ``[("V_ci", [20.0, 28.0, 36.0]), ...]``."""
+    """``["V_ci=20,28,36", "K=1e4,1e5"]`` -> ``[("V_ci", [20.0, 28.0, 36.0]), ...]``; a
+    number form a diagram file refuses (``010``, YAML 1.1's octal 8) is refused."""
     out = []
     for item in items or []:
         if "=" not in item:
@@ -180,6 +182,9 @@ def parse_vary(items) -> list[tuple[str, list]]:
             tok = tok.strip()
             if not tok:
                 raise SpidersimError(f"--vary {path}: empty value in '{text}'")
+            problem = number_problem(tok)         # 010 and 1:30, refused as in a file
+            if problem:
+                raise SpidersimError(f"--vary {path}: {problem}")
             try:
                 v = float(tok)
             except ValueError:

@@ -203,6 +203,10 @@ def test_unreachable_scheduler_is_a_clear_error(drop_file, address):
     (["K=1,,2"], "empty value"),
     (["K=1", "K=2"], "given twice"),
     (["K=inf"], "not a finite number"),
+    # a diagram file refuses these YAML 1.1 forms; --vary read 010 as 10
+    (["K=1,010"], "--vary K: '010' has a leading zero, which YAML 1.1 reads as an octal"),
+    (["K=-00"], "'-00' has a leading zero"),
+    (["K=1:30"], "--vary K: '1:30' is a base-60 number"),
     (["1K=2"], "not a parameter path"),
     (["a=" + ",".join(["1"] * 1000), "b=" + ",".join(["2"] * 101)],
      "the sweep grid has 1000 x 101 = 101,000 runs, more than 100,000"),
@@ -223,6 +227,7 @@ def test_grid_at_the_run_limit_is_accepted():
 def test_vary_values():
     assert sw.parse_vary(["wall.K=1e4, 2.5e5", "V_ci=20"]) == [("wall.K", [1e4, 2.5e5]),
                                                               ("V_ci", [20.0])]
+    assert sw.parse_vary(["k=0,0.5,010.5,-0,1_0"]) == [("k", [0.0, 0.5, 10.5, 0.0, 10.0])]
 
 
 @pytest.mark.parametrize("entry, message", [
