@@ -13,8 +13,6 @@ import sys
 import time
 import warnings
 
-import yaml
-
 from .errors import DiagramError, SpidersimError, printable
 from .outputs import prepare_out, safe_stem
 
@@ -57,16 +55,16 @@ class Progress:
 
 
 def _parse_sets(items):
+    """``--set path=VALUE`` items -> ``{path: value}``, each value read by the rules of a
+    diagram file's values (:func:`~spidersim.text.yamlio.command_line_value`: ``010``
+    and ``1:30`` are refused as in a file; they were 8 and 90)."""
+    from .text.yamlio import command_line_value
     out = {}
     for item in items or []:
         if "=" not in item:
             raise SpidersimError(f"--set expects path=value, got '{item}'")
         k, v = item.split("=", 1)
-        try:
-            val = yaml.safe_load(v)
-        except yaml.YAMLError:
-            val = v
-        out[k.strip()] = val
+        out[k.strip()] = command_line_value(v, f"--set {k.strip()}")
     return out
 
 
@@ -111,7 +109,8 @@ def _raw_sets(items):
 
 def provenance(args, d, sets):
     """What a run's report must hold to be repeated: versions, platform, date, the hashes
-    of the diagram file and its subsystem files, the command line, every --set."""
+    of the diagram file and its subsystem files (keyed by absolute path: ``--rerun`` from
+    another folder checks the same files), the command line, every --set."""
     import datetime
     import hashlib
     import platform
@@ -127,7 +126,7 @@ def provenance(args, d, sets):
     hashes = {}
     for f in files:
         with open(f, "rb") as fh:
-            hashes[os.path.relpath(f)] = hashlib.sha256(fh.read()).hexdigest()
+            hashes[os.path.abspath(f)] = hashlib.sha256(fh.read()).hexdigest()
     return {
         "versions": {"spidersim": _version(), "python": platform.python_version(),
                      **{p: v(p) for p in ("numpy", "scipy", "numba", "networkx",
@@ -188,13 +187,21 @@ def _rerun_args(args):
         raise SpidersimError(f"--rerun {args.rerun}: not a spidersim run report "
                              f"(report.json with its provenance): {exc}") from None
     _check_rerun_spec(args.rerun, prov, spec)
-    if args.file is not None or args.set or args.t_end is not None or args.method:
+    if (args.file is not None or args.set or args.t_end is not None
+            or args.method is not None):
         raise SpidersimError("--rerun repeats a run exactly: give no FILE, --set, --t-end "
                              "or --method with it")
     args.file = spec["file"]
     args.set = [f"{k}={v}" for k, v in spec["set"].items()]
     args.t_end, args.method, args.no_jit = spec["t_end"], spec["method"], not spec["jit"]
-    for f, h in prov.get("file_sha256", {}).items():
+    hashes = prov.get("file_sha256", {})
+    for key, h in hashes.items():
+        f = _hashed_file(key, hashes, spec["file"])
+        if f is None:
+            print(f"spidersim: warning: cannot check whether {key} has changed: the report "
+                  f"gives its path relative to the folder the run was started in",
+                  file=sys.stderr)
+            continue
         try:
             with open(f, "rb") as fh:
                 now = hashlib.sha256(fh.read()).hexdigest()
@@ -206,11 +213,28 @@ def _rerun_args(args):
     return args
 
 
+def _hashed_file(key, hashes, main):
+    """The file a key of a report's ``file_sha256`` names: an absolute path as it is; a
+    relative one (reports before 0.1.x: relative to the folder the run was started in)
+    resolved against that folder, found from the diagram file's key (its first) and
+    absolute path ``main``; None when that folder cannot be told (a key with ``..``)."""
+    if os.path.isabs(key):
+        return key
+    first = os.path.normpath(next(iter(hashes)))
+    if os.path.isabs(first) or first.split(os.sep)[0] == os.pardir:
+        return None
+    main = os.path.normpath(main)
+    if not main.endswith(os.sep + first):
+        return None
+    return os.path.normpath(os.path.join(main[:-len(first)], key))
+
+
 def cmd_run(args):
     if args.remote:
         return cmd_run_remote(args)
     from . import load
-    if args.rerun:
+    _check_local_options(args)
+    if args.rerun is not None:
         args = _rerun_args(args)
     if args.file is None:
         raise SpidersimError("spidersim run: give a diagram FILE (or --rerun REPORT)")
@@ -278,6 +302,8 @@ def cmd_run(args):
 #: may be stiff (a DC motor with L = 1e-8 H took 60 million DP54 steps without a word)
 EXPLICIT = ("DP54", "RK45", "RK23", "DOP853")
 STIFF_HINT_STEPS = 1_000_000
+#: seconds ``run --remote`` waits for its job when no --timeout is given
+REMOTE_TIMEOUT = 3600.0
 
 
 def _show(r, d):
@@ -474,11 +500,12 @@ def default_out(d, suffix=""):
 
 def _check_method(d, method):
     """The integration method (``--method`` or ``simulation.method``) is one of
-    ``METHODS``; return it. A value from the command line is reported without a line."""
+    ``METHODS``; return it. A value from the command line (None: not given; an empty
+    text is given) is reported without a line."""
     from .solver.integrate import METHODS
-    where, line = (("--method", None) if method else
+    where, line = (("--method", None) if method is not None else
                    ("simulation.method", d.spec.simulation_lines.get("method")))
-    method = method or d.simulation["method"]
+    method = d.simulation["method"] if method is None else method
     if method not in METHODS:
         import difflib
         near = difflib.get_close_matches(str(method), list(METHODS), n=1)
@@ -735,22 +762,26 @@ def cmd_check(args):
 
 def _check_commands(d, args):
     """The file's ``commands`` section as the service reads it, each argument naming a
-    parameter of the model, and each command's ``set`` values and argument defaults
+    parameter of the model in a unit that converts to the parameter's, and each
+    command's ``set`` values and argument defaults (in the argument's declared unit)
     applied to the model (a path the model does not have, or a value it refuses, is an
     error naming the command)."""
     from . import load
-    from .service.commands import check_argument_paths, named_commands
+    from .service.commands import (argument_value, check_argument_paths,
+                                   check_argument_units, named_commands)
     cmds = named_commands(d.spec)
     check_argument_paths(d, cmds)
+    check_argument_units(d, cmds)
     base = _parse_sets(args.set)
     line = d.spec.data.line_of("commands") if hasattr(d.spec.data, "line_of") else None
     for name, c in cmds.items():
         trial = {str(k): v for k, v in c["set"].items()}
-        trial.update({k: a["default"] for k, a in c["arguments"].items()
-                      if a["default"] is not None})
-        if not trial:
-            continue
         try:
+            trial.update({k: argument_value(d, k, a["default"], a["unit"],
+                                            f"argument '{k}': default")
+                          for k, a in c["arguments"].items() if a["default"] is not None})
+            if not trial:
+                continue
             load(args.file, set={**base, **trial})
         except SpidersimError as exc:
             raise SpidersimError(f"command '{name}': {exc.message}", file=d.file,
@@ -940,16 +971,44 @@ class SweepStop(StopRequest):
     BEFORE = "the first run started"
 
 
+def _check_local_options(args):
+    """A local ``run`` refuses the options only ``--remote`` reads (they were ignored
+    without a word), and an empty ``--rerun`` (it ran the FILE, or asked for one)."""
+    given = [o for o, v in (("--timeout", args.timeout), ("--token", args.token))
+             if v is not None]
+    if given:
+        verb = "apply" if len(given) > 1 else "applies"
+        raise SpidersimError(f"{' and '.join(given)} {verb} to a --remote run only; a local "
+                             f"run has no wait limit (Ctrl-C stops it, keeping its data)")
+    if args.rerun is not None and not args.rerun.strip():
+        raise SpidersimError("--rerun: give a run's results folder or its report.json, got "
+                             "an empty text")
+
+
+def _check_remote_options(args):
+    """A ``--remote`` run refuses the options the service does not take (they were
+    ignored without a word): the service runs the model with its own method and code."""
+    given = [o for o, v in (("--rerun", args.rerun is not None),
+                            ("--method", args.method is not None),
+                            ("--no-jit", args.no_jit), ("--show", args.show)) if v]
+    if given:
+        raise SpidersimError(f"{', '.join(given)}: not available with --remote (the service "
+                             f"runs the model with its own method and compiled code; "
+                             f"--set, --t-end, --no-plots and --out apply)")
+
+
 def cmd_run_remote(args):
     """``spidersim run MODEL --remote URL``: run on a service, fetch the results."""
     from .remote import Client
+    _check_remote_options(args)
     c = Client(args.remote, args.token or os.environ.get("SPIDERSIM_TOKEN"))
     name = os.path.splitext(os.path.basename(args.file))[0]
-    with c.deadline(args.timeout):   # submit and wait together; each download request
+    timeout = REMOTE_TIMEOUT if args.timeout is None else args.timeout
+    with c.deadline(timeout):        # submit and wait together; each download request
         job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
                        plots=not args.no_plots)          # keeps its own time limit
         print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
-        st = c.wait(job, timeout=args.timeout)
+        st = c.wait(job, timeout=timeout)
     out = args.out or os.path.join("results", safe_stem(name))
     paths = c.download(job, out)
     print(f"spidersim: {st['state']}: t = {st['progress']:g} / {st['t_end']:g} s"
@@ -1057,8 +1116,8 @@ def build_parser():
     r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE names "
                    "a model of its library) and download the results")
     r.add_argument("--token", help="service token (default: $SPIDERSIM_TOKEN)")
-    r.add_argument("--timeout", type=positive_float, default=3600,
-                   help="seconds to wait (--remote)")
+    r.add_argument("--timeout", type=positive_float,
+                   help=f"seconds to wait (--remote; default {REMOTE_TIMEOUT:g})")
     r.set_defaults(fn=cmd_run)
     c = sub.add_parser("check", help="validate a diagram and print its structure")
     c.add_argument("file")

@@ -48,6 +48,7 @@ import numpy as np
 from .errors import DiagramError, SpidersimError, SweepWarning
 from .outputs import safe_stem, save_figure, write_atomic
 from .plots import math_text_problem, signal_values, split_signal
+from .text.yamlio import number_problem
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
 
@@ -67,6 +68,10 @@ REDUCERS = {
 
 
 _METRIC_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}\Z")
+#: the sweep table's own columns: a metric or a varied parameter of one of these names
+#: would share its column (a metric 'status' broke the progress line, a parameter 'run'
+#: doubled the column)
+RESERVED = ("run", "status", "t_reached", "wall_s", "compiled", "worker", "message")
 
 
 @dataclass
@@ -105,6 +110,9 @@ def parse_metrics(diagram) -> list[Metric]:
         if not isinstance(name, str) or not _METRIC_NAME.match(name):
             fail("a metric name is an identifier (letters, digits, _; it names a column "
                  "and a plot file), e.g. peak_force")
+        if name in RESERVED:
+            fail(f"the name of a column the sweep table has already ({', '.join(RESERVED)}); "
+                 f"choose another, e.g. {name}_value")
         if not isinstance(entry, dict):
             fail("expected a mapping {signal: block.port, reduce: max|min|...}, got "
                  f"{entry!r}")
@@ -163,7 +171,8 @@ def _shown(v):
 
 
 def parse_vary(items) -> list[tuple[str, list]]:
-    """``["V_ci=20,28,36", "K=1e4,1e5"]`` -> ``[("V_ci", [20.0, 28.0, 36.0]), ...]``."""
+    """``["V_ci=20,28,36", "K=1e4,1e5"]`` -> ``[("V_ci", [20.0, 28.0, 36.0]), ...]``; a
+    number form a diagram file refuses (``010``, YAML 1.1's octal 8) is refused."""
     out = []
     for item in items or []:
         if "=" not in item:
@@ -175,11 +184,15 @@ def parse_vary(items) -> list[tuple[str, list]]:
                                  f"block.param)")
         if any(p == path for p, _ in out):
             raise SpidersimError(f"--vary: '{path}' given twice")
+        _check_varied_name(path)
         values = []
         for tok in text.split(","):
             tok = tok.strip()
             if not tok:
                 raise SpidersimError(f"--vary {path}: empty value in '{text}'")
+            problem = number_problem(tok)         # 010 and 1:30, refused as in a file
+            if problem:
+                raise SpidersimError(f"--vary {path}: {problem}")
             try:
                 v = float(tok)
             except ValueError:
@@ -196,6 +209,31 @@ def parse_vary(items) -> list[tuple[str, list]]:
 
 #: runs in one sweep (the grid is built, run and tabulated in memory)
 MAX_RUNS = 100_000
+
+
+def _check_varied_name(path):
+    """Refuse a varied parameter named like a column of the sweep table (:data:`RESERVED`):
+    its values and the table's would share the column."""
+    if path in RESERVED:
+        raise SpidersimError(f"--vary {path}: '{path}' names a column of the sweep table "
+                             f"({', '.join(RESERVED)}), so it cannot be varied under that "
+                             f"name; rename the diagram parameter")
+
+
+def _check_columns(d, metrics, vary):
+    """Every column of the sweep table has one meaning: no varied parameter is named
+    like a column of the table's own, and no metric like a varied parameter (the CSV had
+    two 'k' columns)."""
+    paths = [p for p, _ in vary]
+    for p in paths:
+        _check_varied_name(p)
+    raw = d.spec.metrics
+    for m in metrics:
+        if m.name in paths:
+            raise DiagramError(
+                f"metric '{m.name}' has the name of the varied parameter '{m.name}': both "
+                f"would be column '{m.name}' of the sweep table; rename the metric",
+                file=d.file, line=raw.line_of(m.name) if hasattr(raw, "line_of") else None)
 
 
 def check_grid_size(vary):
@@ -330,6 +368,7 @@ class SweepResult:
         return [r for r in self.rows if r["status"] in (INTERRUPTED, NOT_RUN)]
 
     def columns(self):
+        """The CSV's columns: :data:`RESERVED` around the varied parameters and metrics."""
         return (["run"] + [p for p, _ in self.vary] + ["status"]
                 + [m.name for m in self.metrics]
                 + ["t_reached", "wall_s", "compiled", "worker", "message"])
@@ -372,7 +411,7 @@ class SweepResult:
         if len(self.vary) < 2:
             return [self._curve(None, fixed)]
         p2, values = self.vary[1]
-        return [self._curve(f"{p2} = {v2:g}", {**fixed, p2: v2}) for v2 in values]
+        return [self._curve(f"{p2} = {_num(v2)}", {**fixed, p2: v2}) for v2 in values]
 
     def _curve(self, label, point):
         """The :class:`Curve` of the rows whose parameters have the values in ``point``."""
@@ -389,13 +428,16 @@ class SweepResult:
 
     def plot(self, folder):
         """One PNG per metric: metric vs the first parameter, one line per value of the
-        second (the paper's Fig. 9); further parameters give one figure per combination."""
-        return [self._plot_metric(folder, m, fixed)
+        second (the paper's Fig. 9); further parameters give one figure per combination.
+        Each figure has a file of its own (:func:`_unique_path`)."""
+        taken = set()
+        return [self._plot_metric(folder, m, fixed, taken)
                 for fixed in self.figures() for m in self.metrics]
 
-    def _plot_metric(self, folder, m, fixed):
+    def _plot_metric(self, folder, m, fixed, taken):
         """Draw metric ``m`` against the first parameter for the rows with ``fixed``;
-        failed runs are crosses at the bottom edge. Returns the PNG's path."""
+        failed runs are crosses at the bottom edge. Returns the PNG's path, one not in
+        ``taken`` (added to it)."""
         import matplotlib.pyplot as plt
         p1 = self.vary[0][0]
         fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -408,7 +450,7 @@ class SweepResult:
         if len(self.vary) > 1 or self.failed:
             ax.legend()
         fig.tight_layout()
-        path = _figure_path(folder, m, fixed)
+        path = _unique_path(_figure_path(folder, m, fixed), taken)
         return save_figure(fig, path)
 
 
@@ -438,14 +480,34 @@ def _figure_title(m, fixed):
     """``x_end (final value of x.y), K = 3`` for metric ``m`` and fixed parameters."""
     title = f"{m.name} ({m.reduce} of {m.label})"
     if fixed:
-        title += ", " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items())
+        title += ", " + ", ".join(f"{k} = {_num(v)}" for k, v in fixed.items())
     return title
 
 
 def _figure_path(folder, m, fixed):
     """``folder/sweep_<metric>[_<param><value>...].png``, the name made safe."""
-    tag = "".join(f"_{k}{v:g}" for k, v in fixed.items())
+    tag = "".join(f"_{k}{_num(v)}" for k, v in fixed.items())
     return os.path.join(folder, f"sweep_{safe_stem(m.name + tag)}.png")
+
+
+def _unique_path(path, taken):
+    """``path``, or ``<stem>_2.png``, ``_3``, ... when a figure of this sweep took it (a
+    name cut at its length limit); added to ``taken``."""
+    stem, ext = os.path.splitext(path)
+    n = 1
+    while path in taken:
+        n += 1
+        path = f"{stem}_{n}{ext}"
+    taken.add(path)
+    return path
+
+
+def _num(v):
+    """A varied value as text that tells it from the others: ``:g`` (``20``, ``2.5e+05``)
+    when that reads back as the value, else the shortest text that does (``1.0000001``
+    and ``1.0000002`` were both ``1``: one file for two figures, the same titles)."""
+    text = f"{v:g}"
+    return text if float(text) == v else repr(float(v))
 
 
 def _fmt(v, digits=None):
@@ -509,6 +571,7 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
         raise DiagramError("the diagram declares no metrics: add a 'metrics' section, e.g. "
                            "metrics: {peak: {signal: block.port, reduce: max}}",
                            file=d.file)
+    _check_columns(d, metrics, vary)
     t_end = sim.get("t_end")
     if t_end is not None and not (isinstance(t_end, (int, float)) and t_end > 0):
         raise SpidersimError(f"the simulated time of each run must be > 0 s, got {t_end}")
@@ -765,9 +828,8 @@ def _dask_client(workers, scheduler, connect_timeout):
 def print_progress(row, done, total, stream=None):
     """Default progress line for the CLI (on ``sys.stderr`` as it is at the call)."""
     stream = stream or sys.stderr
-    vals = " ".join(f"{k}={v:g}" for k, v in row.items()
-                    if k not in ("run", "status", "message", "compiled", "worker", "wall_s",
-                                 "t_reached") and isinstance(v, float))
+    vals = " ".join(f"{k}={_num(v)}" for k, v in row.items()
+                    if k not in RESERVED and isinstance(v, float))
     what = "ok" if row["status"] == "ok" else f"{row['status'].upper()}: {row['message'][:200]}"
     stream.write(f"  [{done}/{total}] run {row['run']}: {vals}  {what}  "
                  f"({row.get('wall_s', math.nan):.2f} s)\n")

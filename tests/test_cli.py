@@ -150,6 +150,29 @@ def test_set_from_the_command_line(tmp_path, capsys):
     assert "motor.Q" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("value, words", [
+    ("010", "--set c.value: '010' has a leading zero, which YAML 1.1 reads as an octal"),
+    ("-010", "--set c.value: '-010' has a leading zero"),
+    ("1:30", "--set c.value: '1:30' is a base-60 number in YAML 1.1"),
+    ("[1, 010]", "--set c.value: '010' has a leading zero"),
+    ("2020-13-01", "--set c.value: '2020-13-01' is written as a YAML date but is none"),
+])
+def test_set_refuses_the_yaml11_numbers_a_file_refuses(tmp_path, capsys, value, words):
+    """``--set c.value=010`` ran with 8 and ``=1:30`` with 90 (plain yaml.safe_load), where
+    the same value in the file is refused; an impossible date was an internal error. Now
+    the loader's rules, exit status 2; what a file takes still passes (quoted 010 reaches
+    the expression reader, 0x10 is 16, a text that is not YAML stays a text)."""
+    f = tmp_path / "c.yaml"
+    f.write_text("blocks:\n  c: {type: Constant, value: 1}\n  i: {type: Integrator}\n"
+                 "connections: [c.y -> i.u]\n")
+    assert main(["check", str(f), "--set", f"c.value={value}"]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and "internal error" not in err, err
+    from spidersim.cli import _parse_sets
+    assert _parse_sets(["a=0x10", "b='010'", "c=1e3", "d=a: b: c", "e=[1, 2.5]"]) == {
+        "a": 16, "b": "010", "c": "1e3", "d": "a: b: c", "e": [1, 2.5]}
+
+
 @pytest.mark.parametrize("edit, message, at", [
     ("      ref.aftr: {doc: position after the step, unit: rad, default: 1}",
      "argument 'ref.aftr' names no parameter: block 'ref' (Step) has no parameter 'aftr'; "
@@ -157,10 +180,20 @@ def test_set_from_the_command_line(tmp_path, capsys):
     ("      ref.after: {doc: position after the step, unit: rad, default: [1, 2]}",
      "block 'ref': command 'position_step': parameter 'after' must be a scalar",
      "commands:"),
+    ("      ref.after: {doc: position after the step, unit: m}",
+     "argument 'ref.after' is declared in m, but the parameter is in rad: m does not "
+     "convert to rad", "      ref.after"),
+    ("      ref.after: {unit: rad}\n      motor.R: {doc: resistance, unit: degC}",
+     "argument 'motor.R' is declared in degC, but the parameter is in Ohm: degC does not "
+     "convert to Ohm", "      motor.R"),
+    ("      ref.after: {unit: rad}\n      e_pos.signs: {unit: K}",
+     "argument 'e_pos.signs' is declared in K: a str parameter takes no unit",
+     "      e_pos.signs"),
 ])
 def test_check_reads_the_named_commands(tmp_path, capsys, edit, message, at):
     """``spidersim check`` reads the ``commands`` section the service serves: a command
-    whose argument names a parameter the model does not have (at the argument's line) or
+    whose argument names a parameter the model does not have or is declared in a unit of
+    another kind than the parameter's (a K on a time passed; at the argument's line) or
     whose default the model refuses (at the section's line) fails at the check, with the
     file and the command's name, not at the first request to the service. The intact file
     lists its commands."""

@@ -81,3 +81,71 @@ def test_version(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--version"])
     assert exc.value.code == 0 and capsys.readouterr().out.startswith("spidersim ")
+
+
+BASE = ("blocks:\n  c: {type: Constant, value: 1}\n  i: {type: Integrator}\n"
+        "connections: [c.y -> i.u]\nsimulation: {t_end: 1}\n")
+
+
+def test_rerun_from_another_folder_checks_the_same_file(tmp_path, capsys, monkeypatch):
+    """The hashes are keyed by absolute path: a run started in d3/ and repeated from d/
+    warned about nothing after d3/base.yaml was edited (it hashed d/base.yaml, absent:
+    'changed' only by chance) and the rerun integrated 5 instead of 1 silently; from the
+    parent folder an unchanged file was reported changed."""
+    (tmp_path / "d3").mkdir()
+    (tmp_path / "d").mkdir()
+    src = tmp_path / "d3" / "base.yaml"
+    src.write_text(BASE)
+    monkeypatch.chdir(tmp_path / "d3")
+    assert main(["run", "base.yaml", "--no-plots", "--no-jit", "--out", "../r1"]) == 0
+    prov = json.loads((tmp_path / "r1" / "report.json").read_text())["provenance"]
+    assert list(prov["file_sha256"]) == [str(src)]
+    for folder in (tmp_path, tmp_path / "d"):       # unchanged: no warning from anywhere
+        monkeypatch.chdir(folder)
+        capsys.readouterr()
+        assert main(["run", "--rerun", str(tmp_path / "r1"), "--out", str(tmp_path / "r2")]) == 0
+        assert "has changed" not in capsys.readouterr().err
+    src.write_text(BASE.replace("value: 1", "value: 5"))
+    assert main(["run", "--rerun", str(tmp_path / "r1"), "--out", str(tmp_path / "r3")]) == 0
+    assert f"{src} has changed since the reported run" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("key, main_file, expected", [
+    ("d3/base.yaml", "/w/d3/base.yaml", "/w/d3/base.yaml"),
+    ("sub.yaml", "/w/d3/base.yaml", "/w/sub.yaml"),        # the run started in /w
+    ("/abs/sub.yaml", "/w/d3/base.yaml", "/abs/sub.yaml"),
+])
+def test_relative_hash_keys_of_older_reports_resolve_from_the_run_folder(key, main_file,
+                                                                         expected):
+    """A report written before the keys were absolute gives paths relative to the folder
+    the run started in; that folder is the diagram file's path less its key."""
+    from spidersim.cli import _hashed_file
+    hashes = {"d3/base.yaml": "x", key: "y"}
+    assert _hashed_file(key, hashes, main_file) == expected
+    assert _hashed_file("sub.yaml", {"../d3/base.yaml": "x"}, main_file) is None
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["run", "--rerun", ""], "--rerun: give a run's results folder or its report.json"),
+    (["run", "--rerun", " "], "--rerun: give a run's results folder or its report.json"),
+    (["run", "F", "--timeout", "5"], "--timeout applies to a --remote run only"),
+    (["run", "F", "--token", "t", "--timeout", "5"],
+     "--timeout and --token apply to a --remote run only"),
+    (["run", "F", "--method", ""], "--method: unknown method ''; methods: LSODA"),
+    (["run", "servo", "--remote", "http://127.0.0.1:9", "--method", "DP54"],
+     "--method: not available with --remote"),
+    (["run", "servo", "--remote", "http://127.0.0.1:9", "--rerun", "r1", "--no-jit"],
+     "--rerun, --no-jit: not available with --remote"),
+])
+def test_run_options_it_would_ignore_are_refused(tmp_path, capsys, monkeypatch, argv, words):
+    """An empty --rerun ran the FILE (or asked for one), a local --timeout or --token and a
+    --remote --method or --rerun were ignored without a word, and --method '' compiled
+    the diagram before the run named the file instead of the option: each is refused
+    before anything is compiled, exit status 2."""
+    (tmp_path / "F").write_text(BASE)
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err, err
+    assert " blocks, " not in err                 # nothing loaded for a run or compiled
+    assert not (tmp_path / "results").exists()

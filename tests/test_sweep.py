@@ -203,6 +203,10 @@ def test_unreachable_scheduler_is_a_clear_error(drop_file, address):
     (["K=1,,2"], "empty value"),
     (["K=1", "K=2"], "given twice"),
     (["K=inf"], "not a finite number"),
+    # a diagram file refuses these YAML 1.1 forms; --vary read 010 as 10
+    (["K=1,010"], "--vary K: '010' has a leading zero, which YAML 1.1 reads as an octal"),
+    (["K=-00"], "'-00' has a leading zero"),
+    (["K=1:30"], "--vary K: '1:30' is a base-60 number"),
     (["1K=2"], "not a parameter path"),
     (["a=" + ",".join(["1"] * 1000), "b=" + ",".join(["2"] * 101)],
      "the sweep grid has 1000 x 101 = 101,000 runs, more than 100,000"),
@@ -223,6 +227,7 @@ def test_grid_at_the_run_limit_is_accepted():
 def test_vary_values():
     assert sw.parse_vary(["wall.K=1e4, 2.5e5", "V_ci=20"]) == [("wall.K", [1e4, 2.5e5]),
                                                               ("V_ci", [20.0])]
+    assert sw.parse_vary(["k=0,0.5,010.5,-0,1_0"]) == [("k", [0.0, 0.5, 10.5, 0.0, 10.0])]
 
 
 @pytest.mark.parametrize("entry, message", [
@@ -430,3 +435,68 @@ def test_run_timeout_must_be_a_positive_time(drop_file, capsys, value):
     with pytest.raises(SpidersimError, match="wall-time limit of a run"):
         sw.sweep(drop_file, [("m", [1.0])], workers=0, run_timeout=float(
             value.replace("x", "nan")))
+
+
+COLUMNS = """
+name: cols
+parameters: {run: 1.0, k: 1.0}
+blocks:
+  c: {type: Constant, value: run}
+  g: {type: Gain, k: k}
+  i: {type: Integrator}
+connections: [c.y -> g.u, g.y -> i.u]
+simulation: {t_end: 0.1}
+metrics:
+  METRIC: {signal: i.y, reduce: final}
+"""
+
+
+@pytest.mark.parametrize("metric, vary, words, line", [
+    ("status", [("k", [5.0])], "metric 'status': the name of a column the sweep table has "
+                               "already (run, status, t_reached, wall_s", 11),
+    ("wall_s", [("k", [5.0])], "metric 'wall_s': the name of a column", 11),
+    ("x_end", [("run", [2.0, 3.0])], "--vary run: 'run' names a column of the sweep table",
+     None),
+    ("k", [("k", [5.0, 7.0])], "metric 'k' has the name of the varied parameter 'k': both "
+                               "would be column 'k'", 11),
+])
+def test_metrics_and_varied_parameters_do_not_take_a_column_twice(tmp_path, metric, vary,
+                                                                  words, line):
+    """A metric 'status' ran the grid and then failed the progress line (AttributeError,
+    exit 3, no sweep.csv); a parameter 'run' and a metric named like a varied parameter
+    gave a CSV with two 'run' or two 'k' columns. Each is refused before any run, the
+    metric at its line; ``check`` refuses a metric named like a column too."""
+    path = tmp_path / "cols.yaml"
+    path.write_text(COLUMNS.replace("METRIC", metric))
+    with pytest.raises(SpidersimError) as ei:
+        sw.sweep(str(path), vary, workers=0)
+    assert words in ei.value.message and ei.value.line == line
+    if metric in sw.RESERVED:
+        assert main(["check", str(path)]) == 2
+    if line is None:              # a varied name is refused as the command line is read
+        with pytest.raises(SpidersimError, match=words):
+            sw.parse_vary(["run=2,3"])
+
+
+def test_figures_of_values_that_differ_beyond_6_digits_have_their_own_files(tmp_path,
+                                                                             capsys):
+    """c = 1.0000001 and 1.0000002 as a third varied parameter were both 'c1' in the file
+    name and 'c = 1' in the title: 2 plots reported, 1 file. Values are written as short as
+    reads back to them; a name still taken (cut at its length limit) gets a number."""
+    path = tmp_path / "three.yaml"
+    path.write_text("parameters: {a: 1, b: 1, c: 1}\nblocks:\n  k: {type: Constant, "
+                    "value: a*b*c}\n  i: {type: Integrator}\nconnections: [k.y -> i.u]\n"
+                    "simulation: {t_end: 0.1}\nmetrics:\n  x_end: {signal: i.y, reduce: "
+                    "final}\n")
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--vary", "a=1,2", "--vary", "b=1,2", "--vary",
+                 "c=1.0000001,1.0000002", "--workers", "0", "--out", str(out)]) == 0
+    assert sorted(os.listdir(out)) == ["sweep.csv", "sweep_x_end_c1_0000001.png",
+                                       "sweep_x_end_c1_0000002.png"]
+    assert "c=1.0000002" in capsys.readouterr().err          # the progress lines too
+    m = sw.Metric("x_end", "i.y", None, "final")
+    assert sw._figure_title(m, {"c": 1.0000002}).endswith("c = 1.0000002")
+    assert sw._figure_title(m, {"c": 20.0}).endswith("c = 20")
+    taken = set()
+    assert [sw._unique_path("f/a.png", taken) for _ in range(3)] == [
+        "f/a.png", "f/a_2.png", "f/a_3.png"]

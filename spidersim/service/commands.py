@@ -45,7 +45,11 @@ Units: a parameter, initial state or named-command argument may be given as
 refused); ``table`` and ``joint_path`` take an optional ``"unit"`` for their values
 (converted to the unit the model infers for the block's output), ``cartesian_line`` values
 may each be ``{"value", "unit"}`` (distance m, speed m/s, accel m/s2). A plain number is in
-the declared unit.
+the declared unit: for a named command's argument (and its ``default``) the unit the
+command declares, else the parameter's. An argument's value ends in the parameter's own unit
+(:func:`argument_value`: 500 for ``st.t_step`` declared ``ms`` is 0.5 s); a unit of another
+kind than the declared one or the parameter's is refused, and ``spidersim check`` refuses a
+declaration in such a unit (:func:`check_argument_units`).
 
 Every value is checked by the diagram loader, so a request gets the CLI's messages (unknown
 names with suggestions, bounds, shapes); problems with the command itself raise
@@ -491,21 +495,146 @@ def _cartesian_line_command(d0, spec, cmd, overrides):
             _set(overrides, f"{prof}.{param}", val, spec)
 
 
-def _argument_value(name, k, v, declared, spec):
-    """Value of argument ``k`` of named command ``name``: a ``{"value", "unit"}`` is
-    converted to the unit the command ``declared`` for it (a number or a list stays one);
-    anything else is passed on for the loader to check."""
-    if not (isinstance(v, dict) and declared):
-        # without a declared unit the loader converts a value with a unit to the
-        # parameter's own unit
-        return v
-    if set(v) != {"value", "unit"}:
-        _fail(f"command argument '{k}': a value with a unit is {{\"value\": x, "
-              f"\"unit\": \"{declared}\"}}", spec)
-    x = v["value"]
-    arr = _numbers(x if isinstance(x, list) else [x], f"arguments.{k}", spec)
-    arr = _to_unit(arr, v["unit"], declared, f"argument '{k}'", spec)[0]
-    return arr.tolist() if isinstance(x, list) else float(arr[0])
+def parameter_unit(d, path):
+    """The unit a value of parameter ``path`` of the loaded diagram ``d`` is read in.
+
+    Parameters
+    ----------
+    d : Diagram
+    path : str
+        A parameter path as ``--set`` takes it (``st.t_step``, ``T0``, ``j3.ratio``).
+
+    Returns
+    -------
+    str or None
+        The unit the block declares (``s`` for a Step's ``t_step``); for a unit inherited
+        from the wiring (a Step's ``after``, a Gain's ``k``) the unit the model infers, or
+        ``"*"`` (:data:`~spidersim.text.units.ANY`) when the wiring leaves it open; None
+        for a parameter without a unit of its own (a diagram or subsystem parameter, whose
+        value with a unit goes to coherent SI).
+
+    Raises
+    ------
+    UnitError
+        For an int, bool or str parameter, which takes no unit.
+    """
+    prefix, _, name = str(path).rpartition(".")
+    inst = d.flat.blocks.get(prefix) if prefix else None
+    decl = inst.cls.parameters.get(name) if inst is not None else None
+    if decl is None:
+        return None
+    if decl.kind != "real":
+        raise U.UnitError(f"a {decl.kind} parameter takes no unit")
+    unit = inst.cls.unit_of(decl, inst.params)
+    if unit == U.ANY or "@" in unit:
+        unit = d.units.get((prefix, "param", name))
+    return U.ANY if unit in (None, UNKNOWN, U.ANY) or "@" in unit else unit
+
+
+def _numeric(x):
+    """``x`` as a float array when it is a number or a (nested) list of numbers, else None
+    (an expression, a boolean: the loader reads and judges it)."""
+    if isinstance(x, (bool, str, dict)) or x is None:
+        return None
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return None if a.dtype == object else a
+
+
+def argument_value(d, path, value, declared, what):
+    """What the loader gets for the named-command argument ``path`` given ``value``.
+
+    A plain value is in the ``declared`` unit (none declared: in the parameter's own
+    unit, passed on unchanged); ``{"value": x, "unit": u}`` is in ``u``, which must
+    convert to the declared unit. A number or list is converted to the parameter's own
+    unit (:func:`parameter_unit`: 500 ms for a Step's ``t_step`` is 0.5; 45 deg for a
+    Step's ``after`` the model reads in rad is pi/4), or, when the wiring leaves that
+    open, to the declared unit (a plain number, as the file's values of that block);
+    anything else (an expression, a parameter without a unit of its own) goes to the
+    loader as ``{"value", "unit"}``, which converts it the same way (a diagram parameter
+    to coherent SI).
+
+    Parameters
+    ----------
+    d : Diagram
+        The model loaded (units and parameters the conversion reads).
+    path : str
+        The argument, a parameter path.
+    value : object
+        The request's value or the declared default.
+    declared : str
+        The unit the command declares for the argument, '' when none.
+    what : str
+        Start of an error message, e.g. ``command 'go': argument 'st.t_step'``.
+
+    Raises
+    ------
+    ParameterError
+        A malformed value with a unit, a unit that does not convert to the declared unit
+        or to the parameter's (the command declares ``K`` for a time), a unit on a
+        parameter that takes none.
+    """
+    if isinstance(value, dict):
+        if set(value) != {"value", "unit"}:
+            _fail(f"{what}: a value with a unit is {{\"value\": x, \"unit\": "
+                  f"\"{declared or 'm'}\"}}", d.spec)
+        x, given = value["value"], value["unit"]
+    elif declared:
+        x, given = value, declared
+    else:
+        return value
+    try:
+        g = U.parse(given)
+        if declared:
+            _converts(g, U.parse(declared), f"the command declares it in {declared}")
+        target = parameter_unit(d, path)
+        plain = target == U.ANY             # open: the number is read as it is written
+        if plain:
+            target = declared or None
+        if target is not None:
+            a, b = _converts(g, U.parse(target), f"the parameter is in {target}")
+    except U.UnitError as exc:
+        _fail(f"{what}: {exc}", d.spec)
+    arr = _numeric(x)
+    if target is None or arr is None:
+        return {"value": x, "unit": given}
+    with np.errstate(all="ignore"):        # an overflow is inf: the loader's checks say so
+        x = (arr * a + b).tolist()
+    return x if plain else {"value": x, "unit": target}
+
+
+def _converts(given, to, why):
+    """``(a, b)`` of :func:`~spidersim.text.units.affine` from ``given`` to ``to``; its
+    UnitError says ``why`` the value must be in ``to``."""
+    try:
+        return U.affine(given, to)
+    except U.UnitError as exc:
+        raise U.UnitError(f"{exc} ({why})") from None
+
+
+def check_argument_units(d, cmds):
+    """Raise a ParameterError at the argument's line if a named command (``cmds``, from
+    :func:`named_commands`) declares a unit that does not convert to the unit of the
+    parameter its argument sets (``unit: K`` for a Step's ``t_step``), or a unit on a
+    parameter that takes none: every value a request gave would be refused."""
+    raw = (d.spec.data or {}).get("commands") or {}
+    for name, c in cmds.items():
+        for k, a in c["arguments"].items():
+            if not a["unit"]:
+                continue
+            target = None
+            try:
+                target = parameter_unit(d, k)
+                if target not in (None, U.ANY):
+                    U.affine(U.parse(a["unit"]), U.parse(target))
+            except U.UnitError as exc:
+                where = f", but the parameter is in {target}" if target not in (
+                    None, U.ANY) else ""
+                raise ParameterError(
+                    f"command '{name}': argument '{k}' is declared in {a['unit']}{where}: "
+                    f"{exc}", file=d.file, line=_line(raw, name, "arguments", k)) from None
 
 
 def _named_command(d0, spec, cmd, overrides):
@@ -520,23 +649,25 @@ def _named_command(d0, spec, cmd, overrides):
     c = cmds[name]
     for k, v in c["set"].items():
         _set(overrides, str(k), v, spec)
-    _set_arguments(name, c["arguments"], cmd.get("arguments") or {}, overrides, spec)
+    _set_arguments(d0, name, c["arguments"], cmd.get("arguments") or {}, overrides, spec)
     return c["t_end"]
 
 
-def _set_arguments(name, declared, args, overrides, spec):
+def _set_arguments(d0, name, declared, args, overrides, spec):
     """Set the ``args`` given to named command ``name`` (each must be ``declared``), then
-    the declared defaults of the arguments not given."""
+    the declared defaults of the arguments not given, each in the parameter's unit
+    (:func:`argument_value`)."""
     if not isinstance(args, dict):
         _fail("command.arguments must be a mapping", spec)
     for k, v in args.items():
         if k not in declared:
             _fail(f"command '{name}' has no argument '{k}'; arguments: "
                   f"{', '.join(declared) or 'none'}", spec)
-        _set(overrides, k, _argument_value(name, k, v, declared[k]["unit"], spec), spec)
     for k, a in declared.items():
-        if k not in args and a["default"] is not None:
-            _set(overrides, k, a["default"], spec)
+        if k in args or a["default"] is not None:
+            v = args[k] if k in args else a["default"]
+            _set(overrides, k, argument_value(d0, k, v, a["unit"],
+                                              f"command '{name}': argument '{k}'"), spec)
 
 
 #: command kind -> function(d0, spec, cmd, overrides) -> run length or None

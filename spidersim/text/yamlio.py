@@ -120,6 +120,7 @@ def _expanded_size(root):
 
 _INT_TAG = "tag:yaml.org,2002:int"
 _FLOAT_TAG = "tag:yaml.org,2002:float"
+_TIMESTAMP_TAG = "tag:yaml.org,2002:timestamp"
 #: digits of the longest integer read (Python refuses to convert more than 4300)
 MAX_INT_DIGITS = 100
 _LEADING_ZERO = re.compile(r"^[-+]?0[0-9_]")
@@ -139,27 +140,79 @@ def lone_surrogate(text: str):
 
 def _check_scalar(node):
     """Refuse a lone surrogate (``"\\ud800"`` in a quoted text: not a character, it cannot
-    be printed or written to a file), the YAML 1.1 number forms a reader does not expect
-    (``010``: octal 8, ``1:30``: base 60, 90) and integers too long to convert; each with
-    its line."""
+    be printed or written to a file) and a plain scalar :func:`number_problem` refuses;
+    each with its line."""
     text = node.value
     line = node.start_mark.line + 1
     ch = lone_surrogate(text)
     if ch:
         raise DiagramError(f"a lone surrogate \\u{ord(ch):04x} (an escape in a quoted "
                            f"text) is not a character", line=line)
-    if node.tag not in (_INT_TAG, _FLOAT_TAG) or node.style is not None:
+    if node.style is not None:
         return
+    problem = number_problem(text, node.tag)
+    if problem:
+        raise DiagramError(problem, line=line)
+
+
+def number_problem(text: str, tag: str | None = None):
+    """Why the plain (unquoted) YAML scalar ``text`` is refused, or None.
+
+    Refused: the YAML 1.1 number forms a reader does not expect (``010``: octal 8,
+    ``1:30``: base 60, 90), integers too long to convert, and a date that is none
+    (``2020-13-01``, which PyYAML fails on with a bare ValueError). The rule of diagram
+    files, and of values on the command line (``--set``, ``--vary``).
+
+    Parameters
+    ----------
+    text : str
+    tag : str, optional
+        The tag YAML resolves ``text`` to; None: resolved here.
+    """
+    if tag is None:
+        tag = _Loader.resolve(_Loader, yaml.ScalarNode, text, (True, False))
+    if tag == _TIMESTAMP_TAG:
+        try:
+            yaml.constructor.SafeConstructor().construct_yaml_timestamp(
+                yaml.ScalarNode(tag, text))
+        except ValueError as exc:
+            return (f"'{text}' is written as a YAML date but is none ({exc}): quote it if "
+                    f"it is a text")
+        return None
+    if tag not in (_INT_TAG, _FLOAT_TAG):
+        return None
     if ":" in text:
-        raise DiagramError(f"'{text}' is a base-60 number in YAML 1.1 (1:30 means 90): write "
-                           f"the number, or quote it if it is a text", line=line)
-    if node.tag == _INT_TAG and _LEADING_ZERO.match(text):
-        raise DiagramError(f"'{text}' has a leading zero, which YAML 1.1 reads as an octal "
-                           f"number ('010' is 8): write it without the zero", line=line)
+        return (f"'{text}' is a base-60 number in YAML 1.1 (1:30 means 90): write the "
+                f"number, or quote it if it is a text")
+    if tag == _INT_TAG and _LEADING_ZERO.match(text):
+        return (f"'{text}' has a leading zero, which YAML 1.1 reads as an octal number "
+                f"('010' is 8): write it without the zero")
     digits = len(text.replace("_", ""))
-    if node.tag == _INT_TAG and digits > MAX_INT_DIGITS:
-        raise DiagramError(f"an integer of {digits} characters: no value of a diagram needs more "
-                           f"than {MAX_INT_DIGITS}", line=line)
+    if tag == _INT_TAG and digits > MAX_INT_DIGITS:
+        return (f"an integer of {digits} characters: no value of a diagram needs more than "
+                f"{MAX_INT_DIGITS}")
+    return None
+
+
+def command_line_value(text: str, what: str):
+    """A value given on the command line (``--set path=VALUE``), read as the loader reads a
+    diagram file's values: plain YAML data within the same bounds, a number form a file
+    refuses refused here too (:func:`number_problem`, e.g. ``010``; a DiagramError
+    starting with ``what``); a text that is not YAML (``a: b: c``) or a tag the safe
+    loader does not build is kept as the text."""
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node)
+        return loader.construct_document(node)
+    except (_Limit, DiagramError) as exc:
+        raise DiagramError(f"{what}: {exc.message}") from None
+    except yaml.YAMLError:
+        return text
+    finally:
+        loader.dispose()
 
 
 def _key_not_a_name(key, knode):

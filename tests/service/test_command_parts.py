@@ -34,8 +34,12 @@ commands:
 
 
 def fake_model(units=None):
-    """What the commands read from a loaded model: units and the Step's parameters."""
-    return SimpleNamespace(units=units or {},
+    """What the commands read from a loaded model: units, the Step's parameters and the
+    block classes (the units of parameters)."""
+    from spidersim.blocks import lookup
+    flat = {n: SimpleNamespace(cls=lookup(t), params={})
+            for n, t in (("ref", "Step"), ("path", "TrapezoidalProfile"), ("g", "Gain"))}
+    return SimpleNamespace(units=units or {}, spec=None, flat=SimpleNamespace(blocks=flat),
                            blocks={"ref": SimpleNamespace(params={"value": 1.0})})
 
 
@@ -91,14 +95,15 @@ def test_joint_path_of_three_points_is_a_via_point_profile():
 
 def test_named_command_sets_arguments_and_defaults():
     """A named command sets its fixed values, the arguments given (a value with a unit is
-    converted to the unit the command declares) and the defaults of the others; it returns
-    its run length."""
+    converted to the parameter's unit, here the rad the wiring gives the Step) and the
+    defaults of the others; it returns its run length."""
     over = {}
-    t_end = C._named_command(fake_model(), parse_text(MODEL), {
+    model = fake_model({("ref", "param", "after"): "rad"})
+    t_end = C._named_command(model, parse_text(MODEL), {
         "name": "step", "arguments": {"ref.after": {"value": 180, "unit": "deg"}}}, over)
     assert t_end == 3
-    assert over == {"ref.t_step": 0.5, "ref.after": pytest.approx(math.pi, rel=1e-15),
-                    "g.k": 2}
+    assert over == {"ref.t_step": 0.5, "g.k": 2, "ref.after": {
+        "value": pytest.approx(math.pi, rel=1e-15), "unit": "rad"}}
     with pytest.raises(ParameterError, match="has no argument 'x'; arguments: ref.after, g.k"):
         C._named_command(fake_model(), parse_text(MODEL), {"name": "step",
                                                            "arguments": {"x": 1}}, {})
@@ -108,15 +113,27 @@ def test_named_command_sets_arguments_and_defaults():
 
 
 def test_argument_value_units():
-    """A list with a unit stays a list, a number a float; without a declared unit the value
-    is passed on unchanged (the loader converts it); a malformed one names the form."""
-    assert C._argument_value("c", "a", {"value": [1, 2], "unit": "km"}, "m", None) == [
-        1000.0, 2000.0]
-    assert C._argument_value("c", "a", {"value": 5, "unit": "ms"}, "s", None) == 0.005
-    raw = {"value": 5, "unit": "ms"}
-    assert C._argument_value("c", "a", raw, "", None) is raw
-    with pytest.raises(ParameterError, match=r'a value with a unit is \{"value": x, "unit": "s"\}'):
-        C._argument_value("c", "a", {"value": 5}, "s", None)
+    """A list with a unit stays a list, a number a float, both in the parameter's unit
+    (a Step's t_step in s, whatever the command declares); a plain number is in the
+    declared unit; without a declared unit a plain value is passed on unchanged; a
+    parameter whose unit the wiring leaves open gets a number in the declared unit (none
+    declared: the value with its unit, which the loader keeps); a diagram parameter the
+    value with its unit (the loader converts it to SI); a malformed one names the form."""
+    m = fake_model()
+    assert C.argument_value(m, "ref.t_step", {"value": [1, 2], "unit": "ms"}, "s", "a") == {
+        "value": [0.001, 0.002], "unit": "s"}
+    assert C.argument_value(m, "ref.t_step", 5, "ms", "a") == {"value": 0.005, "unit": "s"}
+    assert C.argument_value(m, "ref.t_step", {"value": 1, "unit": "min"}, "ms", "a") == {
+        "value": 60.0, "unit": "s"}
+    assert C.argument_value(m, "ref.t_step", 5, "", "a") == 5
+    # a unit the wiring leaves open: a plain number in the declared unit
+    assert C.argument_value(m, "ref.after", {"value": 1, "unit": "cm"}, "mm", "a") == 10.0
+    assert C.argument_value(m, "ref.after", {"value": 1, "unit": "cm"}, "", "a") == {
+        "value": 1, "unit": "cm"}
+    assert C.argument_value(m, "T0", "2*x", "ms", "a") == {"value": "2*x", "unit": "ms"}
+    with pytest.raises(ParameterError, match=r'a: a value with a unit is \{"value": x, '
+                                             r'"unit": "s"\}'):
+        C.argument_value(m, "ref.t_step", {"value": 5}, "s", "a")
 
 
 @pytest.mark.parametrize("kind", ["bogus", None, ["table"], {"a": 1}])

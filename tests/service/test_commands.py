@@ -223,3 +223,79 @@ def test_command_values_convert_temperatures_with_their_offset():
     assert got == pytest.approx([2 * np.pi], rel=1e-14)
     with pytest.raises(spidersim.ParameterError, match="offset"):
         _to_unit(np.array([20.0]), "degC", "?", "x", None)
+
+
+CMDU = """\
+parameters: {T0: 0.2}
+blocks:
+  st: {type: Step, t_step: T0, after: 1}
+  i: {type: Integrator}
+  m: {type: DCMotor}
+  v: {type: Constant, value: 1}
+connections: [st.y -> i.u, v.y -> m.v]
+commands:
+  go_ms: {arguments: {st.t_step: {unit: ms}}}
+  go_min: {arguments: {T0: {unit: min}}}
+  go_R: {arguments: {m.R: {unit: mOhm}}}
+  go_def: {arguments: {st.t_step: {unit: ms, default: 300}, v.value: {unit: mV, default: 500}}}
+  go_K: {arguments: {st.t_step: {unit: K}}}
+  go_free: {arguments: [st.t_step]}
+"""
+
+
+@pytest.mark.parametrize("name, args, path, expected", [
+    ("go_ms", {"st.t_step": {"value": 500, "unit": "ms"}}, "st.t_step", 0.5),
+    ("go_ms", {"st.t_step": 500}, "st.t_step", 0.5),
+    ("go_ms", {"st.t_step": {"value": 0.5, "unit": "s"}}, "st.t_step", 0.5),
+    ("go_min", {"T0": {"value": 30, "unit": "s"}}, "st.t_step", 30.0),
+    ("go_min", {"T0": 0.01}, "st.t_step", 0.6),
+    ("go_R", {"m.R": {"value": 2, "unit": "Ohm"}}, "m.R", 2.0),
+    ("go_R", {"m.R": 1500}, "m.R", 1.5),
+    ("go_def", {}, "st.t_step", 0.3),
+    ("go_def", {}, "v.value", 0.5),               # inherited unit the wiring fixes: V
+    ("go_free", {"st.t_step": {"value": 250, "unit": "ms"}}, "st.t_step", 0.25),
+    ("go_free", {"st.t_step": 2}, "st.t_step", 2.0),
+])
+def test_named_command_arguments_land_in_the_parameters_unit(tmp_path, name, args, path,
+                                                             expected):
+    """A named command's argument is converted to the parameter's own unit: 500 ms for a
+    Step's t_step (s) was 500 s, a plain 500 declared in ms too, and 0.5 s became 500;
+    2 Ohm for m.R declared in mOhm was 2000 Ohm; 30 s for T0 declared in min was 0.5 (read
+    in s). A plain number or a default is in the declared unit; without a declared unit a
+    plain number is in the parameter's."""
+    f = tmp_path / "cmdu.yaml"
+    f.write_text(CMDU)
+    d, _ = prepare(Model("cmdu", str(f)), {"command": {"kind": "named", "name": name,
+                                                        "arguments": args}})
+    block, _, param = path.rpartition(".")
+    assert np.ravel(d.blocks[block].params[param])[0] == pytest.approx(expected, rel=1e-14)
+
+
+@pytest.mark.parametrize("name, args, words", [
+    ("go_ms", {"st.t_step": {"value": 1, "unit": "m"}},
+     "command 'go_ms': argument 'st.t_step': m does not convert to ms .* declares it in ms"),
+    ("go_free", {"st.t_step": {"value": 1, "unit": "K"}},
+     "argument 'st.t_step': K does not convert to s .*the parameter is in s"),
+    ("go_K", {"st.t_step": 3}, "argument 'st.t_step': K does not convert to s"),
+    ("go_ms", {"st.t_step": {"value": 1}}, "a value with a unit is"),
+])
+def test_named_command_argument_units_of_another_kind_are_refused(tmp_path, name, args,
+                                                                  words):
+    """A unit that does not convert to the declared one or to the parameter's is a
+    ParameterError naming the command and the argument (a declared K on a time ran)."""
+    f = tmp_path / "cmdu.yaml"
+    f.write_text(CMDU)
+    with pytest.raises(spidersim.ParameterError, match=words):
+        prepare(Model("cmdu", str(f)), {"command": {"kind": "named", "name": name,
+                                                     "arguments": args}})
+
+
+def test_named_command_argument_of_an_open_unit_is_in_the_declared_unit(lib):
+    """payload_capture's carry.q1 (a TrapezoidalProfile whose unit the wiring leaves
+    open) is declared in m: 10 cm is 0.1, and 2500 ms for the diagram parameter t_latch
+    (declared s) is 2.5 s."""
+    d, _ = prepare(lib.get("payload_capture"), {"command": {
+        "kind": "named", "name": "capture_payload", "arguments": {
+            "carry.q1": {"value": 10, "unit": "cm"}, "t_latch": {"value": 2500, "unit": "ms"}}}})
+    assert d.blocks["carry"].params["q1"] == pytest.approx(0.1, rel=1e-14)
+    assert d.blocks["latch"].params["t_step"] == pytest.approx(2.5, rel=1e-14)
