@@ -142,8 +142,11 @@ PY_EVENT_BYTES = 800
 
 def events_fit(n_events: int, rows_bytes: float) -> bool:
     """Whether ``n_events`` entries of the SciPy-stepper loop's event log fit the budget
-    beside ``rows_bytes`` of recorded rows."""
-    return n_events * PY_EVENT_BYTES + rows_bytes <= max(budget_bytes(), 1024 * 32)
+    beside ``rows_bytes`` of recorded rows; the log has at least 32 kB (40 entries) as the
+    rows have at least 1024 rows, so that a budget smaller than the first row buffer still
+    logs the first events (a 0.02 MB budget stopped a servo run at its first event with
+    "0 entries")."""
+    return n_events * PY_EVENT_BYTES <= max(budget_bytes() - rows_bytes, 1024 * 32)
 
 
 def budget_message(rows: int, record_size: int, t: float, what="recorded data",
