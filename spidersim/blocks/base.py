@@ -117,6 +117,11 @@ Contract for block implementers
        controller reads as gain 0). Linearization refuses a path through such a block,
        naming it and the parameter (``Ts = 0`` when the parameter allows it: the block's
        continuous form).
+   A sampled block whose held output depends on the sample it takes
+   (:meth:`Block.sample_feedthrough`: a ZeroOrderHold, a DiscretePI) may not read its own
+   output back through blocks without a state: such a discrete algebraic loop is refused
+   when the diagram is built, naming the path (the sample would silently read the previous
+   output, a hidden delay).
    ``quantizer = {"bits": 0}``
        parameter -> value that removes the block's quantization (a staircase output of
        zero slope almost everywhere). Linearization uses the block with these values: a
@@ -468,6 +473,14 @@ def _check_kernels(cls, roles, derived):
                            PARTIALS if kernel == "partials" else ())
 
 
+def _positive_period(Ts) -> bool:
+    """Whether a sample period parameter's value makes the block sampled (> 0)."""
+    try:
+        return float(Ts) > 0.0
+    except (TypeError, ValueError):
+        return False
+
+
 class Block:
     """Base class of every block; see the module docstring for the contract."""
 
@@ -592,6 +605,18 @@ class Block:
     @classmethod
     def check(cls, params):
         """Cross-parameter validation; raise ``ValueError`` with a message."""
+
+    @classmethod
+    def sample_feedthrough(cls, params) -> bool:
+        """Whether the output the block holds from a sample depends on that sample (a
+        direct feedthrough in discrete time, contract item 9): a sampled block (its
+        ``sample_period`` parameter > 0) without ``time_output``; a block whose answer
+        depends on a parameter overrides it (a ``DiscreteTransferFunction`` with
+        ``b_0 != 0``). Such a block may not read its own output back through blocks
+        without a state (:func:`spidersim.diagram.portgraph.check_sampled_loops`)."""
+        if not cls.sample_period or cls.has_kernel("time_output"):
+            return False
+        return _positive_period(params.get(cls.sample_period, 0.0))
 
     @classmethod
     def has_kernel(cls, kernel):

@@ -91,6 +91,12 @@ class DiscreteTransferFunction(_Sampled):
              "held": Mode(doc="last output"), "k": _K}
 
     @classmethod
+    def sample_feedthrough(cls, params):
+        """A proper transfer function (``b_0 != 0``: num as long as den) outputs
+        ``b_0 u_k + s_0`` from the sample it takes."""
+        return float(params["Ts"]) > 0 and len(numerator(params)) == len(params["den"])
+
+    @classmethod
     def check(cls, params):
         if params["den"][0] == 0:
             raise ValueError("the leading coefficient of 'den' must not be 0")

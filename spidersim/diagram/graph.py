@@ -9,7 +9,8 @@ before and returns a new frozen record, and none modifies its inputs or the flat
    ports, wiring checks, sizes propagated along the wires, unconnected-input and size checks.
 2. Port graph (:mod:`.portgraph`, :func:`~.portgraph.port_graph` -> ``PortGraph``): nodes
    ``("out"|"in", block, port)``; wires and each block's direct feedthrough as edges; then
-   :func:`~.portgraph.check_constraints` (each implicit output reaches its residual).
+   :func:`~.portgraph.check_constraints` (each implicit output reaches its residual),
+   :func:`~.portgraph.check_sampled_loops` (no discrete algebraic loop).
 3. Schedule (:mod:`.schedule`, :func:`~.schedule.schedule` -> ``Schedule``): algebraic loops
    (strongly connected components), their tears and inner calls, the call order.
 4. Slots (:mod:`.slots`, :func:`~.slots.allocate` -> ``Slots``): offsets of states,
@@ -29,7 +30,7 @@ import networkx as nx
 import numpy as np
 
 from .flatten import Flat
-from .portgraph import check_constraints, port_graph
+from .portgraph import check_constraints, check_sampled_loops, port_graph
 from .schedule import describe_loops, schedule  # noqa: F401  (describe_loops: public)
 from .sizes import port_sizes
 from .slots import Loc, Span, allocate
@@ -127,6 +128,7 @@ def build_layout(flat: Flat) -> Layout:
     ps = port_sizes(flat)
     pg = port_graph(ps)
     check_constraints(pg, ps, flat)
+    check_sampled_loops(pg, ps, flat)
     sched = schedule(pg, ps)
     slots = allocate(flat, ps, pg, sched)
     blocks = {}

@@ -177,6 +177,44 @@ def check_constraints(pg: PortGraph, ps: PortSizes, flat):
                     block=bp.path, file=inst.file, line=inst.line)
 
 
+def check_sampled_loops(pg: PortGraph, ps: PortSizes, flat):
+    """Check that no sampled block with a discrete-time feedthrough reads its own output.
+
+    A block whose held output depends on the sample it takes
+    (:meth:`~spidersim.blocks.base.Block.sample_feedthrough`) and whose output reaches its
+    own input through wires and direct feedthrough only (no state between) would need its
+    output to take its sample: a discrete algebraic loop, not solved (the sample would read
+    the previous output, a delay nobody wrote).
+
+    Raises
+    ------
+    AlgebraicLoopError
+        At the first such block (in block order), walking the loop.
+    """
+    for bp in ps.blocks.values():
+        if not bp.cls.sample_feedthrough(bp.params):
+            continue
+        ins = [Node("in", bp.path, i) for i in bp.inputs]
+        for o in bp.outputs:
+            src = Node("out", bp.path, o)
+            if src not in pg.graph:
+                continue
+            reach = nx.descendants(pg.graph, src)
+            back = next((n for n in ins if n in reach), None)
+            if back is None:
+                continue
+            walk = " -> ".join(f"{n.path}.{n.port}"
+                               for n in nx.shortest_path(pg.graph, src, back))
+            inst = flat.blocks[bp.path]
+            raise AlgebraicLoopError(
+                f"discrete algebraic loop: {bp.cls.type_name} '{bp.path}' samples its input "
+                f"from its own output through blocks without a state ({walk}): the value it "
+                f"holds would depend on itself; spidersim does not solve it (the sample "
+                f"would read the previous output, a delay the diagram does not show). Put a "
+                f"UnitDelay (y[k] = u[k-1]) or a block with a state in the loop",
+                block=bp.path, file=inst.file, line=inst.line)
+
+
 def _constraint_hint(bp: BlockPorts, flow: BlockFlow, o, i):
     """What to wire so that residual ``i`` depends on implicit output ``o``."""
     if i in bp.outputs:

@@ -198,3 +198,40 @@ def test_discrete_feedback_loop_samples_the_new_output(case, method):
         t_end=T_END, method=method, rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(_held(r, name), [want(k) for k in range(11)], rtol=0,
                                atol=1e-12)
+
+
+@pytest.mark.parametrize("sampled", [
+    "{type: ZeroOrderHold, Ts: 0.1}",
+    "{type: DiscretePI, kp: 0.5, ki: 1, Ts: 0.1}",
+    "{type: DiscreteTransferFunction, num: [1, 0.5], den: [1, -0.5], Ts: 0.1}",
+])
+def test_discrete_algebraic_loop_is_refused(sampled):
+    """A sampled block whose held output depends on the sample it takes (ZOH, DiscretePI,
+    a proper DTF) reading its own output back through a Gain and a Sum only: refused when
+    the diagram is built, walking the loop, with the advice (before, the sample silently
+    read the previous output: a one-period delay the diagram does not show)."""
+    text = ("blocks:\n  one: {type: Constant, value: 1}\n  s: {type: Sum, signs: '+-'}\n"
+            f"  z: {sampled}\n  g: {{type: Gain, k: 0.5}}\n"
+            "connections: [one.y -> s.u1, g.y -> s.u2, s.y -> z.u, z.y -> g.u]\n")
+    if "DiscretePI" in sampled:
+        text = text.replace("s.y -> z.u", "s.y -> z.e")
+    with pytest.raises(spidersim.AlgebraicLoopError) as ei:
+        spidersim.loads(text)
+    msg = str(ei.value)
+    assert "discrete algebraic loop" in msg and "'z'" in msg and "UnitDelay" in msg
+    assert "z.y -> g.u -> g.y -> s.u2 -> s.y -> z." in msg
+
+
+def test_sampled_loop_through_a_state_or_a_delay_is_accepted():
+    """The same loops closed through an Integrator (a state) or around a UnitDelay or a
+    strictly proper DTF (outputs known before the sample) are not algebraic."""
+    for sampled, extra, wires in [
+            ("{type: ZeroOrderHold, Ts: 0.1}", "  i: {type: Integrator}\n",
+             "z.y -> i.u, i.y -> g.u"),
+            ("{type: UnitDelay, Ts: 0.1}", "", "z.y -> g.u"),
+            ("{type: DiscreteTransferFunction, num: [0.1], den: [1, -1], Ts: 0.1}", "",
+             "z.y -> g.u")]:
+        text = ("blocks:\n  one: {type: Constant, value: 1}\n  s: {type: Sum, signs: '+-'}\n"
+                f"  z: {sampled}\n  g: {{type: Gain, k: 0.5}}\n{extra}"
+                f"connections: [one.y -> s.u1, g.y -> s.u2, s.y -> z.u, {wires}]\n")
+        spidersim.loads(text)
