@@ -133,6 +133,14 @@ _LIM = {"y_min": Param(-math.inf, "@y", "lower output limit", allow_inf=True),
         "I0": Param(0.0, "@y", "initial integral term (output units)")}
 
 
+def _held_before_first_sample(params):
+    """``y0``: what a discrete controller outputs before its first sample (an ``offset``
+    > 0): its initial integral term within the limits, the command at zero error, as the
+    continuous PI starts (before, 0 whatever ``I0``)."""
+    return {"y0": min(max(float(params["I0"]), float(params["y_min"])),
+                      float(params["y_max"]))}
+
+
 class DiscretePI(_Sampled):
     """Sampled PI, forward-Euler integral (``C(z) = kp + ki Ts / (z - 1)``)::
 
@@ -145,8 +153,10 @@ class DiscretePI(_Sampled):
                        "offset": _OFF}, **_LIM)
     inputs = {"e": Port("*", doc="control error")}
     outputs = {"y": Port("*", doc="held command")}
-    modes = {"I": Mode(initial="I0", doc="integral term"), "held": Mode(doc="last output"),
-             "k": _K}
+    modes = {"I": Mode(initial="I0", doc="integral term"),
+             "held": Mode(initial="y0", doc="last output (before the first sample: I0 "
+                                            "within the limits)"), "k": _K}
+    derive = classmethod(lambda cls, params: _held_before_first_sample(params))
 
     @staticmethod
     def time_event(t, e, kp, ki, Ts, y_min, y_max, I, held, k):
@@ -177,7 +187,9 @@ class DiscretePID(_Sampled):
     inputs = {"e": Port("*", doc="control error")}
     outputs = {"y": Port("*", doc="held command")}
     modes = {"I": Mode(initial="I0", doc="integral term"), "e_prev": Mode(doc="last error"),
-             "held": Mode(doc="last output"), "k": _K}
+             "held": Mode(initial="y0", doc="last output (before the first sample: I0 "
+                                            "within the limits)"), "k": _K}
+    derive = classmethod(lambda cls, params: _held_before_first_sample(params))
 
     @staticmethod
     def time_event(t, e, kp, ki, kd, Ts, y_min, y_max, I, e_prev, held, k):

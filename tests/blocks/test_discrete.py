@@ -235,3 +235,17 @@ def test_sampled_loop_through_a_state_or_a_delay_is_accepted():
                 f"  z: {sampled}\n  g: {{type: Gain, k: 0.5}}\n{extra}"
                 f"connections: [one.y -> s.u1, g.y -> s.u2, s.y -> z.u, {wires}]\n")
         spidersim.loads(text)
+
+
+@pytest.mark.parametrize("ctrl", ["DiscretePI", "DiscretePID"])
+@pytest.mark.parametrize("I0, y0", [(0.4, 0.4), (3.0, 1.0), (-5.0, -2.0)])
+def test_controller_output_before_its_first_sample_is_its_initial_command(ctrl, I0, y0):
+    """With offset > 0 a discrete controller outputs its initial command I0 (within the
+    limits) until its first sample, as a UnitDelay outputs x0 (before, 0 whatever I0)."""
+    r = spidersim.loads(
+        "blocks:\n  e: {type: Constant, value: 1}\n"
+        f"  c: {{type: {ctrl}, kp: 1, ki: 2, Ts: 0.1, offset: 0.05, I0: {I0}, "
+        "y_min: -2, y_max: 1}\nconnections: [e.y -> c.e]\n").simulate(t_end=0.3, jit=False)
+    before = r.t < 0.05 - 1e-12
+    assert np.count_nonzero(before) >= 1
+    assert np.all(r["c.y"][before] == y0)
