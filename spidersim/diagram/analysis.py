@@ -118,6 +118,18 @@ def _signal_ref(d, name):
     return path, port, s0, s1, s1 - s0, bl.ports[("out", port)].unit
 
 
+def _alias_owner(d, name):
+    """The subsystem instance whose exposed output ``name`` (or ``name[i]``) is (``p`` for
+    ``p.y``), else None. An analysis point there is the output as the parent reads it: the
+    instance's own blocks reading the signal inside (a lag's inner feedback) keep it
+    (opening ``p.y`` of a lag in a loop cut the lag's own loop too: L = 10/s for
+    8/(s + 2))."""
+    base = name.partition("[")[0] if name.endswith("]") else name
+    if base not in d.flat.aliases:
+        return None
+    return base.rpartition(".")[0]
+
+
 def _channel_names(name, n):
     return [name] if n == 1 else [f"{name}[{i}]" for i in range(n)]
 
@@ -209,6 +221,9 @@ def _insert_point(blocks, conns, k, name, kind, ref, d):
     Opening a signal nobody reads is an :class:`AnalysisError`.
     """
     consumers = _consumers(conns, ref, d)
+    owner = _alias_owner(d, name)
+    if owner is not None:       # a subsystem's output: as its parent sees it
+        consumers = [c for c in consumers if not c.dst[0].startswith(owner + ".")]
     if not consumers and kind == "open":
         raise AnalysisError(f"cannot open '{name}': it is not a connection (no block "
                             f"reads it)", file=d.file)

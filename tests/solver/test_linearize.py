@@ -6,6 +6,7 @@ a pendulum, ``scipy.integrate.solve_ivp`` for a simulated state, python-control'
 ``bandwidth``/``margin`` for the figures of merit.
 """
 import math
+import os
 
 import control
 import numpy as np
@@ -756,3 +757,28 @@ def test_trim_from_a_start_with_non_finite_residuals_is_named():
     with pytest.raises(AnalysisError, match=r"trim cannot start from the given x0: the "
                        r"residuals there are not finite \(sq.y = inf\)"):
         d.trim(targets={"sq.y": 1.0}, derivatives=[], x0=[1e308], jit=False)
+
+
+FB_THROUGH_LAG = """
+name: fb
+subsystems: {lag: %s}
+blocks:
+  r: {type: Constant, value: 1}
+  e: {type: Sum, signs: "+-"}
+  k: {type: Gain, k: 4}
+  p: {type: lag, tau: 0.5, k: 1}
+connections: [r.y -> e.u1, p.y -> e.u2, e.y -> k.u, k.y -> p.u]
+"""
+
+
+@pytest.mark.parametrize("cut", ["k.y", "e.y", "p.y"])
+def test_loop_cut_at_a_subsystem_output_keeps_its_inner_loop(cut):
+    """One loop through the library lag (tau dy/dt = k u - y, its own inner feedback on
+    int.y, the signal its output y names): L = 4 / (0.5 s + 1) = 8 / (s + 2) wherever the
+    loop is cut, p.y included. Cutting p.y opened the lag's inner feedback too (its
+    Gain reads the same int.y): L = 10/s, "a free integrator", a 90 deg phase margin."""
+    lib = os.path.join(os.path.dirname(__file__), "..", "..", "diagrams", "lib", "lag.yaml")
+    d = spidersim.loads(FB_THROUGH_LAG % os.path.abspath(lib))
+    _assert_same_response(d.loop_transfer(cut, jit=False), control.ss(8 / (S + 2)))
+    sys = d.linearize(["r.y"], ["p.y"], open=["p.y"], jit=False)
+    _assert_same_response(sys, control.ss(8 / (S + 2)))
