@@ -399,3 +399,28 @@ def test_set_says_what_is_wrong_with_its_target_or_value(path, value, words):
     assert np.array_equal(d.p, p0)
     d.set("f.gain.k", 3.0)                 # a block inside a subsystem instance: settable
     assert not np.array_equal(d.p, p0)
+
+
+@pytest.mark.parametrize("bad", ["x", -1, 2.5, True, None.__class__, [10]])
+def test_result_save_refuses_a_bad_csv_limit_and_stays_usable(bad, tmp_path):
+    """Result.save(csv_max_values=...) checks the value before keeping it: a ResultError,
+    nothing written, and the Result saves and reports as before (a text was kept: a raw
+    TypeError after result.npz, then every later save and report failed)."""
+    r = spidersim.load(SERVO).simulate(jit=False, t_end=0.1)
+    with pytest.raises(ResultError, match="csv_max_values"):
+        r.save(tmp_path / "a", csv_max_values=bad)
+    assert not (tmp_path / "a").exists()
+    r.save(tmp_path / "b")
+    assert (tmp_path / "b" / "result.csv").exists() and "status" in r.report()
+    r.save(tmp_path / "c", csv_max_values=0)
+    assert not (tmp_path / "c" / "result.csv").exists()
+
+
+@pytest.mark.parametrize("value", [np.complex128(1.5 + 2j), np.array([1.5 + 2j]),
+                                   [np.complex64(1 + 1j)], np.array(1.5 + 0j)])
+def test_set_refuses_numpy_complex_numbers(value):
+    """NumPy complex numbers are refused as Python's 1+2j is (they were stored as their
+    real part, with only a ComplexWarning)."""
+    d = spidersim.load(SERVO)
+    with pytest.raises(ParameterError, match="numeric"):
+        d.set("motor.R", value)

@@ -144,12 +144,16 @@ def sim_setting(key, v, what, file=None, line=None, text=True, shortest=True):
 
 
 def _python_bools(value):
-    """``value`` with its NumPy booleans (``np.True_``, an array of dtype bool, one inside
-    a list, a tuple or an object array) as Python ones, so that the parameter checks refuse
-    them as they refuse ``True`` (NumPy's were read as 1 and 0); anything else unchanged."""
+    """``value`` with its NumPy booleans and complex numbers (``np.True_``,
+    ``np.complex128``, an array of dtype bool or complex, one inside a list, a tuple or an
+    object array) as Python ones, so that the parameter checks refuse them as they refuse
+    ``True`` and ``1+2j`` (NumPy's were read as 1 and 0, a complex as its real part with a
+    ComplexWarning); anything else unchanged."""
     if isinstance(value, np.bool_):
         return bool(value)
-    if isinstance(value, np.ndarray) and value.dtype.kind in "bO":
+    if isinstance(value, np.complexfloating):
+        return complex(value)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "bcO":
         return _python_bools(value.tolist())
     if isinstance(value, (list, tuple)):
         return [_python_bools(v) for v in value]

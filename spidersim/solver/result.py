@@ -180,7 +180,7 @@ class Result:
         """
         folder = _folder_name(folder, "Result.save: folder")
         if csv_max_values is not None:
-            self.csv_max_values = csv_max_values
+            self.csv_max_values = _csv_max(csv_max_values)
         os.makedirs(folder, exist_ok=True)
         arrays = {"t": self.t}
         arrays.update({n: self[n] for n in self.names})
@@ -541,3 +541,17 @@ def _jsonable(v):
     if isinstance(v, np.ndarray):
         return v.tolist()
     return str(v)
+
+
+def _csv_max(v):
+    """``csv_max_values`` of :meth:`Result.save` checked before it is kept: a whole number
+    >= 0 (a text was kept and broke every later save and report with a TypeError)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float,
+                                                                np.floating)):
+        raise ResultError(f"Result.save: csv_max_values must be a number of values >= 0, "
+                          f"got {type(v).__name__} {v!r:.40}")
+    if not (v >= 0) or (isinstance(v, (float, np.floating)) and not float(v).is_integer()
+                        and math.isfinite(v)):
+        raise ResultError(f"Result.save: csv_max_values must be a whole number >= 0 (or "
+                          f"inf), got {v!r}")
+    return v
