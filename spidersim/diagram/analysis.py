@@ -83,6 +83,9 @@ def _signal_names(v, what, d, kind="signal name 'block.port'"):
     if not isinstance(v, (list, tuple)) or not all(isinstance(n, str) for n in v):
         raise AnalysisError(f"{what} must be a {kind} or a list of them, got "
                             f"{described(v)}", file=d.file)
+    twice = next((n for k, n in enumerate(v) if n in v[:k]), None)
+    if twice is not None:                # (an opening given twice read as "not read")
+        raise AnalysisError(f"{what}: '{twice}' is given twice", file=d.file)
     return list(v)
 
 

@@ -782,3 +782,16 @@ def test_loop_cut_at_a_subsystem_output_keeps_its_inner_loop(cut):
     _assert_same_response(d.loop_transfer(cut, jit=False), control.ss(8 / (S + 2)))
     sys = d.linearize(["r.y"], ["p.y"], open=["p.y"], jit=False)
     _assert_same_response(sys, control.ss(8 / (S + 2)))
+
+
+@pytest.mark.parametrize("kw", [dict(open=["pos_ctrl.y", "pos_ctrl.y"]),
+                                dict(inputs=["ref.y", "ref.y"])])
+def test_a_signal_named_twice_is_refused_as_such(kw):
+    """An opening (or input) given twice is said to be given twice (it was "not a
+    connection (no block reads it)": the first point had taken its readers)."""
+    d = spidersim.load(os.path.join(os.path.dirname(__file__), "..", "..", "diagrams",
+                                    "servo.yaml"))
+    args = dict(inputs=["ref.y"], outputs=["motor.w"], open=[], jit=False)
+    args.update(kw)
+    with pytest.raises(AnalysisError, match="'(pos_ctrl|ref).y' is given twice"):
+        d.linearize(**args)
