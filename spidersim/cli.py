@@ -791,7 +791,10 @@ def _check_commands(d, args):
 
 def cmd_blocks(args):
     from .blocks import REGISTRY, lookup
-    if args.type:
+    if args.type is not None:
+        if not args.type.strip():
+            raise SpidersimError("blocks: the block type is empty (`spidersim blocks` "
+                                 "lists them)")
         print(lookup(args.type).describe())
         return 0
     by_cat = {}
@@ -1201,7 +1204,7 @@ def build_parser():
 
     sc = sub.add_parser("schema", help="JSON Schema of diagram files (editor completion)")
     sc.add_argument("-o", "--output", type=out_file,
-                    help="file to write (default: standard output)")
+                    help="file to write (default, or -: standard output)")
     sc.set_defaults(fn=cmd_schema)
 
     ca = sub.add_parser("cache", help="the compiled-code cache: info or clear")
@@ -1222,7 +1225,7 @@ def _version():
 def cmd_schema(args):
     from .schema import dumps
     text = dumps()
-    if not args.output:
+    if not args.output or args.output == "-":         # "-": standard output, as usual
         sys.stdout.write(text)
         return 0
     from .solver.result import write_atomic

@@ -293,6 +293,9 @@ class Diagram:
                 continue
             if p.get("t_min") is not None and p["t_min"] >= t_end:
                 continue        # a window after the run: run's window check names that
+            if p.get("t_max") is not None and p["t_max"] > t_end:
+                continue        # past the file's t_end: a longer run (--t-end, simulate)
+                #               may fill it; a short run's plot says "no spectrum"
             problem = spectrum_window_problem(p.get("t_min"), p.get("t_max"), t_end, dt)
             if problem:
                 raise DiagramError(f"plots[{k}]: {problem}", file=self.file,
