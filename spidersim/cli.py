@@ -463,9 +463,13 @@ def _microgravity_report(d, r, out, plots=True):
     from . import microgravity as mg
     t_end = float(r.t[-1])
     t0, t1 = mg_spec["window"] or (0.0, t_end)
+    cut = ""
     if t1 > t_end:
         print(f"spidersim: microgravity: window ends at {t1:g} s after the run's end "
               f"({t_end:g} s); assessing up to {t_end:g} s", file=sys.stderr)
+        cut = (f"the run ended at {t_end:g} s, inside the window {t0:g}..{t1:g} s: the "
+               f"low bands only the whole window resolves were not assessed; run to "
+               f"{t1:g} s for a verdict")
         t1 = t_end
     if not t0 < t1:
         print(f"spidersim: microgravity: the run ended ({t_end:g} s) before the window "
@@ -479,6 +483,7 @@ def _microgravity_report(d, r, out, plots=True):
         print(f"spidersim: microgravity: {exc}", file=sys.stderr)
         return []
     a.axes = ["x", "y", "z"][:a.levels.shape[1]] if a.levels.shape[1] <= 3 else []
+    a.incomplete = cut
     print(a.table())
     from .outputs import atomic_path, write_atomic
     write_atomic(os.path.join(out, "microgravity.json"),      # strict JSON: no NaN

@@ -159,6 +159,18 @@ class Assessment:
     peak_time: float                  # when [s]
     window: tuple                     # (t0, t1) [s]
     axes: list = field(default_factory=list)
+    #: why the assessment covers less than was asked ('' when it does not): a window cut
+    #: by the run's end resolves fewer low bands, so a PASS there is no verdict
+    incomplete: str = ""
+
+    @property
+    def verdict(self):
+        """``PASS``, ``FAIL`` (a band exceeds its limit: also when incomplete) or
+        ``INCOMPLETE`` (no band assessed exceeds, but not every band asked for was
+        assessed)."""
+        if not self.passed:
+            return "FAIL"
+        return "INCOMPLETE" if self.incomplete else "PASS"
 
     @property
     def worst(self):
@@ -193,8 +205,10 @@ class Assessment:
         rows.append(f"  peak transient (whole run): {self.peak:.3g} micro-g at t = "
                     f"{self.peak_time:.3f} s")
         if worst is not None:
-            rows.append(f"  verdict: {'PASS' if self.passed else 'FAIL'}; smallest margin "
+            rows.append(f"  verdict: {self.verdict}; smallest margin "
                         f"{m[worst]:.1f} dB in the {self.bands[worst, 1]:.3g} Hz band")
+        if self.incomplete:
+            rows.append(f"  not a complete assessment: {self.incomplete}")
         return "\n".join(rows)
 
     def as_dict(self):
@@ -204,7 +218,9 @@ class Assessment:
         def num(v):
             v = float(v)
             return v if np.isfinite(v) else None
-        return {"window": [num(v) for v in self.window], "passed": self.passed,
+        return {"window": [num(v) for v in self.window],
+                "passed": None if self.verdict == "INCOMPLETE" else self.passed,
+                "verdict": self.verdict, "incomplete": self.incomplete or None,
                 "peak_ug": num(self.peak), "peak_time": num(self.peak_time),
                 "bands": [{"center_hz": num(b[1]), "lower_hz": num(b[0]),
                            "upper_hz": num(b[2]), "level_ug": num(lev),
@@ -317,7 +333,7 @@ def plot(assessment, path, title="Station acceleration vs ISS vibratory limit"):
         ax.loglog(a.bands[bad, 1], a.worst[bad], "rx", ms=10, mew=2, label="exceeds")
     ax.set_xlabel("one-third-octave band centre [Hz]")
     ax.set_ylabel("RMS acceleration per band [micro-g]")
-    verdict = "PASS" if a.passed else "FAIL"
+    verdict = a.verdict
     ax.set_title(f"{title}\n{verdict}; window {a.window[0]:g}-{a.window[1]:g} s; "
                  f"peak {a.peak:.3g} micro-g")
     ax.grid(True, which="both", alpha=0.3)

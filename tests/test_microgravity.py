@@ -2,6 +2,8 @@
 import numpy as np
 import pytest
 
+import spidersim
+
 from spidersim import microgravity as mg
 from spidersim.sampling import NonUniformRecord
 
@@ -315,3 +317,26 @@ def test_newtons_per_unit():
     assert mg.newtons_per_unit("?") == 1.0             # no stated unit: taken as N
     with pytest.raises(ValueError, match="the signal is in 1, not a force"):
         mg.newtons_per_unit("1")
+
+
+def test_a_run_ending_inside_the_window_gives_no_pass(tmp_path, capsys):
+    """--t-end inside the microgravity window: the bands the cut window resolves are
+    assessed, but the verdict is INCOMPLETE (not PASS: the low bands only the whole window
+    resolves were left out; spider.yaml --t-end 2 printed PASS, 78 dB at 20 Hz, where the
+    whole run's worst band is 5 Hz at 52.8 dB), microgravity.json passed: null with the
+    reason; the same run to the window's end passes."""
+    from spidersim.cli import main
+    f = tmp_path / "mg.yaml"
+    f.write_text(MG_DIAGRAM)
+    t_win_end = spidersim.load(str(f)).microgravity["window"][1]
+    out = tmp_path / "cut"
+    assert main(["run", str(f), "--out", str(out), "--no-plots", "--no-jit",
+                 "--t-end", str(t_win_end / 2)]) == 0
+    text = capsys.readouterr().out
+    assert "verdict: INCOMPLETE" in text and "verdict: PASS" not in text
+    assert "not a complete assessment" in text and f"run to {t_win_end:g} s" in text
+    js = _strict_json(out / "microgravity.json")
+    assert js["passed"] is None and js["verdict"] == "INCOMPLETE" and js["incomplete"]
+    assert main(["run", str(f), "--out", str(tmp_path / "whole"), "--no-plots",
+                 "--no-jit"]) == 0
+    assert "verdict: PASS" in capsys.readouterr().out
