@@ -295,6 +295,10 @@ def check_plot_specs(plots, signals, file=None, lines=None):
         check_plot_entry(p, k, signals, file, _entry_line(p, k, entry_lines))
 
 
+#: line styles of a time plot, in turn (colours: matplotlib's ten, C0..C9)
+LINE_STYLES = ("-", "--", ":", "-.")
+
+
 def time_plot(result, spec, path):
     """Draw one time plot into ``path`` (PNG)."""
     sigs = spec["signals"]
@@ -311,15 +315,24 @@ def time_plot(result, spec, path):
     t = result.t
     mask = (t >= spec.get("t_min", -float("inf"))) & (t <= spec.get("t_max", float("inf")))
     for ax, unit in zip(axes[:, 0], units):
+        vectors = 0
         for s in sigs:
             if result.units.get(split_signal(s)[0], "1") != unit and len(units) > 1:
                 continue
             y = signal_values(result, s)
             if y.ndim == 1:
-                ax.plot(t[mask], y[mask], label=s)
+                n = len(ax.lines)         # ten colours, then the next line style
+                ax.plot(t[mask], y[mask], label=s, color=f"C{n % 10}",
+                        linestyle=LINE_STYLES[n // 10 % len(LINE_STYLES)])
             else:
+                # element i in colour i, each vector in its own style: the commanded and
+                # delivered torques of one joint share a colour (14 lines in one style
+                # reused four colours, commanded and delivered alike)
+                style = LINE_STYLES[vectors % len(LINE_STYLES)]
+                vectors += 1
                 for i in range(y.shape[1]):
-                    ax.plot(t[mask], y[mask, i], label=f"{s}[{i}]")
+                    ax.plot(t[mask], y[mask, i], label=f"{s}[{i}]", color=f"C{i % 10}",
+                            linestyle=style)
         ax.set_ylabel(spec.get("ylabel", "value") + f" [{unit}]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small", ncol=-(-len(ax.lines) // 16))

@@ -115,3 +115,27 @@ simulation: {t_end: 0.01}
     with pytest.raises(DiagramError, match="would draw 3 lines"):
         P.make_plots(r, [{"signals": ["c.y"]}], str(tmp_path))
     assert not list(tmp_path.iterdir())
+
+
+def test_two_vectors_in_one_panel_are_told_apart(tmp_path, monkeypatch):
+    """Two 7-element vectors in one panel (a commanded and a delivered joint torque): each
+    line has its own (colour, style), element k of both vectors shares colour k, and each
+    vector has its own style (14 lines in one style reused four colours: ctrl[0] and
+    tau[3] looked alike)."""
+    import spidersim
+    r = spidersim.loads("""
+blocks:
+  a: {type: Constant, value: [1, 2, 3, 4, 5, 6, 7]}
+  b: {type: Constant, value: [2, 3, 4, 5, 6, 7, 8]}
+simulation: {t_end: 0.01}
+""").simulate(jit=False)
+    figs = []
+    plt = P._pyplot()
+    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
+    P.time_plot(r, {"signals": ["a.y", "b.y"]}, str(tmp_path / "p.png"))
+    lines = figs[0].axes[0].lines
+    assert len(lines) == 14
+    look = [(ln.get_color(), ln.get_linestyle()) for ln in lines]
+    assert len(set(look)) == 14
+    assert all(look[k][0] == look[7 + k][0] for k in range(7))
+    assert {s for _, s in look[:7]} != {s for _, s in look[7:]}
