@@ -382,3 +382,37 @@ def test_a_gain_per_degree_is_inferred_only_when_given():
         spidersim.loads(text % 5)
     d = spidersim.loads(text % "{value: 5, unit: V/deg}")
     assert d.units[("c", "param", "kp")] == "V/deg"
+
+
+_FREE_SUM = """
+name: free_sum
+blocks:
+  c: {type: Constant, value: 1}
+  g1: {type: Gain, k: {value: 90, unit: deg}}
+  g2: {type: Gain, k: {value: %s, unit: %s}}
+  s: {type: Sum, signs: "++"}
+connections:
+  - c.y -> g1.u, g2.u
+  - g1.y -> s.u1
+  - g2.y -> s.u2
+"""
+
+
+@pytest.mark.parametrize("value, unit, words", [
+    (1, "rad", r"a pure number scaled by 57\.2958"),
+    (1, "m", r"units of different dimensions"),
+])
+def test_free_paths_of_different_units_into_a_sum_are_refused(value, unit, words):
+    """A free Constant through a Gain of 90 deg and one of 1 rad into a Sum: every signal
+    stayed [?] and s.y was 91 where pi/2 + 1 was meant (hostile review 14b): no unit of
+    c.y makes both paths the unit of the sum, refused at the second Gain's line."""
+    with pytest.raises(UnitMismatchError, match=r"block 'g2'.*relations of block 'g1'.*"
+                                                r"c\.y, g1\.y, g2\.y, s\.y.*" + words):
+        spidersim.loads(_FREE_SUM % (value, unit))
+
+
+def test_free_paths_of_one_unit_into_a_sum_stay_free():
+    """The same gains in deg on both paths hold for any unit of c.y: nothing refused,
+    the sum of the raw values."""
+    d = spidersim.loads(_FREE_SUM % (1, "deg"))
+    assert d.simulate(jit=False)["s.y"][-1] == pytest.approx(91.0)
