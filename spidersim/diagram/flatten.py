@@ -195,6 +195,26 @@ def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
     return scope, unknown
 
 
+def _check_declared_unit(raw, declared, file, line, what, block=None):
+    """A value given with a unit for a diagram or subsystem parameter declared with one
+    (``tau: {value: 1, unit: s}``) must have the declared dimension: it is converted to
+    coherent SI like the default, so ``{value: 5, unit: m}`` was 5 s (``degC`` 278.15 s).
+    A ParameterError naming both units otherwise; a unit that does not parse is left to
+    the conversion's own error."""
+    if not (isinstance(raw, dict) and isinstance(declared, dict)):
+        return
+    try:
+        given, want = U.parse(raw.get("unit")), U.parse(declared.get("unit"))
+    except U.UnitError:
+        return
+    if given.dimensionality != want.dimensionality:
+        raise ParameterError(
+            f"{what}: [{raw['unit']}] is not a unit of the parameter's dimension: it is "
+            f"declared in [{declared['unit']}] ({want.dimensionality}, not "
+            f"{given.dimensionality}); give the value in [{declared['unit']}] or a unit "
+            f"of the same kind", file=file, line=line, block=block)
+
+
 def _top_level_given(spec, overrides, used):
     """The overrides of top-level parameters (keys without a dot), evaluated without a
     scope and marked used; a name the diagram does not have suggests near ones."""
@@ -207,6 +227,7 @@ def _top_level_given(spec, overrides, used):
             hint = f"; did you mean {', '.join(near)}?" if near else ""
             raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
                                  file=spec.file)
+        _check_declared_unit(v, spec.parameters[k], spec.file, None, f"--set {k}")
         given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
         used.add(k)
     return given
@@ -369,6 +390,8 @@ def _subsystem_given(level, b, path, sub):
                 f"{_hint(pname, sub.parameters)} "
                 f"(parameters: {', '.join(sub.parameters) or 'none'})",
                 file=spec.file, line=b.param_lines.get(pname), block=path)
+        _check_declared_unit(raw, sub.parameters[pname], spec.file,
+                             b.param_lines.get(pname), f"parameter '{pname}'", block=path)
         given[pname] = _eval_value(raw, level.scope, None, spec.file,
                                    b.param_lines.get(pname), f"parameter '{pname}'",
                                    block=path)
@@ -382,6 +405,8 @@ def _subsystem_overrides(level, b, path, sub, own, given):
     spec, prefix = level.spec, level.prefix
     for pname, (key, v) in own.items():
         if pname in sub.parameters:
+            _check_declared_unit(v, sub.parameters[pname], spec.file, b.line,
+                                 f"--set {prefix}{key}", block=path)
             given[pname] = _eval_value(v, level.scope, None, spec.file, b.line,
                                        f"--set {prefix}{key}", block=path)
             level.used.add(key)

@@ -382,3 +382,106 @@ def test_a_gain_per_degree_is_inferred_only_when_given():
         spidersim.loads(text % 5)
     d = spidersim.loads(text % "{value: 5, unit: V/deg}")
     assert d.units[("c", "param", "kp")] == "V/deg"
+
+
+_FREE_SUM = """
+name: free_sum
+blocks:
+  c: {type: Constant, value: 1}
+  g1: {type: Gain, k: {value: 90, unit: deg}}
+  g2: {type: Gain, k: {value: %s, unit: %s}}
+  s: {type: Sum, signs: "++"}
+connections:
+  - c.y -> g1.u, g2.u
+  - g1.y -> s.u1
+  - g2.y -> s.u2
+"""
+
+
+@pytest.mark.parametrize("value, unit, words", [
+    (1, "rad", r"a pure number scaled by 57\.2958"),
+    (1, "m", r"units of different dimensions"),
+])
+def test_free_paths_of_different_units_into_a_sum_are_refused(value, unit, words):
+    """A free Constant through a Gain of 90 deg and one of 1 rad into a Sum: every signal
+    stayed [?] and s.y was 91 where pi/2 + 1 was meant (hostile review 14b): no unit of
+    c.y makes both paths the unit of the sum, refused at the second Gain's line."""
+    with pytest.raises(UnitMismatchError, match=r"block 'g2'.*relations of block 'g1'.*"
+                                                r"c\.y, g1\.y, g2\.y, s\.y.*" + words):
+        spidersim.loads(_FREE_SUM % (value, unit))
+
+
+def test_free_paths_of_one_unit_into_a_sum_stay_free():
+    """The same gains in deg on both paths hold for any unit of c.y: nothing refused,
+    the sum of the raw values."""
+    d = spidersim.loads(_FREE_SUM % (1, "deg"))
+    assert d.simulate(jit=False)["s.y"][-1] == pytest.approx(91.0)
+
+
+_LAGU = """
+name: lagu
+parameters:
+  tau: {value: 1, unit: s}
+blocks:
+  err: {type: Sum, signs: "+-"}
+  int: {type: Integrator}
+  fb: {type: Gain, k: 1/tau}
+connections:
+  - err.y -> int.u
+  - int.y -> fb.u
+  - fb.y -> err.u2
+inputs:
+  u: err.u1
+outputs:
+  y: int.y
+"""
+
+_LAGU_PARENT = """
+name: parent
+subsystems: {lagu: lagu.yaml}
+parameters:
+  T: {value: 100, unit: ms}
+blocks:
+  c: {type: Constant, value: 1}
+  f: {type: lagu, tau: %s}
+connections:
+  - c.y -> f.u
+"""
+
+
+def _lagu(tmp_path, tau):
+    (tmp_path / "lagu.yaml").write_text(_LAGU)
+    path = tmp_path / "parent.yaml"
+    path.write_text(_LAGU_PARENT % tau)
+    return str(path)
+
+
+@pytest.mark.parametrize("unit, dim", [("m", r"\[length\]"), ("kg", r"\[mass\]"),
+                                       ("degC", r"\[temperature\]")])
+def test_a_subsystem_parameter_in_another_dimension_is_refused(tmp_path, unit, dim):
+    """lagu declares tau: {value: 1, unit: s}; an instance's tau: {value: 5, unit: m} was
+    read as 5 s (degC as 278.15 s; hostile review 14b): refused at the instance's line,
+    naming the parameter and both units."""
+    path = _lagu(tmp_path, "{value: 5, unit: %s}" % unit)
+    with pytest.raises(ParameterError, match=r"parent\.yaml:8: block 'f': parameter 'tau': "
+                                             rf"\[{unit}\] is not a unit .* declared in "
+                                             rf"\[s\] \(\[time\], not {dim}\)"):
+        spidersim.load(path)
+
+
+def test_a_subsystem_parameter_in_its_dimension_is_converted(tmp_path):
+    """tau in ms is converted to s: fb.k = 1/0.5."""
+    d = spidersim.load(_lagu(tmp_path, "{value: 500, unit: ms}"))
+    assert d.flat.blocks["f.fb"].params["k"] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("key", ["T", "f.tau"])
+def test_an_override_in_another_dimension_is_refused(tmp_path, key):
+    """--set T=200 kg ran with T = 200 s (over the service too, where T shows as 100 ms):
+    refused, naming the override and both units; one in ms is taken."""
+    path = _lagu(tmp_path, "T")
+    with pytest.raises(ParameterError, match=rf"--set {key}: \[kg\] is not a unit .* "
+                                             r"declared in \[(ms|s)\]"):
+        spidersim.load(path, set={key: {"value": 200, "unit": "kg"}})
+    d = spidersim.load(path, set={key: {"value": 200, "unit": "ms"}})
+    assert d.flat.blocks["f.fb"].params["k"] == pytest.approx(5.0)
