@@ -432,17 +432,27 @@ def _scale_of_number(unit):
     (``rad/(s.deg)``: ``rad/deg`` = 57.3, ``N/%``: ``1/%`` = 100). Not: a unit of a
     dimension (``mm/s``), a single unit such as ``deg`` or ``%``, a pure number of factor 1
     (``rad/rad``, ``rad/s``), or a scaled pure number that only multiplies (``deg/s``, the
-    rate of an angle in degrees)."""
-    if len(U.terms(unit)) >= 2:
-        f = _pure_factor(unit)
-        if f is not None:
-            return unit, f
+    rate of an angle in degrees; ``%.s/rad``, a duty-cycle gain on a speed error, refused
+    at first because the factor of the whole pure part, 0.01, was tested)."""
     part = _pure_part(unit)
-    if any(p < 0 for _, p in U.terms(part)):
-        f = _pure_factor(part)
-        if f is not None:
-            return part, f
-    return None
+    if not any(p < 0 for _, p in U.terms(part)):
+        return None
+    num, den = U.DIMENSIONLESS, U.DIMENSIONLESS     # the single pure-number units
+    for u, p in U.terms(part):
+        if u.dimensionality == U.DIMENSIONLESS.dimensionality:
+            if p < 0:
+                den = den * u ** p
+            else:
+                num = num * u ** p
+    f_den = _pure_factor(den)
+    if f_den is not None:          # per a scaled pure number: [rad/(s.deg)], [N/%]
+        whole = unit.dimensionality == U.DIMENSIONLESS.dimensionality
+        return (unit if whole else part), (_pure_factor(part) or f_den)
+    f_all = _pure_factor(part) or 1.0
+    f_groups = f_all / (_pure_factor(num) or 1.0)
+    if abs(f_groups - 1.0) > 1e-12:       # a group that cancels to a scale: mN.m/(N.m)
+        return part, f_all
+    return None                    # a scale only in the numerator: [%.s/rad] is fine
 
 
 def _refuse_scaled_number(v, unit, target, rule, inst):

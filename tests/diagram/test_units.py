@@ -485,3 +485,25 @@ def test_an_override_in_another_dimension_is_refused(tmp_path, key):
         spidersim.load(path, set={key: {"value": 200, "unit": "kg"}})
     d = spidersim.load(path, set={key: {"value": 200, "unit": "ms"}})
     assert d.flat.blocks["f.fb"].params["k"] == pytest.approx(5.0)
+
+
+DUTY = """
+blocks:
+  ref: {type: Constant, value: {value: 100, unit: rad/s}}
+  e: {type: Sum, signs: "+-"}
+  kp: {type: %s}
+  drv: {type: Gain, k: {value: 0.24, unit: V/percent}}
+  motor: {type: DCMotor, R: 1, L: 1e-3, K_t: 0.05, J: 1e-4, b: 1e-5}
+connections: [ref.y -> e.u1, motor.w -> e.u2, e.y -> kp.%s, kp.y -> drv.u, drv.y -> motor.v]
+"""
+
+
+@pytest.mark.parametrize("ctrl, port", [("Gain, k: 2", "u"), ("PI, kp: 2, ki: 5", "e")])
+def test_a_duty_cycle_controller_on_a_speed_error_is_accepted(ctrl, port):
+    """A controller from a speed error [rad/s] to a duty cycle in % (a driver gain in
+    V/%): its plain gains are inferred [%.s/rad] and [%/rad], a scale only in the
+    numerator, read as written: drv.y = 0.24 V/% x kp.y (the first scaled-unit rule tested
+    the whole pure part's factor and refused them, though they ran right before)."""
+    r = spidersim.loads(DUTY % (ctrl, port)).simulate(t_end=0.01, jit=False, method="RK45")
+    np.testing.assert_allclose(r["drv.y"], 0.24 * r["kp.y"], rtol=1e-12)
+    assert r["kp.y"][0] == pytest.approx(200.0)          # 2 %/(rad/s) x 100 rad/s
