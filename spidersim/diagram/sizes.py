@@ -235,7 +235,7 @@ def range_bounds(ranges, n, path):
             elem = "element range" if ":" in r.text else "element"
             why = "is empty" if 0 <= a <= n and 0 <= b <= n else "is outside"
             raise WiringError(f"{r.what} '{r.of}{r.text}': {elem} {r.text} {why}: "
-                              f"'{r.of}' has {n} element(s) (indices 0..{n - 1}, or "
+                              f"'{r.of}' has size {n} (indices 0..{n - 1}, or "
                               f"-{n}..-1 from the end)", file=r.file, line=r.line,
                               block=path if k == 0 else None)
         off, n = off + a, b - a

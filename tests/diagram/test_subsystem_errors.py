@@ -217,7 +217,7 @@ def test_exposed_output_range_outside_is_refused_at_its_line(tmp_path, rng, word
     checked as a connection's range, at the exposed output's line, naming the instance."""
     exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", rng), VEC_PARENT)
     assert os.path.basename(exc.file) == "sub.yaml" and exc.line == 6
-    assert f"exposed output 'y' {words}" in msg and "'i.y' has 3 element(s)" in msg
+    assert f"exposed output 'y' {words}" in msg and "'i.y' has size 3" in msg
     assert "subsystem instance 's'" in msg and "parent.yaml:5" in msg
 
 
@@ -229,7 +229,7 @@ def test_range_of_an_exposed_range_is_checked_inside_it(tmp_path):
     exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", "i.y[1:3]"), parent)
     assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 9
     assert ("connection source 's.y[1:3]': element range [1:3] is outside: "
-            "'s.y' has 2 element(s)") in msg
+            "'s.y' has size 2") in msg
 
 
 @pytest.mark.parametrize("rng, parent_src, want", [
