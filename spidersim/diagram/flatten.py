@@ -39,15 +39,34 @@ class Instance:
     param_units: dict = field(default_factory=dict)   # name -> unit given in the file
 
 
+class Range(NamedTuple):
+    """An element range as written in a diagram file: ``[start:stop]`` of output ``of``
+    (``stop`` None: to the end; negative bounds count from the end), for
+    :func:`~.sizes.range_bounds` once the output's size is known."""
+
+    start: int
+    stop: int | None
+    text: str     #: the range as written: ``[2]`` or ``[0:-1]``
+    of: str       #: the output it selects from, as written: ``i.y``, ``s.bad``
+    what: str     #: where it is written: ``connection source``, ``exposed output 'y'``
+    file: str
+    line: int
+
+
 @dataclass
 class FlatConn:
-    """``src`` output (path, port, start, stop) feeding ``dst`` input (path, port)."""
+    """``src`` output (path, port, start, stop) feeding ``dst`` input (path, port).
+
+    ``ranges`` are the element ranges as written, innermost first (an exposed subsystem
+    output's own range, then the range a parent takes of it): ``src`` has no range
+    (``None, None``) until the size pass resolves them into it and empties ``ranges``."""
 
     src: tuple
     dst: tuple
     file: str
     line: int
     text: str
+    ranges: tuple = ()
 
 
 @dataclass
@@ -62,6 +81,10 @@ class Flat:
     #: (path, port) of a primitive input -> (instance path, exposed input, file, line) of
     #: the outermost exposed subsystem input that feeds it
     exposed: dict = field(default_factory=dict)
+    #: exposed output (an alias ``"s.out"``, or an output of the top level) -> ``(path,
+    #: port, ranges)`` with element ranges as written; the size pass checks them and
+    #: writes the resolved alias into ``aliases``
+    out_ranges: dict = field(default_factory=dict)
 
     def note_subsystem(self, exc):
         """Append :meth:`used_at` to an error about a block inside a subsystem instance
@@ -263,7 +286,8 @@ class PortMaps(NamedTuple):
 
     #: exposed input -> list of primitive inputs ``(path, port)`` it feeds
     inputs: dict
-    #: exposed output -> the primitive output slice ``(path, port, start, stop)`` it is
+    #: exposed output -> ``(path, port, ranges)``: the primitive output and the element
+    #: ranges (:class:`Range`, innermost first) it takes of it
     outputs: dict
 
 
@@ -446,8 +470,10 @@ def _instantiate_subsystem(level, bname, b, ov: BlockOverrides, sub_specs) -> Po
             exc._used_at = True
         raise
     level.used.update(keymap[k] for k in sub_used if k in keymap)
-    for oname, src in maps.outputs.items():
-        flat.aliases[f"{path}.{oname}"] = src
+    for oname, (opath, oport, ranges) in maps.outputs.items():
+        flat.aliases[f"{path}.{oname}"] = (opath, oport, None, None)
+        if ranges:
+            flat.out_ranges[f"{path}.{oname}"] = (opath, oport, ranges)
     flat.subsystem_instances[path] = sub_file
     return maps
 
@@ -576,9 +602,13 @@ class _LocalAddresses:
     def __init__(self, spec, prefix, local_subs):
         self.spec, self.prefix, self.local_subs = spec, prefix, local_subs
 
-    def source(self, a: Address, line):
-        """The flat output slice ``(path, port, start, stop)`` that source ``a`` names; a
-        slice of a subsystem output is taken relative to the slice the output exposes."""
+    def source(self, a: Address, line, what="connection source"):
+        """``(path, port, ranges)``: the flat output that source ``a`` names and the element
+        ranges taken of it (:class:`Range`, innermost first); a range of a subsystem output
+        is taken of the range the output exposes. Checked once the sizes are known."""
+        own = () if a.start is None else (
+            Range(a.start, a.stop, str(a)[len(a.block) + len(a.port) + 1:],
+                  f"{a.block}.{a.port}", what, self.spec.file, line),)
         if a.block in self.local_subs:
             out_map = self.local_subs[a.block].outputs
             if a.port not in out_map:
@@ -586,13 +616,10 @@ class _LocalAddresses:
                     f"subsystem instance '{self.prefix}{a.block}' has no output '{a.port}' "
                     f"(outputs: {', '.join(out_map) or 'none'})", file=self.spec.file,
                     line=line)
-            path, port, s0, s1 = out_map[a.port]
-            if a.start is not None:
-                base = s0 or 0
-                return (path, port, base + a.start, base + a.stop)
-            return (path, port, s0, s1)
+            path, port, ranges = out_map[a.port]
+            return (path, port, ranges + own)
         self._check_block(a, line)
-        return (self.prefix + a.block, a.port, a.start, a.stop)
+        return (self.prefix + a.block, a.port, own)
 
     def destinations(self, a: Address, line):
         """The flat inputs ``[(path, port), ...]`` that destination ``a`` names (a
@@ -620,10 +647,10 @@ def _wire_connections(level, addresses):
     """Append a :class:`FlatConn` for every connection of the level and destination."""
     spec = level.spec
     for c in spec.connections:
-        src = addresses.source(c.src, c.line)
+        path, port, ranges = addresses.source(c.src, c.line)
         for dst in addresses.destinations(c.dst, c.line):
-            level.flat.conns.append(FlatConn(src, dst, spec.file, c.line,
-                                             f"{c.src} -> {c.dst}"))
+            level.flat.conns.append(FlatConn((path, port, None, None), dst, spec.file,
+                                             c.line, f"{c.src} -> {c.dst}", ranges))
 
 
 def _check_exposed_target(level, kind, name, a, path, port, line):
@@ -679,7 +706,7 @@ def _exposed_outputs(level, addresses):
     spec, out = level.spec, {}
     for name, a in spec.outputs.items():
         line = spec.port_lines[("out", name)]
-        out[name] = addresses.source(a, line)
+        out[name] = addresses.source(a, line, f"exposed output '{name}'")
         if a.block not in addresses.local_subs:
             _check_exposed_target(level, "output", name, a, out[name][0], a.port, line)
     return out
@@ -735,4 +762,7 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False) -
             _instantiate_block(level, bname, b, ov)
     addresses = _LocalAddresses(spec, prefix, local_subs)
     _wire_connections(level, addresses)
-    return PortMaps(_exposed_inputs(level, addresses), _exposed_outputs(level, addresses))
+    maps = PortMaps(_exposed_inputs(level, addresses), _exposed_outputs(level, addresses))
+    if top:   # a file checked on its own: its exposed ranges are checked too
+        flat.out_ranges.update((k, v) for k, v in maps.outputs.items() if v[2])
+    return maps

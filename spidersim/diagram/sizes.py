@@ -3,7 +3,7 @@
 Contract
 --------
 1. :func:`port_sizes` ``(flat) -> PortSizes`` is the pass; it runs the steps below in order
-   and never modifies ``flat``.
+   and modifies ``flat`` only in step 6.
 2. Declared ports (:func:`declare_ports`): each block's input and output names, declared
    units and declared sizes (``None`` where a size follows the wiring).
 3. Wiring checks (:func:`check_wiring`): each connection names known blocks and ports; each
@@ -11,9 +11,14 @@ Contract
 4. Size propagation (:func:`propagate_sizes`), to a fixed point: an output sized ``@input``
    or by a function of the input sizes follows its inputs; an input follows the output (or
    the element range of it) that feeds it; when nothing moves, one input is seeded from its
-   block's ``fallback_sizes`` and propagation resumes.
+   block's ``fallback_sizes`` and propagation resumes. An element range is taken as written
+   (:func:`range_bounds`: negative bounds count from the end; a range of an exposed
+   subsystem output is taken of the elements it exposes) and must be inside, not empty.
 5. Final checks, block by block: an unconnected input is optional (size 1 unless known) or an
    error; every output has a size; the block accepts its sizes (``check_sizes``).
+6. Element ranges resolved (:func:`resolve_ranges`): every range of a connection or of an
+   exposed output is checked and written into ``flat`` as ``(path, port, start, stop)``
+   from the start of the output, so later passes read plain non-negative bounds.
 
 The first error met in this order is raised (:class:`~spidersim.errors.WiringError` or
 :class:`~spidersim.errors.ParameterError`, at the connection's or the block's line).
@@ -183,7 +188,66 @@ def propagate_sizes(flat: Flat, blocks, sources):
             changed = _seed_one_size(blocks, size)
     for bp in blocks.values():
         _check_block(flat, blocks, sources, size, bp)
+    resolve_ranges(flat, size)
     return MappingProxyType(size)
+
+
+def resolve_ranges(flat: Flat, size):
+    """Check every element range as written against the sizes and write it resolved
+    (non-negative, from the start of the output) into ``flat``: each connection's
+    ``src`` (its ``ranges`` emptied) and each subsystem output alias. An exposed output
+    of the top level is only checked.
+
+    Raises
+    ------
+    WiringError
+        A range empty or outside its output, at the line that writes it.
+    """
+    for c in flat.conns:
+        if c.ranges:
+            sp, sport = c.src[0], c.src[1]
+            a, b = range_bounds(c.ranges, size[(sp, "out", sport)], sp)
+            c.src, c.ranges = (sp, sport, a, b), ()
+    for name, (path, port, ranges) in list(flat.out_ranges.items()):
+        a, b = range_bounds(ranges, size[(path, "out", port)], path)
+        if name in flat.aliases:
+            flat.aliases[name] = (path, port, a, b)
+        del flat.out_ranges[name]
+
+
+def range_bounds(ranges, n, path):
+    """``(start, stop)`` in an output of size ``n`` (of block ``path``) of the element
+    ranges ``ranges`` (:class:`~.flatten.Range`, innermost first: each is taken of the
+    elements the one before selects). Negative bounds count from the end, as for
+    :func:`norm_slice`.
+
+    Raises
+    ------
+    WiringError
+        A range empty or outside what it selects from, at its own file and line (naming
+        block ``path`` for the innermost range only: the others select from an exposed
+        output).
+    """
+    off = 0
+    for k, r in enumerate(ranges):
+        a, b = _bounds(r.start, r.stop, n)
+        if not 0 <= a < b <= n:
+            elem = "element range" if ":" in r.text else "element"
+            why = "is empty" if 0 <= a <= n and 0 <= b <= n else "is outside"
+            raise WiringError(f"{r.what} '{r.of}{r.text}': {elem} {r.text} {why}: "
+                              f"'{r.of}' has size {n} (indices 0..{n - 1}, or "
+                              f"-{n}..-1 from the end)", file=r.file, line=r.line,
+                              block=path if k == 0 else None)
+        off, n = off + a, b - a
+    return off, off + n
+
+
+def _bounds(s0, s1, n):
+    """``(a, b)`` of ``[s0:s1]`` in a size ``n`` (negative bounds from the end, ``s1``
+    None: the end), not checked."""
+    a = s0 + n if s0 < 0 else s0
+    b = n if s1 is None else (s1 + n if s1 < 0 else s1)
+    return a, b
 
 
 def _outputs_from_inputs(blocks, size):
@@ -226,7 +290,10 @@ def _inputs_from_wires(conns, size):
         n_src = size[(sp, "out", sport)]
         if n_src is None:
             continue
-        if s0 is not None:
+        if c.ranges:
+            a, b = range_bounds(c.ranges, n_src, sp)
+            width = b - a
+        elif s0 is not None:
             a, b = norm_slice(s0, s1, n_src, c)
             width = b - a
         else:
@@ -309,7 +376,8 @@ def _raise_exposed(flat, bp, name):
 
 def _src_text(c):
     sp, sport, s0, s1 = c.src
-    return f"{sp}.{sport}" + ("" if s0 is None else f"[{s0}:{s1}]")
+    return f"{sp}.{sport}" + ("".join(r.text for r in c.ranges) if c.ranges else
+                              "" if s0 is None else f"[{s0}:{s1}]")
 
 
 def norm_slice(s0, s1, n, c):
@@ -321,8 +389,7 @@ def norm_slice(s0, s1, n, c):
     WiringError
         The range is empty or outside the output (at connection ``c``).
     """
-    a = s0 + n if s0 < 0 else s0
-    b = s1 + n if s1 is not None and s1 < 0 else (n if s1 is None else s1)
+    a, b = _bounds(s0, s1, n)
     if not (0 <= a < b <= n):
         raise WiringError(f"element range [{s0}:{s1}] is outside output "
                           f"'{c.src[0]}.{c.src[1]}' of size {n}", file=c.file, line=c.line,

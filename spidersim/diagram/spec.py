@@ -50,7 +50,8 @@ _ADDR = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)"
 
 @dataclass
 class Address:
-    """``block.port[start:stop]`` inside one diagram file (``stop`` None: whole port)."""
+    """``block.port[start:stop]`` inside one diagram file (``start`` None: whole port;
+    ``stop`` None: to the end). Negative bounds count from the end, as in Python."""
 
     block: str
     port: str
@@ -113,7 +114,7 @@ def parse_address(text, file, line, what="address"):
                           line=line)
     m = _ADDR.match(text)
     if not m:
-        raise WiringError(f"cannot read {what} '{text}': expected 'block.port', "
+        raise WiringError(f"cannot read {what} '{text.strip()}': expected 'block.port', "
                           f"'block.port[i]' or 'block.port[i:j]'", file=file, line=line)
     block, port, a, b = m.groups()
     if a is None:
@@ -122,8 +123,8 @@ def parse_address(text, file, line, what="address"):
         raise WiringError(f"an index of more than 100 digits in {what} '{text[:60]}...' is "
                           f"outside any port", file=file, line=line)
     a = int(a)
-    if b is None:
-        return Address(block, port, a, a + 1, single=True)
+    if b is None:     # [-1] is the last element, [-2] the one before: [-1:None], [-2:-1]
+        return Address(block, port, a, a + 1 if a != -1 else None, single=True)
     return Address(block, port, a, int(b))
 
 

@@ -55,6 +55,24 @@ def test_element_index_arithmetic():
     assert list(r["out.y"][-1]) == [2.0, 6.0, 12.0]
 
 
+def test_negative_element_indexes_count_from_the_end():
+    """src.y[-3], [-2], [-1] are its elements 0, 1, 2 as in Python ([-1] was refused:
+    'element range [-1:0] is outside', while an exposed output's [-1] was the last)."""
+    text = ARRAY.replace("  - split.y{i} -> g{i}.u", "  - src.y[{i-4}] -> g{i}.u")
+    r = spidersim.loads(text).simulate(t_end=0.1, jit=False)
+    assert list(r["out.y"][-1]) == [2.0, 6.0, 12.0]
+
+
+def test_port_pattern_is_not_read_as_an_array():
+    """In 'g{i}.y -> out.u{i}' only g{i} names an array: an unrelated array u[0..1] made it
+    fail 'arrays 'g' and 'u' have different index ranges'."""
+    text = ARRAY.replace("  out: {type: Mux, n: 3}\n",
+                         "  out: {type: Mux, n: 3}\n  u[0..1]: {type: Constant, value: 0}\n")
+    assert "u[0..1]" in text
+    r = spidersim.loads(text).simulate(t_end=0.1, jit=False)
+    assert list(r["out.y"][-1]) == [2.0, 6.0, 12.0]
+
+
 def test_spider_yaml_uses_an_array_of_seven_joints():
     """spider.yaml declares the joints once (j[1..7]) and wires each joint port once with
     {i}: no connection names a joint by its number."""

@@ -7,6 +7,7 @@ import pytest
 
 from spidersim.diagram import flatten as F
 from spidersim.diagram.spec import Address, parse_text
+from spidersim.diagram.sizes import range_bounds
 from spidersim.errors import ParameterError, WiringError
 
 TWO_GAINS = """\
@@ -86,12 +87,18 @@ def test_addresses_through_a_subsystem_port_map():
     subsystem input resolves to every primitive input it feeds; a primitive address just
     gets the prefix."""
     spec = parse_text(TWO_GAINS)
+    inner = (F.Range(2, 5, "[2:5]", "mux.y", "exposed output 'y'", "sub.yaml", 4),)
     subs = {"s": F.PortMaps({"u": [("p.s.g1", "u"), ("p.s.g2", "u")]},
-                            {"y": ("p.s.mux", "y", 2, 5)})}
+                            {"y": ("p.s.mux", "y", inner)})}
     addr = F._LocalAddresses(spec, "p.", subs)
-    assert addr.source(Address("s", "y"), 1) == ("p.s.mux", "y", 2, 5)
-    assert addr.source(Address("s", "y", 1, 3), 1) == ("p.s.mux", "y", 3, 5)
-    assert addr.source(Address("a", "y", 0, 1), 1) == ("p.a", "y", 0, 1)
+    assert addr.source(Address("s", "y"), 1) == ("p.s.mux", "y", inner)
+    path, port, ranges = addr.source(Address("s", "y", 1, 3), 7)
+    assert (path, port, ranges[0]) == ("p.s.mux", "y", inner[0])
+    assert ranges[1] == F.Range(1, 3, "[1:3]", "s.y", "connection source", spec.file, 7)
+    assert range_bounds(ranges, 8, path) == (3, 5)          # [1:3] of mux.y[2:5]
+    last = addr.source(Address("s", "y", -1, None, single=True), 7)[2]
+    assert range_bounds(last, 8, path) == (4, 5)            # [-1] of mux.y[2:5]
+    assert addr.source(Address("a", "y", 0, 1), 1)[:2] == ("p.a", "y")
     assert addr.destinations(Address("s", "u"), 1) == [("p.s.g1", "u"), ("p.s.g2", "u")]
     assert addr.destinations(Address("b", "u"), 1) == [("p.b", "u")]
 
@@ -105,7 +112,7 @@ def test_addresses_through_a_subsystem_port_map():
 def test_address_errors(call, words):
     """Unknown subsystem ports list the ports there are; an unknown block suggests near
     names; all at the connection's line."""
-    subs = {"s": F.PortMaps({}, {"y": ("s.g", "y", None, None)})}
+    subs = {"s": F.PortMaps({}, {"y": ("s.g", "y", ())})}
     with pytest.raises(WiringError) as ei:
         call(F._LocalAddresses(parse_text(TWO_GAINS), "", subs))
     assert words in str(ei.value) and ei.value.line == 9
@@ -156,11 +163,13 @@ def test_exposed_port_of_the_wrong_kind_is_refused_at_its_line(section, target, 
 
 
 def test_exposed_outputs_of_output_ports_are_accepted():
-    """The check lets an output port through: the flat slice it exposes is returned."""
+    """The check lets an output port through: the flat output it exposes is returned with
+    the element range as written (checked once the sizes are known)."""
     lv = level("blocks:\n  g: {type: Gain}\noutputs:\n  x: g.y\n  z: g.y[0]\n", prefix="j1.")
     F._instantiate_block(lv, "g", lv.spec.blocks["g"], F.BlockOverrides({}, {}))
     out = F._exposed_outputs(lv, F._LocalAddresses(lv.spec, "j1.", {}))
-    assert out == {"x": ("j1.g", "y", None, None), "z": ("j1.g", "y", 0, 1)}
+    z = F.Range(0, 1, "[0]", "g.y", "exposed output 'z'", lv.spec.file, 5)
+    assert out == {"x": ("j1.g", "y", ()), "z": ("j1.g", "y", (z,))}
 
 
 def test_unit_factor_to_declared_unit_or_si():

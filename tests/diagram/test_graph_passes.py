@@ -10,7 +10,7 @@ import dataclasses
 import pytest
 
 from spidersim.blocks import REGISTRY
-from spidersim.diagram.flatten import Flat, FlatConn, Instance
+from spidersim.diagram.flatten import Flat, FlatConn, Instance, Range
 from spidersim.diagram.graph import build_layout
 from spidersim.diagram.portgraph import Node, check_constraints, port_graph
 from spidersim.diagram.schedule import Step, Tear, schedule
@@ -87,6 +87,24 @@ def test_unconnected_input_is_an_error():
     assert "input 'u'" in exc.value.message and "is not connected" in exc.value.message
     assert exc.value.block == "g" and exc.value.line == 1
     assert "c.y" in exc.value.message             # a candidate source is suggested
+
+
+def test_element_ranges_are_resolved_into_the_flat_diagram():
+    """Pass 1 checks the ranges as written (innermost first, negative bounds from the end)
+    and writes them resolved into each connection and alias: [1:3] of an exposed [-3:]
+    (c.y has 4) is c.y[2:4]; the alias s.z = c.y[-1] is c.y[3:4]."""
+    f = flat({"c": ("Constant", {"value": [1.0, 2.0, 3.0, 4.0]}), "g": ("Gain", {})},
+             ["c.y -> g.u"])
+    f.conns[0].ranges = (Range(-3, None, "[-3]", "c.y", "exposed output 'y'", "s.yaml", 3),
+                         Range(1, 3, "[1:3]", "s.y", "connection source", "t.yaml", 100))
+    f.aliases["s.z"] = ("c", "y", None, None)
+    f.out_ranges["s.z"] = ("c", "y", (Range(-1, None, "[-1]", "c.y", "exposed output 'z'",
+                                            "s.yaml", 4),))
+    ps = port_sizes(f)
+    assert ps.size("g", "in", "u") == 2
+    assert (f.conns[0].src, f.conns[0].ranges) == (("c", "y", 2, 4), ())
+    assert f.aliases["s.z"] == ("c", "y", 3, 4) and f.out_ranges == {}
+    assert port_sizes(f).size("g", "in", "u") == 2          # resolved once, not twice
 
 
 def test_size_mismatch_is_an_error():

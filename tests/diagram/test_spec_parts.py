@@ -115,11 +115,19 @@ def test_connection_fans_out_to_each_destination():
     assert (c.src.start, c.src.stop, c.src.single) == (0, 1, True)
 
 
+@pytest.mark.parametrize("text,start,stop", [("a.y[-1]", -1, None), ("a.y[-2]", -2, -1),
+                                             ("a.y[2]", 2, 3), ("a.y[0:-1]", 0, -1)])
+def test_negative_index_is_counted_from_the_end(text, start, stop):
+    """A single index [-1] is the last element ([-1:None]), not the empty [-1:0]."""
+    a = S.parse_address(text, "t.yaml", 3)
+    assert (a.start, a.stop, str(a)) == (start, stop, text)
+
+
 @pytest.mark.parametrize("item,words", [
     ("a.y -> b.u[0]", "a destination takes a whole input port, got 'b.u[0]'"),
     ("a.y b.u", "must read 'src.port -> dst.port'"),
     (["a.y"], "must read 'src.port -> dst.port'"),
-    ("a -> b.u", "cannot read connection source 'a '"),
+    ("a -> b.u", "cannot read connection source 'a':"),  # quoted without the space
 ])
 def test_connection_errors(item, words):
     """Malformed connections are wiring errors at the connection's line."""

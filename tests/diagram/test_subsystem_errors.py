@@ -183,3 +183,70 @@ def test_subsystem_nesting_depth_is_bounded(tmp_path, monkeypatch, limit, chain)
     for f in tmp_path.glob("*.yaml"):
         f.unlink()
     assert f"a{'.n' * (limit - 1)}.g" in spidersim.load(_chain(tmp_path, limit)).blocks
+
+
+VEC_SUB = """\
+blocks:
+  i: {type: Integrator, x0: [0, 0, 0]}
+inputs:
+  u: i.u
+outputs:
+  y: RANGE
+"""
+VEC_PARENT = """\
+subsystems:
+  my: sub.yaml
+blocks:
+  c: {type: Constant, value: [1, 2, 3]}
+  s: {type: my}
+connections:
+  - c.y -> s.u
+"""
+
+
+@pytest.mark.parametrize("rng, words", [
+    ("i.y[2:1]", "'i.y[2:1]': element range [2:1] is empty"),
+    ("i.y[1:1]", "'i.y[1:1]': element range [1:1] is empty"),
+    ("i.y[1:9]", "'i.y[1:9]': element range [1:9] is outside"),
+    ("i.y[3]", "'i.y[3]': element [3] is outside"),
+    ("i.y[-4]", "'i.y[-4]': element [-4] is outside"),
+])
+def test_exposed_output_range_outside_is_refused_at_its_line(tmp_path, rng, words):
+    """An exposed output's element range was never checked: [2:1] had size -1 and the run
+    aborted in free() (heap corruption), [1:9] read memory past the output. Now it is
+    checked as a connection's range, at the exposed output's line, naming the instance."""
+    exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", rng), VEC_PARENT)
+    assert os.path.basename(exc.file) == "sub.yaml" and exc.line == 6
+    assert f"exposed output 'y' {words}" in msg and "'i.y' has size 3" in msg
+    assert "subsystem instance 's'" in msg and "parent.yaml:5" in msg
+
+
+def test_range_of_an_exposed_range_is_checked_inside_it(tmp_path):
+    """A parent's range of an exposed range is taken of the exposed elements: s.y = i.y[1:3]
+    has 2, so s.y[1:3] is outside it (it was read as i.y[2:4], past the output)."""
+    parent = VEC_PARENT.replace("  s: {type: my}\n", "  s: {type: my}\n  g: {type: Gain}\n") \
+        + "  - s.y[1:3] -> g.u\n"
+    exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", "i.y[1:3]"), parent)
+    assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 9
+    assert ("connection source 's.y[1:3]': element range [1:3] is outside: "
+            "'s.y' has size 2") in msg
+
+
+@pytest.mark.parametrize("rng, parent_src, want", [
+    ("i.y[0:-1]", "s.y", [1.0, 2.0]),          # negative stop counts from the end
+    ("i.y[-1]", "s.y", 3.0),                   # the last element
+    ("i.y[-2]", "s.y", 2.0),
+    ("i.y[1:3]", "s.y[-1]", 3.0),              # a negative index of an exposed range
+    ("i.y", "s.y[-2:-1]", 2.0),
+])
+def test_negative_bounds_count_from_the_end_in_exposed_outputs(tmp_path, rng, parent_src,
+                                                               want):
+    """Exposed outputs and connections follow one rule (sizes.norm_slice): negative bounds
+    count from the end; the values are those elements (the Integrator of [1, 2, 3] over
+    1 s)."""
+    (tmp_path / "sub.yaml").write_text(VEC_SUB.replace("RANGE", rng))
+    parent = VEC_PARENT.replace("  s: {type: my}\n", "  s: {type: my}\n  g: {type: Gain}\n") \
+        + f"  - {parent_src} -> g.u\nsimulation: {{t_end: 1}}\n"
+    (tmp_path / "parent.yaml").write_text(parent)
+    r = spidersim.load(str(tmp_path / "parent.yaml")).simulate(jit=False)
+    assert r["g.y"][-1] == pytest.approx(want)
