@@ -181,14 +181,8 @@ def test_a_badly_scaled_model_is_named_not_crashed(tmp_path, capsys, J, rc, expe
     assert code == 0 and "badly scaled" not in err
 
 
-LAG = """name: lag
-blocks:
-  r: {type: Constant, value: 2}
-  e: {type: Sum, signs: "+-"}
-  g: {type: Gain, k: 4}
-  x: {type: Integrator}
-connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
-simulation: {t_end: 0.5}
+with open(os.path.join(os.path.dirname(__file__), "data", "lag_loop.yaml")) as _fh:
+    LAG = _fh.read() + """simulation: {t_end: 0.5}
 analysis:
   free: {inputs: [r.y], outputs: [x.y], at: {trim: {free_inputs: [r.y]}}}
   huge: {inputs: [r.y], outputs: [x.y], at: {trim: {x0: [1e308]}}}

@@ -732,15 +732,8 @@ def test_opening_one_element_of_a_signal_read_whole():
     _assert_same_response(loop, control.ss(2 / S))
 
 
-LAG = """
-name: lag
-blocks:
-  r: {type: Constant, value: 2}
-  e: {type: Sum, signs: "+-"}
-  g: {type: Gain, k: 4}
-  x: {type: Integrator}
-connections: [r.y -> e.u1, x.y -> e.u2, e.y -> g.u, g.y -> x.u]
-"""
+with open(os.path.join(os.path.dirname(__file__), "..", "data", "lag_loop.yaml")) as _fh:
+    LAG = _fh.read()
 
 
 def test_trim_with_free_inputs_and_no_targets():
