@@ -108,14 +108,42 @@ def sim_setting(key, v, what, file=None, line=None, text=True, shortest=True):
         return v
     if type(v) is float or type(v) is int:      # the common case, checked in a few ns
         val = float(v)
-        if val > 0 and (math.isfinite(val) or (key == "max_step" and not text)) and (
-                key != "rtol" or RTOL_RANGE[0] <= val <= RTOL_RANGE[1]) and (
-                not shortest or key not in SHORTEST or val >= SHORTEST[key][0]):
+        if _setting_fits(key, val, text, shortest):
             return val                           # else the checks below say what is wrong
-    from ..text.expr import ExprError, evaluate
+    val = _setting_number(key, v, what, file, line, text)
+    if not val > 0:
+        raise DiagramError(f"{what} must be > 0, got {val:g}", file=file, line=line)
+    if not math.isfinite(val) and not (key == "max_step" and not text):
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be finite, got "
+                           f"{_shown(v, text)}"
+                           + (" (a number beyond 1.8e308, such as 1e400, is infinite)"
+                              if text else ""), file=file, line=line)
+    if key == "rtol":
+        check_rtol(val, what=what, file=file, line=line)
+    if shortest and key in SHORTEST:
+        _check_shortest(key, val, what, file, line)
+    return val
 
-    def shown():            # only on the way to an error: simulate() checks every call
-        return repr(v) if text else described(v)
+
+def _setting_fits(key, val, text, shortest):
+    """Whether the number ``val`` passes every rule of setting ``key`` (see
+    :func:`sim_setting`): the fast path of a plain float or int."""
+    return val > 0 and (math.isfinite(val) or (key == "max_step" and not text)) and (
+        key != "rtol" or RTOL_RANGE[0] <= val <= RTOL_RANGE[1]) and (
+        not shortest or key not in SHORTEST or val >= SHORTEST[key][0])
+
+
+def _shown(v, text):
+    """``v`` as a message shows it: as written in a file, described from Python (only on
+    the way to an error: simulate() checks every call)."""
+    return repr(v) if text else described(v)
+
+
+def _setting_number(key, v, what, file, line, text):
+    """The value of setting ``key`` as a float: a number, or with ``text`` (the file) an
+    expression; a boolean, a text from Python, a list or an array is a
+    :class:`DiagramError` naming ``what``."""
+    from ..text.expr import ExprError, evaluate
     if isinstance(v, (bool, np.bool_)):  # YAML true/false is not a time or a tolerance
         raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got the boolean "
                            f"{bool(v)!r}", file=file, line=line)
@@ -126,21 +154,10 @@ def sim_setting(key, v, what, file=None, line=None, text=True, shortest=True):
         val = evaluate(v, {}) if isinstance(v, str) else v
         if isinstance(val, bool):
             raise TypeError("boolean")
-        val = float(val)
+        return float(val)
     except (ExprError, TypeError, ValueError, OverflowError):
-        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got {shown()}",
-                           file=file, line=line) from None
-    if not val > 0:
-        raise DiagramError(f"{what} must be > 0, got {val:g}", file=file, line=line)
-    if not math.isfinite(val) and not (key == "max_step" and not text):
-        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be finite, got {shown()}"
-                           + (" (a number beyond 1.8e308, such as 1e400, is infinite)"
-                              if text else ""), file=file, line=line)
-    if key == "rtol":
-        check_rtol(val, what=what, file=file, line=line)
-    if shortest and key in SHORTEST:
-        _check_shortest(key, val, what, file, line)
-    return val
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got "
+                           f"{_shown(v, text)}", file=file, line=line) from None
 
 
 def _python_bools(value):
