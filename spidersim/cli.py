@@ -1005,19 +1005,35 @@ def _check_remote_options(args):
                              f"--set, --t-end, --no-plots and --out apply)")
 
 
+def _remote_model_name(file, url):
+    """The model a ``--remote`` run names: a name of the service's library (``m1``), not a
+    local file (a path with ``/`` or a ``.yaml``/``.yml`` name: it ran the service's model
+    of that base name without a word); a SpidersimError otherwise."""
+    if file is None:
+        raise SpidersimError(f"spidersim run --remote: give the NAME of a model of the "
+                             f"service's library (the list: GET {url}/models)")
+    if "/" in file or os.sep in file or file.lower().endswith((".yaml", ".yml")):
+        raise SpidersimError(f"spidersim run --remote: '{printable(file)}' is a file path; "
+                             f"the remote service runs its own models by name (spidersim "
+                             f"run NAME --remote URL; the list: GET {url}/models), not "
+                             f"local files (run a local file without --remote)")
+    return file
+
+
 def cmd_run_remote(args):
     """``spidersim run MODEL --remote URL``: run on a service, fetch the results."""
     from .remote import Client
     _check_remote_options(args)
+    name = _remote_model_name(args.file, args.remote)
     c = Client(args.remote, args.token or os.environ.get("SPIDERSIM_TOKEN"))
-    name = os.path.splitext(os.path.basename(args.file))[0]
     timeout = REMOTE_TIMEOUT if args.timeout is None else args.timeout
+    out = args.out or os.path.join("results", safe_stem(name))
+    out = prepare_out(out)          # before submitting: a bad --out runs no job
     with c.deadline(timeout):        # submit and wait together; each download request
         job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
                        plots=not args.no_plots)          # keeps its own time limit
         print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
         st = c.wait(job, timeout=timeout)
-    out = args.out or os.path.join("results", safe_stem(name))
     paths = c.download(job, out)
     print(f"spidersim: {st['state']}: t = {st['progress']:g} / {st['t_end']:g} s"
           + (f" ({st['message']})" if st["message"] else "")
@@ -1121,8 +1137,9 @@ def build_parser():
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--show", action="store_true",
                    help="also show the plots in a window (interactive matplotlib backend)")
-    r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE names "
-                   "a model of its library) and download the results")
+    r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE is the "
+                   "name of a model of its library, not a local path) and download the "
+                   "results")
     r.add_argument("--token", help="service token (default: $SPIDERSIM_TOKEN)")
     r.add_argument("--timeout", type=positive_float,
                    help=f"seconds to wait (--remote; default {REMOTE_TIMEOUT:g})")
