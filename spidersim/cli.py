@@ -137,7 +137,8 @@ def provenance(args, d, sets):
         "file_sha256": hashes,
         "command": " ".join(sys.argv) if sys.argv and sys.argv[0] else "",
         "rerun": {"file": os.path.abspath(d.file), "set": dict(sets),
-                  "t_end": args.t_end, "method": args.method, "jit": not args.no_jit},
+                  "t_end": args.t_end, "method": args.method, "jit": not args.no_jit,
+                  "plots": not args.no_plots},
     }
 
 
@@ -164,6 +165,8 @@ def _check_rerun_spec(name, prov, spec):
         bad("rerun.method", "a method name or null")
     if not isinstance(spec.get("jit"), bool):
         bad("rerun.jit", "true or false")
+    if not isinstance(spec.get("plots", True), bool):    # absent in reports before 0.1.x
+        bad("rerun.plots", "true or false")
     hashes = prov.get("file_sha256", {})
     if not isinstance(hashes, dict) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in hashes.items()):
@@ -194,6 +197,7 @@ def _rerun_args(args):
     args.file = spec["file"]
     args.set = [f"{k}={v}" for k, v in spec["set"].items()]
     args.t_end, args.method, args.no_jit = spec["t_end"], spec["method"], not spec["jit"]
+    args.no_plots = args.no_plots or not spec.get("plots", True)   # a --no-plots run's too
     hashes = prov.get("file_sha256", {})
     for key, h in hashes.items():
         f = _hashed_file(key, hashes, spec["file"])
