@@ -908,9 +908,12 @@ def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, out):
 
 
 def cmd_sweep(args):
-    from .sweep import SweepInterrupted, parse_vary, print_progress, sweep
+    from .sweep import (SweepInterrupted, check_set_and_varied, parse_vary, print_progress,
+                        sweep)
 
     vary = parse_vary(args.vary)
+    sets = _parse_sets(args.set)
+    check_set_and_varied(sets, vary)         # before the output folder is made
     if args.workers is not None and args.workers < 0:
         raise SpidersimError(f"--workers must be >= 0, got {args.workers}")
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, 4)
@@ -934,7 +937,7 @@ def cmd_sweep(args):
     with stop.installed():     # a signal during the runs: the table of those finished
         try:
             res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
-                        set=_parse_sets(args.set), sim=sim, progress=print_progress,
+                        set=sets, sim=sim, progress=print_progress,
                         should_stop=stop, run_timeout=args.run_timeout)
             code = stop.exit_code if res.unfinished else None
         except SweepInterrupted as exc:       # a second signal: the run in progress ended
