@@ -137,7 +137,8 @@ def provenance(args, d, sets):
         "file_sha256": hashes,
         "command": " ".join(sys.argv) if sys.argv and sys.argv[0] else "",
         "rerun": {"file": os.path.abspath(d.file), "set": dict(sets),
-                  "t_end": args.t_end, "method": args.method, "jit": not args.no_jit},
+                  "t_end": args.t_end, "method": args.method, "jit": not args.no_jit,
+                  "plots": not args.no_plots},
     }
 
 
@@ -164,6 +165,8 @@ def _check_rerun_spec(name, prov, spec):
         bad("rerun.method", "a method name or null")
     if not isinstance(spec.get("jit"), bool):
         bad("rerun.jit", "true or false")
+    if not isinstance(spec.get("plots", True), bool):    # absent in reports before 0.1.x
+        bad("rerun.plots", "true or false")
     hashes = prov.get("file_sha256", {})
     if not isinstance(hashes, dict) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in hashes.items()):
@@ -194,6 +197,7 @@ def _rerun_args(args):
     args.file = spec["file"]
     args.set = [f"{k}={v}" for k, v in spec["set"].items()]
     args.t_end, args.method, args.no_jit = spec["t_end"], spec["method"], not spec["jit"]
+    args.no_plots = args.no_plots or not spec.get("plots", True)   # a --no-plots run's too
     hashes = prov.get("file_sha256", {})
     for key, h in hashes.items():
         f = _hashed_file(key, hashes, spec["file"])
@@ -904,9 +908,12 @@ def _linearize_one(d, args, name, inputs, outputs, opened, at, loop, jit, out):
 
 
 def cmd_sweep(args):
-    from .sweep import SweepInterrupted, parse_vary, print_progress, sweep
+    from .sweep import (SweepInterrupted, check_set_and_varied, parse_vary, print_progress,
+                        sweep)
 
     vary = parse_vary(args.vary)
+    sets = _parse_sets(args.set)
+    check_set_and_varied(sets, vary)         # before the output folder is made
     if args.workers is not None and args.workers < 0:
         raise SpidersimError(f"--workers must be >= 0, got {args.workers}")
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, 4)
@@ -930,7 +937,7 @@ def cmd_sweep(args):
     with stop.installed():     # a signal during the runs: the table of those finished
         try:
             res = sweep(args.file, vary, workers=workers, scheduler=args.scheduler,
-                        set=_parse_sets(args.set), sim=sim, progress=print_progress,
+                        set=sets, sim=sim, progress=print_progress,
                         should_stop=stop, run_timeout=args.run_timeout)
             code = stop.exit_code if res.unfinished else None
         except SweepInterrupted as exc:       # a second signal: the run in progress ended
@@ -1005,19 +1012,35 @@ def _check_remote_options(args):
                              f"--set, --t-end, --no-plots and --out apply)")
 
 
+def _remote_model_name(file, url):
+    """The model a ``--remote`` run names: a name of the service's library (``m1``), not a
+    local file (a path with ``/`` or a ``.yaml``/``.yml`` name: it ran the service's model
+    of that base name without a word); a SpidersimError otherwise."""
+    if file is None:
+        raise SpidersimError(f"spidersim run --remote: give the NAME of a model of the "
+                             f"service's library (the list: GET {url}/models)")
+    if "/" in file or os.sep in file or file.lower().endswith((".yaml", ".yml")):
+        raise SpidersimError(f"spidersim run --remote: '{printable(file)}' is a file path; "
+                             f"the remote service runs its own models by name (spidersim "
+                             f"run NAME --remote URL; the list: GET {url}/models), not "
+                             f"local files (run a local file without --remote)")
+    return file
+
+
 def cmd_run_remote(args):
     """``spidersim run MODEL --remote URL``: run on a service, fetch the results."""
     from .remote import Client
     _check_remote_options(args)
+    name = _remote_model_name(args.file, args.remote)
     c = Client(args.remote, args.token or os.environ.get("SPIDERSIM_TOKEN"))
-    name = os.path.splitext(os.path.basename(args.file))[0]
     timeout = REMOTE_TIMEOUT if args.timeout is None else args.timeout
+    out = args.out or os.path.join("results", safe_stem(name))
+    out = prepare_out(out)          # before submitting: a bad --out runs no job
     with c.deadline(timeout):        # submit and wait together; each download request
         job = c.submit(name, parameters=_parse_sets(args.set), t_end=args.t_end,
                        plots=not args.no_plots)          # keeps its own time limit
         print(f"spidersim: job {job} on {args.remote} ...", file=sys.stderr)
         st = c.wait(job, timeout=timeout)
-    out = args.out or os.path.join("results", safe_stem(name))
     paths = c.download(job, out)
     print(f"spidersim: {st['state']}: t = {st['progress']:g} / {st['t_end']:g} s"
           + (f" ({st['message']})" if st["message"] else "")
@@ -1121,8 +1144,9 @@ def build_parser():
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--show", action="store_true",
                    help="also show the plots in a window (interactive matplotlib backend)")
-    r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE names "
-                   "a model of its library) and download the results")
+    r.add_argument("--remote", metavar="URL", help="run on a spidersim service (FILE is the "
+                   "name of a model of its library, not a local path) and download the "
+                   "results")
     r.add_argument("--token", help="service token (default: $SPIDERSIM_TOKEN)")
     r.add_argument("--timeout", type=positive_float,
                    help=f"seconds to wait (--remote; default {REMOTE_TIMEOUT:g})")

@@ -211,6 +211,18 @@ def parse_vary(items) -> list[tuple[str, list]]:
 MAX_RUNS = 100_000
 
 
+def check_set_and_varied(base, vary):
+    """Refuse a parameter both set (``--set``, ``set=``) and varied: every run takes the
+    varied values, so the set one was dropped without a word. Raises
+    :class:`SpidersimError` naming the parameter."""
+    both = [p for p, _ in vary if p in (base or {})]
+    if both:
+        names = ", ".join(f"'{p}'" for p in both)
+        raise SpidersimError(f"{names}: both set (--set) and varied (--vary); each run takes "
+                             f"the varied values, so the set value would be ignored: give "
+                             f"{'it' if len(both) == 1 else 'them'} in one of the two only")
+
+
 def _check_varied_name(path):
     """Refuse a varied parameter named like a column of the sweep table (:data:`RESERVED`):
     its values and the table's would share the column."""
@@ -561,6 +573,7 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     """
     from .diagram.model import load
     base = dict(set or {})
+    check_set_and_varied(base, vary)
     sim = dict(sim or {})
     file = os.path.abspath(file)
     points = grid(vary)

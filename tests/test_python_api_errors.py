@@ -426,6 +426,37 @@ def test_set_refuses_numpy_complex_numbers(value):
         d.set("motor.R", value)
 
 
+@pytest.mark.parametrize("value, stored", [(np.int64(2), 2), (np.float32(1.5), 1.5),
+                                           (np.array(1.25), 1.25)])
+def test_load_set_takes_numpy_numbers_as_diagram_set_does(value, stored):
+    """load(set=) takes NumPy real scalars, 0-d arrays and arrays of numbers as
+    Diagram.set does (they were "unsupported value"); booleans and complex stay refused."""
+    d = spidersim.load(SERVO, set={"motor.R": value})
+    assert d.blocks["motor"].params["R"] == pytest.approx(stored)
+    assert type(d.blocks["motor"].params["R"]) is not type(value)
+
+
+@pytest.mark.parametrize("value, words", [(np.True_, "boolean"), (np.array(True), "boolean"),
+                                          (np.complex128(1 + 2j), "unsupported value")])
+def test_load_set_still_refuses_numpy_booleans_and_complex(value, words):
+    with pytest.raises(ParameterError, match=words):
+        spidersim.load(SERVO, set={"motor.R": value})
+
+
+def test_operating_point_at_a_0d_array_is_that_time(d):
+    """at=np.array(0.25) is the time 0.25 s (it was refused): the state of the lag then,
+    x = C (1 - exp(-K t)); a 1-element array or a 0-d boolean stays refused."""
+    from spidersim.diagram.analysis import operating_point
+    op = operating_point(d, np.array(0.25), jit=False)
+    assert op.t == pytest.approx(0.25)
+    assert op.x[0] == pytest.approx(C * (1 - math.exp(-K * 0.25)), rel=1e-6)
+    G = d.linearize("r.y", "x.y", at=np.array(0.25), jit=False)
+    assert G.A[0, 0] == pytest.approx(-K)
+    for bad in (np.array([0.25]), np.array(True)):
+        with pytest.raises(AnalysisError, match="operating point"):
+            d.linearize("r.y", "x.y", at=bad, jit=False)
+
+
 def test_a_run_after_compile_reports_that_compile():
     """compile() then simulate(): the run's stats (and so report.txt/json) carry the
     compile's time (the CLI printed "compiled in 68.9 s" and reported compile_time 0);

@@ -316,6 +316,37 @@ def test_cli_invalid_url_is_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_cli_out_naming_a_file_is_refused_before_submitting(fake, tmp_path, capsys):
+    """--out naming an existing file: exit 2 naming it, and no job is submitted (the
+    job ran on the service, then the download failed); the file is unchanged."""
+    fake.seen.clear()
+    f = tmp_path / "taken"
+    f.write_text("mine")
+    rc = main(["run", "servo", "--remote", f"{fake.url}/ok", "--token", TOKEN,
+               "--out", str(f)])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(f) in err and "not a folder" in err, err
+    assert fake.seen == [] and f.read_text() == "mine"
+
+
+@pytest.mark.parametrize("file", ["/local/path/m1.yaml", "m1.yaml", "m1.YML", "lib/m1"])
+def test_cli_remote_refuses_a_local_path(fake, file, tmp_path, capsys):
+    """A path (a '/' or a .yaml/.yml name) with --remote is refused, saying the service
+    runs its own models by name; it ran the service's model of that base name."""
+    fake.seen.clear()
+    rc = main(["run", file, "--remote", f"{fake.url}/ok", "--token", TOKEN,
+               "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"'{file}' is a file path" in err and "by name" in err, err
+    assert fake.seen == [] and not (tmp_path / "out").exists()
+
+
+def test_cli_remote_without_a_model_name_is_refused(fake, tmp_path, capsys):
+    rc = main(["run", "--remote", f"{fake.url}/ok", "--token", TOKEN])
+    err = capsys.readouterr().err
+    assert rc == 2 and "give the NAME of a model" in err and "Traceback" not in err, err
+
+
 def test_redirect_is_not_followed_and_the_token_stays(fake, tmp_path, capsys):
     """A redirect to another host is an error, and that host receives no request (so
     never the token); the fake server itself saw the token."""

@@ -49,6 +49,25 @@ def test_rerun_warns_when_the_file_changed(tmp_path, capsys):
     assert "has changed since the reported run" in capsys.readouterr().err
 
 
+def test_rerun_repeats_no_plots(tmp_path, capsys):
+    """The rerun of a --no-plots run draws no plots either (it drew them); the rerun of a
+    run with plots draws them, and --no-plots given with --rerun skips them."""
+    src = os.path.join(ROOT, "diagrams", "servo.yaml")
+    quiet, drawn = tmp_path / "quiet", tmp_path / "drawn"
+    assert main(["run", src, "--t-end", "0.02", "--no-plots", "--no-jit",
+                 "--out", str(quiet)]) == 0
+    assert main(["run", src, "--t-end", "0.02", "--no-jit", "--out", str(drawn)]) == 0
+    assert json.loads((quiet / "report.json").read_text())["provenance"]["rerun"][
+        "plots"] is False
+    pngs = lambda f: sorted(p.name for p in f.glob("*.png"))
+    assert pngs(quiet) == [] and pngs(drawn) != []
+    for first, extra, plotted in ((quiet, [], False), (drawn, [], True),
+                                  (drawn, ["--no-plots"], False)):
+        again = tmp_path / f"again-{first.name}-{len(extra)}"
+        assert main(["run", "--rerun", str(first), "--out", str(again), *extra]) == 0
+        assert (pngs(again) == pngs(drawn)) if plotted else pngs(again) == []
+
+
 def test_rerun_of_something_else_is_a_clear_error(tmp_path, capsys):
     (tmp_path / "report.json").write_text("{}")
     assert main(["run", "--rerun", str(tmp_path)]) == 2
@@ -65,6 +84,7 @@ GOOD_RERUN = {"file": "servo.yaml", "set": {}, "t_end": None, "method": None, "j
     ("jit", "no", "'rerun.jit' must be true or false"),
     ("t_end", True, "'rerun.t_end' must be a number or null"),
     ("file", 3, "'rerun.file' must be a path"),
+    ("plots", "no", "'rerun.plots' must be true or false"),
 ])
 def test_rerun_of_an_edited_report_names_the_field(tmp_path, capsys, field, value, words):
     """A hand-edited report whose fields have the wrong types is refused, naming the field

@@ -297,6 +297,19 @@ def test_cli_sweep_bad_vary_exits_with_a_message(drop_file, capsys):
     assert "'abc' is not a number" in capsys.readouterr().err
 
 
+def test_a_parameter_both_set_and_varied_is_refused(drop_file, tmp_path, capsys):
+    """--set K=5 with --vary K=...: refused naming K, before the output folder is made
+    (the --set was dropped without a word); sweep(set=) says the same."""
+    out = tmp_path / "out"
+    rc = main(["sweep", drop_file, "--set", "K=5", "--vary", "K=1e4,1e6", "--vary", "m=1",
+               "--set", "m=2", "--workers", "0", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "'K', 'm': both set (--set) and varied (--vary)" in err, err
+    assert not out.exists()
+    with pytest.raises(SpidersimError, match="'K': both set"):
+        sw.sweep(drop_file, [("K", [1e4])], set={"K": 5}, workers=0)
+
+
 # ------------------------------------------------------------------ interrupts
 def _interrupt_at(monkeypatch, run):
     """Make run number ``run`` of a sweep end in a KeyboardInterrupt (Ctrl-C in Python)."""

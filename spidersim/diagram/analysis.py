@@ -567,6 +567,8 @@ def operating_point(d, at, jit=True):
         return at
     if isinstance(at, dict):
         return trim(d, jit=jit, **trim_request(at))
+    if isinstance(at, np.ndarray) and at.ndim == 0 and at.dtype.kind in "iuf":
+        at = at.item()                      # a 0-d array of a real number: that number
     if at is None or (isinstance(at, str) and at == "initial"):
         system = d.compile(jit)
         x = system.x0.copy()

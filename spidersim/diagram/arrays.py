@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import re
 
-from ..errors import DiagramError
+from ..errors import DiagramError, described
 
 #: most instances one array entry may make (a bounded input)
 MAX_INSTANCES = 1000
@@ -58,7 +58,7 @@ def expand_block(key, entry, file, line):
             if isinstance(v, dict) and set(v) == {"each"}:
                 vals = v["each"]
                 if not isinstance(vals, list) or len(vals) != n:
-                    got = len(vals) if isinstance(vals, list) else type(vals).__name__
+                    got = len(vals) if isinstance(vals, list) else described(vals)
                     raise DiagramError(
                         f"block '{key}': parameter '{p}': 'each' needs a list of {n} values "
                         f"(one per instance {base}{idx[0]}..{base}{idx[-1]}), got {got}",

@@ -141,10 +141,19 @@ def _unit_factor(unit, decl, record):
 def _quantity(value, scope, decl, file, line, what, block, record):
     """``{value: x, unit: u}``: x converted to the declared unit of ``decl`` (see
     :func:`_unit_factor`); a converted value must be a number or a list of numbers."""
+    if set(value) == {"each"}:
+        raise ParameterError(f"{what}: 'each' gives one value per instance of a block "
+                             f"array (g[1..3]: {{type: Gain, k: {{each: [1, 2, 3]}}}}); "
+                             f"this entry is not a block array: write the one value itself",
+                             file=file, line=line, block=block)
     if set(value) != {"value", "unit"}:
         raise ParameterError(f"{what}: a value with a unit is written {{value: 2.5, unit: "
                              f"N.m}}; got the keys {', '.join(map(str, value))}", file=file,
                              line=line, block=block)
+    if isinstance(value["value"], dict) and set(value["value"]) == {"each"}:
+        raise ParameterError(f"{what}: 'each' goes outside the unit, one value with its "
+                             f"unit per instance: {{each: [{{value: 1, unit: ms}}, "
+                             f"{{value: 2, unit: ms}}]}}", file=file, line=line, block=block)
     if isinstance(value["value"], dict):
         # {value: {value: 1, unit: mm}, unit: V/A} read 1 mm as 0.001 V/A
         raise ParameterError(f"{what}: the value of a value with a unit is a number, a list "

@@ -812,7 +812,23 @@ def _overrides(set_, fn):
         if not isinstance(k, str):
             raise ParameterError(f"{fn}: the keys of set are parameter paths "
                                  f"'block.param', got {described(k)}")
-    return dict(set_)
+    return {k: _python_numbers(v) for k, v in set_.items()}
+
+
+def _python_numbers(value):
+    """A value of ``load(set=)`` with its NumPy numbers as Python ones, as
+    :meth:`Diagram.set` takes them: a real scalar (``np.int64``, ``np.float32``) or a 0-d
+    array of one as an int or a float, an array of real numbers as a (nested) list;
+    NumPy booleans and complex numbers become Python ones (refused as those are); anything
+    else unchanged."""
+    value = _python_bools(value)
+    if isinstance(value, np.generic) and value.dtype.kind in "iuf":
+        return value.item()
+    if isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
+        return value.tolist()
+    if isinstance(value, list):
+        return [_python_numbers(v) for v in value]
+    return value
 
 
 def load(path, set=None) -> Diagram:

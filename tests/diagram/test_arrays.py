@@ -97,6 +97,15 @@ def test_spider_yaml_uses_an_array_of_seven_joints():
     (("  out: {type: Mux, n: 3}", "  out: {type: Mux, n: 3}\n  g2: {type: Gain}"),
      "also declared on its own"),
     (("  - g{i}.y -> out.u{i}", "  - g{i}.y -> out.u{j}"), "braces"),
+    # messages that named the wrong thing: 'got LineDict', 'a value with a unit is
+    # written {value: 2.5, unit: N.m}', 'not another value with a unit'
+    (("k: {each: [2, 3, 4]}", "k: {each: {a: 1}}"),
+     "needs a list of 3 values .*got a mapping"),
+    (("k: {each: [2, 3, 4]}", "k: {value: {each: [2, 3, 4]}, unit: '1'}"),
+     r"'each' goes outside the unit, one value with its unit per instance: \{each: "),
+    (("  out: {type: Mux, n: 3}", "  out: {type: Mux, n: 3}\n  h: {type: Gain, k: {each: "
+      "[1, 2]}}"),
+     "block 'h': parameter 'k': 'each' gives one value per instance of a block array"),
 ])
 def test_array_errors(change, words):
     with pytest.raises(SpidersimError, match=words) as exc:
