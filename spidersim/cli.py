@@ -918,16 +918,8 @@ def cmd_sweep(args):
         raise SpidersimError(f"--workers must be >= 0, got {args.workers}")
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, 4)
     sim = {"t_end": args.t_end} if args.t_end is not None else {}
-    n = 1
-    for _p, v in vary:
-        n *= len(v)
-    if args.out:
-        out = args.out
-    else:
-        from .diagram.spec import parse_file
-        out = os.path.join("results", safe_stem(parse_file(args.file).name, os.path.splitext(
-            os.path.basename(args.file))[0]) + "_sweep")
-    out = prepare_out(out)               # before any run: a bad --out is refused at once
+    out = _sweep_out(args)                # before any run: a bad --out is refused at once
+    n = math.prod(len(v) for _p, v in vary)
     where = (f"Dask scheduler {args.scheduler}" if args.scheduler else
              "serial, this process" if workers == 0 else
              f"local Dask cluster, {workers} worker(s)")
@@ -945,6 +937,26 @@ def cmd_sweep(args):
         stop.writing()
         pngs = _write_sweep(res, out, args.no_plots)
     print(res.table())
+    return _sweep_report(res, out, pngs, stop, code)
+
+
+def _sweep_out(args):
+    """The output folder of ``spidersim sweep`` (``--out``, or ``results/<name>_sweep``),
+    made and checked for writing (see :func:`prepare_out`)."""
+    if args.out:
+        out = args.out
+    else:
+        from .diagram.spec import parse_file
+        out = os.path.join("results", safe_stem(parse_file(args.file).name, os.path.splitext(
+            os.path.basename(args.file))[0]) + "_sweep")
+    return prepare_out(out)
+
+
+def _sweep_report(res, out, pngs, stop, code):
+    """Print the closing lines of a sweep (counts, rate, files, warnings, a stop by a
+    signal) and return the exit status: ``code`` when a signal left runs unfinished, the
+    signal's status when it came while the table was written, 1 when a run failed, else
+    0."""
     rate = len(res.rows) / res.wall_s * 60 if res.wall_s > 0 else math.inf
     print(f"spidersim: {len(res.rows)} run(s), {len(res.failed)} failed"
           + (f", {len(res.unfinished)} unfinished" if res.unfinished else "")

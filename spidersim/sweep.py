@@ -571,13 +571,44 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     SweepInterrupted
         On a KeyboardInterrupt during the runs, carrying the result of the runs finished.
     """
-    from .diagram.model import load
     base = dict(set or {})
     check_set_and_varied(base, vary)
     sim = dict(sim or {})
     file = os.path.abspath(file)
     points = grid(vary)
     # check everything once, here, and compile into the shared cache
+    d, metrics, notes = _prepare(file, base, vary, sim, run_timeout)
+    t0 = time.perf_counter()
+    d.compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    rows = [None] * len(points)
+    interrupt = None
+    try:
+        n_workers = _run_points(file, base, points, sim, rows, workers, scheduler, progress,
+                                connect_timeout, should_stop, run_timeout)
+    except KeyboardInterrupt as exc:
+        if not any(r is not None and r["status"] not in (INTERRUPTED, NOT_RUN)
+                   for r in rows):
+            raise                   # no run finished: nothing computed to keep
+        interrupt, n_workers = exc, workers
+    _mark_unfinished(rows, points)
+    res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
+                      {"compile_s": compile_s, "structure_key": d._modules[True][1],
+                       "name": d.spec.name, "warnings": notes})
+    if interrupt is not None:
+        raise SweepInterrupted(res, interrupt) from None
+    return res
+
+
+def _prepare(file, base, vary, sim, run_timeout):
+    """Check a sweep before any run: the diagram loads with the base values and declares
+    metrics, the table's column names do not collide, ``sim``'s ``t_end`` and
+    ``run_timeout`` are positive, every varied value loads (``base`` and ``vary`` already
+    checked against each other). Returns the loaded diagram,
+    its metrics and the notes on varied parameters that change no run (each also issued
+    as a :class:`SweepWarning`)."""
+    from .diagram.model import load
     d = load(file, set=base)
     metrics = parse_metrics(d)
     if not metrics:
@@ -596,32 +627,19 @@ def sweep(file, vary, workers=2, scheduler=None, set=None, sim=None, progress=No
     uses = {path: _check_varied(file, base, d, path, values) for path, values in vary}
     notes = ineffective_parameters(file, base, vary, uses)
     for note in notes:
-        warnings.warn(note, SweepWarning, stacklevel=2)
-    t0 = time.perf_counter()
-    d.compile()
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    rows = [None] * len(points)
-    interrupt = None
-    try:
-        if workers == 0 and scheduler is None:
-            n_workers = 0
-            _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout)
-        else:
-            n_workers = _run_dask(file, base, points, sim, rows, workers, scheduler,
-                                  progress, connect_timeout, should_stop, run_timeout)
-    except KeyboardInterrupt as exc:
-        if not any(r is not None and r["status"] not in (INTERRUPTED, NOT_RUN)
-                   for r in rows):
-            raise                   # no run finished: nothing computed to keep
-        interrupt, n_workers = exc, workers
-    _mark_unfinished(rows, points)
-    res = SweepResult(file, vary, metrics, rows, time.perf_counter() - t0, n_workers,
-                      {"compile_s": compile_s, "structure_key": d._modules[True][1],
-                       "name": d.spec.name, "warnings": notes})
-    if interrupt is not None:
-        raise SweepInterrupted(res, interrupt) from None
-    return res
+        warnings.warn(note, SweepWarning, stacklevel=3)
+    return d, metrics, notes
+
+
+def _run_points(file, base, points, sim, rows, workers, scheduler, progress,
+                connect_timeout, should_stop, run_timeout):
+    """Run ``points``, filling ``rows``: serially here (``workers == 0`` and no
+    scheduler) or on Dask; return the number of Dask workers (0 serially)."""
+    if workers == 0 and scheduler is None:
+        _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout)
+        return 0
+    return _run_dask(file, base, points, sim, rows, workers, scheduler, progress,
+                     connect_timeout, should_stop, run_timeout)
 
 
 def _run_serial(file, base, points, sim, rows, progress, should_stop, run_timeout=None):

@@ -139,6 +139,24 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
         differences over coloured column groups; ``fd`` always those; ``analytic`` the
         analytic one or an error saying why there is none. SciPy's steppers ignore it.
     """
+    _check_arguments(method, t0, t_end, rtol, atol, max_step, output_interval, jacobian)
+    record_budget.check_planned(system.record_size, t0, t_end, max_step, output_interval)
+    check_dense_size(system.n_x, method)
+    entry = getattr(system, "compiled_entry", None)
+    if method in COMPILED and entry is not None:
+        return _compiled_loop()(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
+                              max_step=max_step, first_step=first_step,
+                              output_interval=output_interval, progress=progress,
+                              stats=stats, should_stop=should_stop, method=method,
+                              jacobian=jacobian)
+    return _run_scipy(system, method, t0, t_end, rtol, atol, max_step, first_step,
+                      output_interval, progress, should_stop, stats)
+
+
+def _check_arguments(method, t0, t_end, rtol, atol, max_step, output_interval, jacobian):
+    """Raise :class:`SpidersimError` for an argument of :func:`integrate` out of its domain
+    (unknown method or Jacobian kind, an empty or too short run, non-positive tolerances or
+    step limit, an output interval outside ``(0, t_end - t0]``)."""
     if jacobian not in ("auto", "fd", "analytic"):
         raise SpidersimError(f"jacobian must be 'auto', 'fd' or 'analytic', got "
                              f"{jacobian!r}")
@@ -160,15 +178,14 @@ def _integrate(system, t_end, t0=0.0, method="LSODA", rtol=1e-6, atol=1e-8, max_
     if output_interval is not None and not (0 < output_interval <= t_end - t0):
         raise SpidersimError(f"output_interval must be in (0, {t_end - t0}], "
                              f"got {output_interval}")
-    record_budget.check_planned(system.record_size, t0, t_end, max_step, output_interval)
-    check_dense_size(system.n_x, method)
-    entry = getattr(system, "compiled_entry", None)
-    if method in COMPILED and entry is not None:
-        return _compiled_loop()(system, entry, t_end, t0=t0, rtol=rtol, atol=atol,
-                              max_step=max_step, first_step=first_step,
-                              output_interval=output_interval, progress=progress,
-                              stats=stats, should_stop=should_stop, method=method,
-                              jacobian=jacobian)
+
+
+def _run_scipy(system, method, t0, t_end, rtol, atol, max_step, first_step, output_interval,
+               progress, should_stop, stats):
+    """Run ``system`` with SciPy's stepper for ``method`` in :class:`SciPyLoop` (arguments
+    as :func:`integrate`'s). A system without states runs on a dummy clock state
+    (:class:`_Clock`, at most 200 steps over the run unless ``max_step`` says otherwise),
+    removed from the final state again."""
     clock = system.n_x == 0
     if clock:
         system = _Clock(system)
