@@ -50,7 +50,7 @@ def test_the_cut_leaves_only_the_back_emf_current(runs):
     response to the back-EMF alone. The PI (kp = L w_c, ki = R w_c) gives, for a command of
     zero, ``i / e = -s / ((L s + R)(s + w_c))``: at the electrical frequency p w_m of a
     back-EMF of amplitude K_t |w_m| the current amplitude is |G(j p w_m)| K_t |w_m| (1.2 A at
-    210 rad/s, where a zero command does not mean a zero current). Checked where the
+    187 rad/s, K_t w_m = 28 V: a zero command is not a zero current). Checked where the
     amplifier is not saturated (K_t |w_m| < 0.9 V_ci); the 10 % and 0.1 A of slack cover
     the rotors' deceleration once the brakes hold, which the current follows with the
     electrical time constant L / R = 1 ms (about 90 A/s times 1 ms)."""
