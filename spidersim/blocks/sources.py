@@ -24,11 +24,12 @@ class Constant(Block):
 
 
 class Step(Block):
-    """Step ``y = before`` for ``t < t_step``, ``y = after`` from ``t_step`` on (time event)."""
+    """Step ``y = before`` for ``t < t_step``, ``y = after`` from ``t_step`` on (time event;
+    ``t_step = inf``: never, ``y = before`` throughout)."""
 
     category = "sources"
     parameters = {
-        "t_step": Param(0.0, "s", "switching time"),
+        "t_step": Param(0.0, "s", "switching time (inf: never)", allow_inf=True),
         "before": Param(0.0, "@y", "value before the step"),
         "after": Param(1.0, "@y", "value from the step on"),
     }

@@ -68,6 +68,15 @@ def test_step_at_time_zero_is_after_from_the_start():
     assert np.all(r["s.y"] == 7.0)
 
 
+def test_step_at_infinity_never_steps():
+    """``t_step: inf`` is "never" (the default of a subsystem's optional cut, e.g.
+    joint_torque.yaml's t_cut): ``before`` throughout, no event; with a state too."""
+    r = _src("{type: Step, t_step: inf, before: 3, after: 7}", t_end=1.0,
+             extra_blocks="  i: {type: Integrator}\n", connections="  - s.y -> i.u\n")
+    assert np.all(r["s.y"] == 3.0) and r.events == []
+    np.testing.assert_allclose(r["i.y"][-1], 3.0, rtol=1e-9)
+
+
 def test_ramp():
     slope, t0, off = -1.5, 0.6, 0.25
     r = _src(f"{{type: Ramp, slope: {slope}, t_start: {t0}, offset: {off}}}")

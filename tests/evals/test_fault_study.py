@@ -43,6 +43,33 @@ def test_fault_sequence(runs):
     assert r["arm.flange_twist"][k, 1] == pytest.approx(0.1, abs=0.005)   # with 0.1 m/s
 
 
+def test_the_cut_leaves_only_the_back_emf_current(runs):
+    """Detection zeroes every joint's whole current command (active damping included; the
+    old wiring left up to 2.3 A on joint 4), so from t_fault + t_detect + 5 / w_c on (5 time
+    constants of the current loop, w_c = 2 pi f_cur) the motor current is the NRPI loop's
+    response to the back-EMF alone. The PI (kp = L w_c, ki = R w_c) gives, for a command of
+    zero, ``i / e = -s / ((L s + R)(s + w_c))``: at the electrical frequency p w_m of a
+    back-EMF of amplitude K_t |w_m| the current amplitude is |G(j p w_m)| K_t |w_m| (1.2 A at
+    187 rad/s, K_t w_m = 28 V: a zero command is not a zero current). Checked where the
+    amplifier is not saturated (K_t |w_m| < 0.9 V_ci); the 10 % and 0.1 A of slack cover
+    the rotors' deceleration once the brakes hold, which the current follows with the
+    electrical time constant L / R = 1 ms (about 90 A/s times 1 ms)."""
+    K_t, R, L, p, w_c = 0.15, 1.5, 1.5e-3, 7, 2 * np.pi * 2000
+    for v, r in runs.items():
+        after = r.t >= T_FAULT + T_DETECT + 5 / w_c
+        for j in range(1, 8):
+            i = np.hypot(r[f"j{j}.motor.i_a"], r[f"j{j}.motor.i_b"])
+            w = np.abs(r[f"j{j}.w_m"])
+            w_e, e = p * w, K_t * w
+            gain = w_e / (np.hypot(R, w_e * L) * np.hypot(w_e, w_c))
+            ok = after & (e < 0.9 * v)
+            assert ok.sum() > 50, (v, j)
+            excess = i[ok] - (1.1 * gain[ok] * e[ok] + 0.1)
+            assert excess.max() < 0.0, (v, j, excess.max())
+        for j in (2, 4):                                       # the logged commands
+            assert np.all(r[f"j{j}.i_cmd"][r.t > T_FAULT + T_DETECT + 1e-6] == 0.0)
+
+
 def test_runaway_hits_the_obstacle_harder_than_operation(runs):
     r = runs[20]
     onset = [t for t, b, n in r.events if b == "wall" and n == "onset"]
