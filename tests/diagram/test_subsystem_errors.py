@@ -210,6 +210,9 @@ connections:
     ("i.y[1:9]", "'i.y[1:9]': element range [1:9] is outside"),
     ("i.y[3]", "'i.y[3]': element [3] is outside"),
     ("i.y[-4]", "'i.y[-4]': element [-4] is outside"),
+    ("i.y[3:]", "'i.y[3:]': element range [3:] is empty"),
+    ("i.y[:-3]", "'i.y[:-3]': element range [:-3] is empty"),
+    ("i.y[:4]", "'i.y[:4]': element range [:4] is outside"),
 ])
 def test_exposed_output_range_outside_is_refused_at_its_line(tmp_path, rng, words):
     """An exposed output's element range was never checked: [2:1] had size -1 and the run
@@ -238,6 +241,10 @@ def test_range_of_an_exposed_range_is_checked_inside_it(tmp_path):
     ("i.y[-2]", "s.y", 2.0),
     ("i.y[1:3]", "s.y[-1]", 3.0),              # a negative index of an exposed range
     ("i.y", "s.y[-2:-1]", 2.0),
+    ("i.y[1:]", "s.y", [2.0, 3.0]),            # open-ended ranges, exposed and taken
+    ("i.y[:2]", "s.y[1:]", 2.0),
+    ("i.y[:]", "s.y[:-1]", [1.0, 2.0]),
+    ("i.y[-2:]", "s.y[:1]", 2.0),
 ])
 def test_negative_bounds_count_from_the_end_in_exposed_outputs(tmp_path, rng, parent_src,
                                                                want):
