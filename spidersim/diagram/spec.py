@@ -9,8 +9,9 @@ A diagram file has these top-level sections (all optional but ``blocks``)::
                            name1..name7 (``{each: [...]}`` per-instance values; see
                            spidersim.diagram.arrays)
     connections            - "src.port -> dst.port"   (``src.port[i]``, ``src.port[i:j]``,
-                             ``[i:]``, ``[:j]``; several destinations separated by commas; ``{i}`` repeats
-                             the line over a block array: ``q.y{i} -> j{i}.u``)
+                             ``[i:]``, ``[:j]``; several destinations separated by
+                             commas; ``{i}`` repeats the line over a block array:
+                             ``q.y{i} -> j{i}.u``)
     inputs                 (subsystem files) exposed input: internal "block.port" or a list
     outputs                (subsystem files) exposed output: internal "block.port[...]"
     simulation             t_end, method, rtol, atol, max_step, output_interval
