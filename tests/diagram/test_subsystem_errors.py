@@ -235,7 +235,25 @@ def test_range_of_an_exposed_range_is_checked_inside_it(tmp_path):
             "'s.y' has size 2") in msg
 
 
+@pytest.mark.parametrize("src, words", [
+    ("s.y[5]", "'s.y[5]': element [5] is outside: 's.y' has size 2 (indices 0..1"),
+    ("s.y[2:]", "'s.y[2:]': element range [2:] is empty: 's.y' has size 2"),
+    ("s.y[:3]", "'s.y[:3]': element range [:3] is outside: 's.y' has size 2"),
+])
+def test_element_of_an_exposed_range_is_named_as_written(tmp_path, src, words):
+    """An element outside an exposed output's range names the port and the range the user
+    wrote (s.y, its 2 exposed elements), not the flat output inside (hostile review 14b:
+    'v.ytail[5]' was told as 'element range [6:7]' of 'v.i.y')."""
+    parent = VEC_PARENT.replace("  s: {type: my}\n", "  s: {type: my}\n  g: {type: Gain}\n") \
+        + f"  - {src} -> g.u\n"
+    exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", "i.y[1:3]"), parent)
+    assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 9
+    assert f"connection source {words}" in msg
+    assert "i.y" not in msg and "s.i" not in msg
+
+
 @pytest.mark.parametrize("rng, parent_src, want", [
+
     ("i.y[0:-1]", "s.y", [1.0, 2.0]),          # negative stop counts from the end
     ("i.y[-1]", "s.y", 3.0),                   # the last element
     ("i.y[-2]", "s.y", 2.0),
