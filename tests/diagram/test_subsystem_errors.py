@@ -252,6 +252,20 @@ def test_element_of_an_exposed_range_is_named_as_written(tmp_path, src, words):
     assert "i.y" not in msg and "s.i" not in msg
 
 
+def test_range_of_an_exposed_output_in_a_middle_file_names_the_instance(tmp_path):
+    """A range written in a subsystem file that reads an inner instance's exposed output
+    (mid.yaml: 'tail: v.y[5]') is refused at its line and names the instance of the file
+    in the parent, as a range of a primitive output does (it named none)."""
+    (tmp_path / "mid.yaml").write_text("subsystems: {my: sub.yaml}\nblocks:\n"
+                                       "  v: {type: my}\ninputs: {u: v.u}\n"
+                                       "outputs: {tail: 'v.y[5]'}\n")
+    parent = VEC_PARENT.replace("my: sub.yaml", "my: mid.yaml")
+    exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", "i.y[1:]"), parent)
+    assert os.path.basename(exc.file) == "mid.yaml" and exc.line == 5
+    assert "exposed output 'tail' 'v.y[5]': element [5] is outside: 'v.y' has size 2" in msg
+    assert "subsystem instance 's' of type 'my', parent.yaml:5" in msg
+
+
 @pytest.mark.parametrize("rng, parent_src, want", [
 
     ("i.y[0:-1]", "s.y", [1.0, 2.0]),          # negative stop counts from the end
