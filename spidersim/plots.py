@@ -61,6 +61,8 @@ def _slug(text):
 
 
 _ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]\Z")
+#: a connection's element range (``[1:]``, ``[:2]``, ``[0:3]``), which a plot does not read
+_RANGE = re.compile(r"^[^\[]*\[[^\[\]]*:[^\[\]]*\]\Z")
 
 
 def split_signal(s):
@@ -222,6 +224,11 @@ def _check_plot_signal(s, k, signals, file, line):
     """Plot signal ``s`` (``name`` or ``name[i]``) is logged, and ``i`` within its size
     when the size is known; an unknown name suggests the nearest logged ones."""
     name, idx = split_signal(s)
+    if name not in signals and _RANGE.match(str(s).strip()):
+        base = str(s).partition("[")[0].strip()
+        raise DiagramError(f"plots[{k}]: signal '{s}': a plot takes a whole signal "
+                           f"('{base}') or one element ('{base}[0]'), not an element range: "
+                           f"list the elements", file=file, line=line)
     if name not in signals:
         import difflib
         near = difflib.get_close_matches(name, list(signals), n=3)

@@ -23,7 +23,8 @@ DRAFT = "https://json-schema.org/draft/2020-12/schema"
 NAME = r"^[A-Za-z_][A-Za-z0-9_]*$"
 _IDX = r"(-?\d+|\{i([+-]\d+)?\})"
 _ID = r"[A-Za-z_]([A-Za-z0-9_.]|\{i\})*"
-_ADDR = rf"{_ID}\.{_ID}(\[\s*{_IDX}\s*(:\s*{_IDX}\s*)?\])?"
+#: ``block.port``, ``[i]``, ``[a:b]`` with either bound left out (``[1:]``, ``[:2]``, ``[:]``)
+_ADDR = rf"{_ID}\.{_ID}(\[\s*{_IDX}\s*\]|\[\s*({_IDX}\s*)?:\s*({_IDX}\s*)?\])?"
 BLOCK_KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\[\d+\.\.\d+\])?$"
 CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
 SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54", "ROS34PW2", "NDF"]
@@ -213,7 +214,8 @@ def schema() -> dict:
                        "additionalProperties": {"$ref": "#/$defs/block"}},
             "connections": {"type": "array", "items": {
                 "type": "string", "pattern": CONNECTION,
-                "description": "src.port[i:j] -> dst.port (several destinations: commas)"}},
+                "description": "src.port[i:j] -> dst.port ([i:], [:j] too; several "
+                               "destinations: commas)"}},
             "inputs": {"type": "object", "propertyNames": {"pattern": NAME},
                        "additionalProperties": signal_list,
                        "description": "(subsystem files) exposed input: block.port or a "

@@ -76,6 +76,16 @@ def test_signal_index_checked_only_when_sizes_are_known():
         P._check_plot_signal("motor.ww", 0, SIZES, None, None)
 
 
+@pytest.mark.parametrize("s", ["arm.q[1:]", "arm.q[:2]", "arm.q[0:3]", "arm.q[::2]"])
+def test_an_element_range_in_a_plot_is_named_as_such(s):
+    """A connection's range (``arm.q[1:]``) is not read by a plot: said so, with the two
+    forms a plot reads (it was 'not logged; did you mean arm.q?')."""
+    with pytest.raises(DiagramError) as e:
+        P._check_plot_signal(s, 0, SIZES, None, None)
+    assert (f"plots[0]: signal '{s}': a plot takes a whole signal ('arm.q') or one element "
+            f"('arm.q[0]'), not an element range" in str(e.value))
+
+
 def test_plot_entry_needs_signals_and_a_file_for_its_kind():
     """An entry without signals is refused; an animation must be written to a .gif and a
     time plot to an image file."""

@@ -68,6 +68,8 @@ MALFORMED = [
     (_with(["blocks", "h"], {"k": 2}), "block without a type"),
     (_with(["blocks", "a b"], {"type": "Gain"}), "block name with a space"),
     (_with(["connections"], ["c.y => g.u"]), "connection arrow"),
+    (_with(["connections"], ["c.y[::2] -> g.u"]), "element range with a step"),
+    (_with(["connections"], ["c.y[] -> g.u"]), "empty brackets"),
     (_with(["simulation"], {"t_end": 1, "method": "euler"}), "unknown method"),
     (_with(["simulation"], {"tend": 1}), "unknown simulation key"),
     (_with(["plots"], [{"signals": [], "title": "x"}]), "plot without signals"),
@@ -105,6 +107,9 @@ ACCEPTED_BY_BOTH = [
      "number as a metric unit"),
     (_with(["plots"], [{"signals": ["g.y"], "file": "Volts.PNG"}]), "upper-case extension"),
     (_with(["plots"], [{"signals": ["g.y"], "file": "v" * 117 + ".png"}]), "longest name"),
+    (_with(["connections"], ["c.y[:] -> g.u"]), "range with both bounds left out"),
+    (_with(["connections"], ["c.y[-1:] -> g.u"]), "range to the end"),
+    (_with(["connections"], ["c.y[ : 1] -> g.u"]), "range from the start"),
 ]
 
 

@@ -51,6 +51,9 @@ class Range(NamedTuple):
     what: str     #: where it is written: ``connection source``, ``exposed output 'y'``
     file: str
     line: int
+    #: flat path of the block or subsystem instance it reads (``m.v`` for ``v.y[1:]`` in
+    #: the file of instance ``m``): an error names the instances around it
+    at: str = ""
 
 
 @dataclass
@@ -617,7 +620,7 @@ class _LocalAddresses:
         is taken of the range the output exposes. Checked once the sizes are known."""
         own = () if a.start is None else (
             Range(a.start, a.stop, str(a)[len(a.block) + len(a.port) + 1:],
-                  f"{a.block}.{a.port}", what, self.spec.file, line),)
+                  f"{a.block}.{a.port}", what, self.spec.file, line, self.prefix + a.block),)
         if a.block in self.local_subs:
             out_map = self.local_subs[a.block].outputs
             if a.port not in out_map:

@@ -224,9 +224,9 @@ def range_bounds(ranges, n, path):
     Raises
     ------
     WiringError
-        A range empty or outside what it selects from, at its own file and line (naming
-        block ``path`` for the innermost range only: the others select from an exposed
-        output).
+        A range empty or outside what it selects from, at its own file and line, naming
+        the block or subsystem instance it reads (:attr:`~.flatten.Range.at`; else block
+        ``path`` for the innermost range only), so the instances around it are named.
     """
     off = 0
     for k, r in enumerate(ranges):
@@ -237,7 +237,7 @@ def range_bounds(ranges, n, path):
             raise WiringError(f"{r.what} '{r.of}{r.text}': {elem} {r.text} {why}: "
                               f"'{r.of}' has size {n} (indices 0..{n - 1}, or "
                               f"-{n}..-1 from the end)", file=r.file, line=r.line,
-                              block=path if k == 0 else None)
+                              block=r.at or (path if k == 0 else None))
         off, n = off + a, b - a
     return off, off + n
 

@@ -8,9 +8,10 @@ A diagram file has these top-level sections (all optional but ``blocks``)::
     blocks                 name: {type: TypeName, param: value, ...}; ``name[1..7]`` makes
                            name1..name7 (``{each: [...]}`` per-instance values; see
                            spidersim.diagram.arrays)
-    connections            - "src.port -> dst.port"   (``src.port[i]``, ``src.port[i:j]``;
-                             several destinations separated by commas; ``{i}`` repeats
-                             the line over a block array: ``q.y{i} -> j{i}.u``)
+    connections            - "src.port -> dst.port"   (``src.port[i]``, ``src.port[i:j]``,
+                             ``[i:]``, ``[:j]``; several destinations separated by
+                             commas; ``{i}`` repeats the line over a block array:
+                             ``q.y{i} -> j{i}.u``)
     inputs                 (subsystem files) exposed input: internal "block.port" or a list
     outputs                (subsystem files) exposed output: internal "block.port[...]"
     simulation             t_end, method, rtol, atol, max_step, output_interval
@@ -45,7 +46,11 @@ SIM_KEYS = {"t_end": "simulated time [s]", "method": "LSODA, RK45, DOP853, Radau
             "first_step": "first step [s]"}
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\Z")
 _ADDR = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)"
-                   r"(?:\[\s*(-?\d+)\s*(?::\s*(-?\d+)\s*)?\])?\s*\Z")
+                   r"(?:\[([^\[\]]*)\])?\s*\Z")
+#: inside the brackets: ``i``, or ``a:b`` with either bound left out (``1:``, ``:2``, ``:``)
+_INDEX = re.compile(r"^\s*(-?\d+)\s*\Z")
+_SLICE = re.compile(r"^\s*(-?\d+)?\s*:\s*(-?\d+)?\s*\Z")
+_FORMS = "'block.port', 'block.port[i]' or 'block.port[i:j]' (i or j may be left out)"
 
 
 @dataclass
@@ -58,13 +63,15 @@ class Address:
     start: int | None = None
     stop: int | None = None
     single: bool = False
+    #: the range as written, without spaces (``[1:]``, ``[:2]``); '' for ``[i]`` or none
+    written: str = ""
 
     def __str__(self):
         if self.start is None:
             return f"{self.block}.{self.port}"
         if self.single:
             return f"{self.block}.{self.port}[{self.start}]"
-        return f"{self.block}.{self.port}[{self.start}:{self.stop}]"
+        return f"{self.block}.{self.port}{self.written or f'[{self.start}:{self.stop}]'}"
 
 
 @dataclass
@@ -109,23 +116,41 @@ class DiagramSpec:
 
 
 def parse_address(text, file, line, what="address"):
+    """The :class:`Address` written ``text``: ``block.port``, ``block.port[i]`` or
+    ``block.port[a:b]`` with ``a`` or ``b`` (or both) left out as in Python (``[1:]``,
+    ``[:2]``, ``[:]``); a WiringError at ``file:line`` naming ``what`` otherwise (a step,
+    ``[::2]``, is refused by name)."""
     if not isinstance(text, str):
         raise WiringError(f"{what} must be a string 'block.port', got {text!r}", file=file,
                           line=line)
     m = _ADDR.match(text)
     if not m:
-        raise WiringError(f"cannot read {what} '{text.strip()}': expected 'block.port', "
-                          f"'block.port[i]' or 'block.port[i:j]'", file=file, line=line)
-    block, port, a, b = m.groups()
-    if a is None:
+        raise WiringError(f"cannot read {what} '{text.strip()}': expected {_FORMS}",
+                          file=file, line=line)
+    block, port, inside = m.groups()
+    if inside is None:
         return Address(block, port)
-    if max(len(a), len(b or "")) > 100:      # int() of more than 4300 digits would fail
+    single, rng = _INDEX.match(inside), _SLICE.match(inside)
+    if not (single or rng):
+        raise WiringError(_index_problem(text, inside, what), file=file, line=line)
+    a, b = single.groups() + (None,) if single else rng.groups()
+    if max(len(a or ""), len(b or "")) > 100:   # int() of more than 4300 digits would fail
         raise WiringError(f"an index of more than 100 digits in {what} '{text[:60]}...' is "
                           f"outside any port", file=file, line=line)
-    a = int(a)
-    if b is None:     # [-1] is the last element, [-2] the one before: [-1:None], [-2:-1]
+    if single:        # [-1] is the last element, [-2] the one before: [-1:None], [-2:-1]
+        a = int(a)
         return Address(block, port, a, a + 1 if a != -1 else None, single=True)
-    return Address(block, port, a, int(b))
+    return Address(block, port, 0 if a is None else int(a), None if b is None else int(b),
+                   written=f"[{a or ''}:{b or ''}]")
+
+
+def _index_problem(text, inside, what):
+    """The message for brackets ``inside`` of ``text`` that are neither ``[i]`` nor
+    ``[a:b]`` (a step named as such)."""
+    if inside.count(":") >= 2:
+        return (f"{what} '{text.strip()}': a step ('[a:b:step]') is not supported: take a "
+                f"contiguous range '[a:b]' (or pick the elements with a Selector)")
+    return f"cannot read {what} '{text.strip()}': expected {_FORMS}"
 
 
 def _section(data, key, kind, file):

@@ -315,6 +315,7 @@ class _Problem:
         for rows in _components(self._free_rows()):
             if not _consistent(rows):
                 self._refuse_free(rows)
+            self._check_free_inputs(rows)
 
     def _refuse_free(self, rows):
         """The UnitMismatchError for inconsistent ``rows`` (see :meth:`_check_free_relations`),
@@ -338,6 +339,41 @@ class _Problem:
             f"'{inst.path}' does not hold{with_} for any unit of the free signals "
             f"{', '.join(free[:6])}{' ...' if len(free) > 6 else ''}: their paths differ "
             f"by {what}; "
+            f"give the gains matching units, or the signals a unit ({{value: ..., unit: "
+            f"...}})", file=inst.file, line=inst.line, block=inst.path)
+
+    def _check_free_inputs(self, rows):
+        """Two free classes that only feed relations (a plain Constant before a Gain in deg,
+        another before a Gain in rad) may not be forced to differ by a scaled pure number:
+        ``g1.y = 90 deg * c1.y`` and ``g2.y = 1 rad * c2.y`` summed hold only with
+        ``c2.y`` in [deg/rad] of ``c1.y`` (the sum adds 90 c1 and 1 c2 raw, 91 where
+        pi/2 + 1 was meant), as one Constant before both Gains is refused by
+        :meth:`_check_free_relations`. A ratio of a dimension (one input in m, one in s)
+        stays free: it may be meant."""
+        targets = {self.c.find(rel[0]) for _c, _r, rel in rows}
+        inputs = sorted({k for c, _r, _rel in rows for k in c} - targets, key=repr)
+        found = _pure_number_ratio(rows, inputs)
+        if found:
+            self._refuse_inputs(rows, *found)
+
+    def _refuse_inputs(self, rows, i, j, factor):
+        """The UnitMismatchError for free input classes ``i`` and ``j`` forced to a ratio
+        of a pure number ``factor`` (see :meth:`_check_free_inputs`), at the last relation
+        that reads ``j``, naming the blocks of the relations that read either."""
+        names = {k: sorted(_describe(v) for v in self.c.parent
+                           if v[1] == "out" and self.c.find(v) == k) for k in (i, j)}
+        readers = [rel for c, _r, rel in rows if i in c or j in c]
+        target, _refs, _fixed, inst, rule = next(rel for c, _r, rel in reversed(rows)
+                                                 if j in c)
+        others = sorted({rel[3].path for rel in readers} - {inst.path})
+        with_ = (f" with the relations of block{'s' if len(others) > 1 else ''} "
+                 f"{', '.join(repr(o) for o in others)}" if others else "")
+        sig = [", ".join(names[k]) or "?" for k in (i, j)]
+        raise UnitMismatchError(
+            f"{inst.cls.type_name}: unit mismatch: '{target[2]} = {rule}' of block "
+            f"'{inst.path}' holds{with_} only if the free signals {sig[0]} and {sig[1]} "
+            f"differ by a pure number scaled by {factor:.6g} (in deg on one path and rad on "
+            f"another, % and 1, mN.m and N.m): their plain values would be summed raw; "
             f"give the gains matching units, or the signals a unit ({{value: ..., unit: "
             f"...}})", file=inst.file, line=inst.line, block=inst.path)
 
@@ -367,6 +403,30 @@ def _fit(rows):
                - rhs.get(k, 0.0) for k in set(keys) | set(rhs)}
         return {k: v for k, v in out.items() if abs(v) > 1e-9}
     return sol, residual
+
+
+def _pure_number_ratio(rows, classes):
+    """``(i, j, factor)`` for a pair of ``classes`` whose ratio of units the consistent
+    ``rows`` fix (the same for every solution) to a pure number ``factor`` that is not 1,
+    else None. Classes whose difference of logarithms is fixed share their row of the
+    null space; among them, those with the same dimension part differ by a scale only
+    (one pass, not a pass per pair: a component may hold hundreds of classes)."""
+    cols = sorted({k for c, _r, _rel in rows for k in c}, key=repr)
+    a = np.array([[c.get(k, 0.0) for k in cols] for c, _r, _rel in rows], dtype=float)
+    _u, sv, vt = np.linalg.svd(a)
+    rank = int(np.sum(sv > 1e-9 * max(1.0, sv.max(initial=0.0))))
+    null = vt[rank:].T                  # rows: the directions no relation fixes
+    sol = _fit(rows)[0]
+    at = {k: n for n, k in enumerate(cols)}
+    first = {}
+    for c in classes:
+        dims = tuple(round(v, 6) + 0.0 for k, v in sorted(sol[c].items()) if k != "scale")
+        key = (tuple(np.round(null[at[c]], 6) + 0.0), dims)
+        f = first.setdefault(key, c)
+        diff = sol[c].get("scale", 0.0) - sol[f].get("scale", 0.0)
+        if abs(diff) > 1e-9:
+            return f, c, math.exp(diff)
+    return None
 
 
 def _components(rows):

@@ -94,7 +94,8 @@ def test_addresses_through_a_subsystem_port_map():
     assert addr.source(Address("s", "y"), 1) == ("p.s.mux", "y", inner)
     path, port, ranges = addr.source(Address("s", "y", 1, 3), 7)
     assert (path, port, ranges[0]) == ("p.s.mux", "y", inner[0])
-    assert ranges[1] == F.Range(1, 3, "[1:3]", "s.y", "connection source", spec.file, 7)
+    assert ranges[1] == F.Range(1, 3, "[1:3]", "s.y", "connection source", spec.file, 7,
+                                "p.s")                  # reads instance p.s
     assert range_bounds(ranges, 8, path) == (3, 5)          # [1:3] of mux.y[2:5]
     last = addr.source(Address("s", "y", -1, None, single=True), 7)[2]
     assert range_bounds(last, 8, path) == (4, 5)            # [-1] of mux.y[2:5]
@@ -168,7 +169,7 @@ def test_exposed_outputs_of_output_ports_are_accepted():
     lv = level("blocks:\n  g: {type: Gain}\noutputs:\n  x: g.y\n  z: g.y[0]\n", prefix="j1.")
     F._instantiate_block(lv, "g", lv.spec.blocks["g"], F.BlockOverrides({}, {}))
     out = F._exposed_outputs(lv, F._LocalAddresses(lv.spec, "j1.", {}))
-    z = F.Range(0, 1, "[0]", "g.y", "exposed output 'z'", lv.spec.file, 5)
+    z = F.Range(0, 1, "[0]", "g.y", "exposed output 'z'", lv.spec.file, 5, "j1.g")
     assert out == {"x": ("j1.g", "y", ()), "z": ("j1.g", "y", (z,))}
 
 

@@ -123,11 +123,33 @@ def test_negative_index_is_counted_from_the_end(text, start, stop):
     assert (a.start, a.stop, str(a)) == (start, stop, text)
 
 
+@pytest.mark.parametrize("text,start,stop", [("a.y[1:]", 1, None), ("a.y[:2]", 0, 2),
+                                             ("a.y[:]", 0, None), ("a.y[-2:]", -2, None),
+                                             ("a.y[:-1]", 0, -1), ("a.y[ 1 : ]", 1, None)])
+def test_a_range_may_leave_out_either_bound(text, start, stop):
+    """``[a:]`` runs to the end and ``[:b]`` from the start, as in Python (they were not
+    read at all); the text is quoted as written, without its spaces."""
+    a = S.parse_address(text, "t.yaml", 3)
+    assert (a.start, a.stop, a.single, str(a)) == (start, stop, False, text.replace(" ", ""))
+
+
+@pytest.mark.parametrize("text", ["a.y[::2]", "a.y[1:3:1]", "a.y[::]"])
+def test_a_range_with_a_step_is_refused_by_name(text):
+    """A step is no contiguous range: refused, saying so, at the line."""
+    with pytest.raises(WiringError) as ei:
+        S.parse_address(text, "t.yaml", 3, "connection source")
+    assert (f"connection source '{text}': a step ('[a:b:step]') is not supported"
+            in str(ei.value)) and ei.value.line == 3
+
+
 @pytest.mark.parametrize("item,words", [
     ("a.y -> b.u[0]", "a destination takes a whole input port, got 'b.u[0]'"),
     ("a.y b.u", "must read 'src.port -> dst.port'"),
     (["a.y"], "must read 'src.port -> dst.port'"),
     ("a -> b.u", "cannot read connection source 'a':"),  # quoted without the space
+    ("a.y[] -> b.u", "cannot read connection source 'a.y[]': expected 'block.port', "
+                     "'block.port[i]' or 'block.port[i:j]' (i or j may be left out)"),
+    ("a.y -> b.u[1:]", "a destination takes a whole input port, got 'b.u[1:]'"),
 ])
 def test_connection_errors(item, words):
     """Malformed connections are wiring errors at the connection's line."""

@@ -210,6 +210,9 @@ connections:
     ("i.y[1:9]", "'i.y[1:9]': element range [1:9] is outside"),
     ("i.y[3]", "'i.y[3]': element [3] is outside"),
     ("i.y[-4]", "'i.y[-4]': element [-4] is outside"),
+    ("i.y[3:]", "'i.y[3:]': element range [3:] is empty"),
+    ("i.y[:-3]", "'i.y[:-3]': element range [:-3] is empty"),
+    ("i.y[:4]", "'i.y[:4]': element range [:4] is outside"),
 ])
 def test_exposed_output_range_outside_is_refused_at_its_line(tmp_path, rng, words):
     """An exposed output's element range was never checked: [2:1] had size -1 and the run
@@ -232,12 +235,48 @@ def test_range_of_an_exposed_range_is_checked_inside_it(tmp_path):
             "'s.y' has size 2") in msg
 
 
+@pytest.mark.parametrize("src, words", [
+    ("s.y[5]", "'s.y[5]': element [5] is outside: 's.y' has size 2 (indices 0..1"),
+    ("s.y[2:]", "'s.y[2:]': element range [2:] is empty: 's.y' has size 2"),
+    ("s.y[:3]", "'s.y[:3]': element range [:3] is outside: 's.y' has size 2"),
+])
+def test_element_of_an_exposed_range_is_named_as_written(tmp_path, src, words):
+    """An element outside an exposed output's range names the port and the range the user
+    wrote (s.y, its 2 exposed elements), not the flat output inside (hostile review 14b:
+    'v.ytail[5]' was told as 'element range [6:7]' of 'v.i.y')."""
+    parent = VEC_PARENT.replace("  s: {type: my}\n", "  s: {type: my}\n  g: {type: Gain}\n") \
+        + f"  - {src} -> g.u\n"
+    exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", "i.y[1:3]"), parent)
+    assert os.path.basename(exc.file) == "parent.yaml" and exc.line == 9
+    assert f"connection source {words}" in msg
+    assert "i.y" not in msg and "s.i" not in msg
+
+
+def test_range_of_an_exposed_output_in_a_middle_file_names_the_instance(tmp_path):
+    """A range written in a subsystem file that reads an inner instance's exposed output
+    (mid.yaml: 'tail: v.y[5]') is refused at its line and names the instance of the file
+    in the parent, as a range of a primitive output does (it named none)."""
+    (tmp_path / "mid.yaml").write_text("subsystems: {my: sub.yaml}\nblocks:\n"
+                                       "  v: {type: my}\ninputs: {u: v.u}\n"
+                                       "outputs: {tail: 'v.y[5]'}\n")
+    parent = VEC_PARENT.replace("my: sub.yaml", "my: mid.yaml")
+    exc, msg = _error(tmp_path, VEC_SUB.replace("RANGE", "i.y[1:]"), parent)
+    assert os.path.basename(exc.file) == "mid.yaml" and exc.line == 5
+    assert "exposed output 'tail' 'v.y[5]': element [5] is outside: 'v.y' has size 2" in msg
+    assert "subsystem instance 's' of type 'my', parent.yaml:5" in msg
+
+
 @pytest.mark.parametrize("rng, parent_src, want", [
+
     ("i.y[0:-1]", "s.y", [1.0, 2.0]),          # negative stop counts from the end
     ("i.y[-1]", "s.y", 3.0),                   # the last element
     ("i.y[-2]", "s.y", 2.0),
     ("i.y[1:3]", "s.y[-1]", 3.0),              # a negative index of an exposed range
     ("i.y", "s.y[-2:-1]", 2.0),
+    ("i.y[1:]", "s.y", [2.0, 3.0]),            # open-ended ranges, exposed and taken
+    ("i.y[:2]", "s.y[1:]", 2.0),
+    ("i.y[:]", "s.y[:-1]", [1.0, 2.0]),
+    ("i.y[-2:]", "s.y[:1]", 2.0),
 ])
 def test_negative_bounds_count_from_the_end_in_exposed_outputs(tmp_path, rng, parent_src,
                                                                want):

@@ -418,6 +418,68 @@ def test_free_paths_of_one_unit_into_a_sum_stay_free():
     assert d.simulate(jit=False)["s.y"][-1] == pytest.approx(91.0)
 
 
+_TWO_FREE = """
+name: two_free
+blocks:
+  c1: {type: Constant, value: 1}
+  c2: {type: Constant, value: 1}
+  c3: {type: Constant, value: 1}
+  g1: {type: Gain, k: {value: 90, unit: %s}}
+  g2: {type: Gain, k: %s}
+  s: {type: Sum, signs: "+++"}
+connections:
+  - c1.y -> g1.u
+  - c2.y -> g2.u
+  - g1.y -> s.u1
+  - g2.y -> s.u2
+  - c3.y -> s.u3
+"""
+
+
+@pytest.mark.parametrize("unit1, k2, words", [
+    ("deg", "{value: 1, unit: rad}", r"a pure number scaled by 0\.0174533 \(in deg"),
+    ("m", "{value: 1, unit: mm}", r"a pure number scaled by 1000 "),
+])
+@pytest.mark.parametrize("third", [True, False])
+def test_two_free_signals_scaled_apart_into_a_sum_are_refused(unit1, k2, words, third):
+    """Two free Constants, one through a Gain of 90 deg and one through a Gain of 1 rad,
+    summed (with a third free input or not): sumdeg3 of hostile review 14b ran, s.y 91
+    (or 92) where pi/2 + 1 was meant, while one Constant before both Gains is refused
+    (the test above). The plain values would have to differ by deg/rad: refused at the
+    second Gain's line, naming both Constants."""
+    text = _TWO_FREE % (unit1, k2)
+    if not third:
+        text = text.replace('"+++"', '"++"').replace("  - c3.y -> s.u3\n", "")
+    with pytest.raises(UnitMismatchError, match=r"block 'g2'.*relations of block 'g1' "
+                                                r"only if the free signals c1\.y and c2\.y "
+                                                r"differ by " + words) as e:
+        spidersim.loads(text)
+    assert e.value.line == 8
+
+
+@pytest.mark.parametrize("unit1, k2, want", [
+    ("deg", "{value: 90, unit: deg}", 181.0),   # one unit on both paths
+    ("deg", "1", 92.0),             # a plain gain takes its unit from the wiring
+    ("mm", "{value: 1, unit: s}", 92.0),        # a ratio of a dimension may be meant
+])
+def test_free_signals_not_forced_apart_by_a_pure_number_stay_free(unit1, k2, want):
+    """Free Constants whose paths into a sum agree for some units, with no pure-number
+    scale between two of them, are not refused: the sum of the raw values."""
+    d = spidersim.loads(_TWO_FREE % (unit1, k2))
+    assert d.simulate(jit=False)["s.y"][-1] == pytest.approx(want)
+
+
+def test_a_free_constant_beside_a_gain_in_deg_takes_the_sum_unit():
+    """A plain Constant summed directly with a free Constant through a Gain of 90 deg is
+    read in the sum's unit (as a plain Constant beside one in deg is): not refused."""
+    text = (_TWO_FREE % ("deg", "1")).replace("  - c2.y -> g2.u\n  - g1.y -> s.u1\n"
+                                              "  - g2.y -> s.u2\n",
+                                              "  - g1.y -> s.u1\n  - c2.y -> s.u2\n")
+    text = text.replace('"+++"', '"++"').replace("  - c3.y -> s.u3\n", "")
+    d = spidersim.loads(text.replace("  g2: {type: Gain, k: 1}\n", ""))
+    assert d.simulate(jit=False)["s.y"][-1] == pytest.approx(91.0)
+
+
 _LAGU = """
 name: lagu
 parameters:
