@@ -658,14 +658,20 @@ def _derivative_rows(d, derivatives, names):
     return rows
 
 
-def _check_trim_residuals(d, res, resid, sol, tol):
+def _check_trim_residuals(d, res, resid, sol, tol, changes=()):
     """Every residual ``res`` finite and at most ``tol``; otherwise an
-    :class:`AnalysisError` with the solver's message and the six largest residuals by name
-    (``resid``: label -> residual)."""
+    :class:`AnalysisError` with the solver's message, the mode changes that led to the
+    modes solved in (``changes``, texts of :func:`_mode_changes`) and the six largest
+    residuals by name (``resid``: label -> residual)."""
     if not np.all(np.isfinite(res)) or np.max(np.abs(res), initial=0.0) > tol:
-        worst = sorted(resid.items(), key=lambda kv: -abs(kv[1]))[:6]
-        raise AnalysisError("trim did not converge (" + sol.message + "); largest residuals: "
-                            + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
+        where = ""
+        if changes:
+            where = (": the point solved for in the blocks' earlier modes puts them in "
+                     "others (" + "; then ".join(changes) + "), and in those the targets "
+                     "and derivatives are not met")
+        raise AnalysisError("trim did not converge" + where + " (" + sol.message + "); "
+                            "largest residuals: " + _worst(list(resid), list(resid.values())),
+                            file=d.file)
 
 
 def _check_trim_start(d, res, labels, given):
@@ -698,10 +704,10 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     ``derivatives``: ``"all"`` or a list of state names (``block.state`` or
     ``block.state[i]``). Solved by ``scipy.optimize.least_squares`` from ``x0`` (default:
     the initial state). Raises :class:`AnalysisError` naming the residuals when the solution
-    does not reach ``tol``.
+    does not reach ``tol``. The point returned carries the modes its blocks take there
+    (a Saturation at its limit, a clamped PI): the solve starts in the start point's modes
+    and is repeated from the point found in the modes taken there (:func:`_trim_rounds`).
     """
-    from scipy.optimize import least_squares
-
     _check_diagram(d, "trim")
     if d.layout.n_x > dense_size.MAX_DENSE_STATES:     # least_squares' dense Jacobian
         raise AnalysisError(f"trim solves with a dense {d.layout.n_x}-column Jacobian: at "
@@ -736,13 +742,96 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
         nm for n in outs for nm in _channel_names(n, np.size(targets[n]))]
     z0 = np.concatenate((x_start, np.zeros(nu)))
     _check_trim_start(d, residual(z0), labels, x0 is not None)
-    sol = least_squares(residual, z0, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
-    res = residual(sol.x)
-    resid = dict(zip(labels, res))
-    _check_trim_residuals(d, res, resid, sol, tol)
+    sol, modes = _trim_rounds(d, lin, residual, z0, t, base.modes, labels, tol)
     x = sol.x[:len(x_start)]
     u = sol.x[len(x_start):]
-    return OperatingPoint(float(t), x, base.modes.copy(), _named_inputs(lin, u), resid)
+    return OperatingPoint(float(t), x, modes, _named_inputs(lin, u),
+                          dict(zip(labels, residual(sol.x))))
+
+
+#: trim's solves at most: each after the first in the modes the blocks took at the point
+#: the one before found
+TRIM_MODE_ROUNDS = 4
+
+
+def _trim_solve(residual, z0):
+    """``least_squares`` of ``residual`` from ``z0``. With fewer residuals than unknowns
+    (free inputs or states no residual depends on) 'dogbox': 'trf' with its exact
+    trust-region solver stops at the start there (``[z1 - 0.5]`` from ``(0, 0)``), and
+    dogbox moves only the unknowns the residuals need (``(0, 0.5)``)."""
+    from scipy.optimize import least_squares
+    method = "dogbox" if np.size(residual(z0)) < np.size(z0) else "trf"
+    return least_squares(residual, z0, method=method, xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                         max_nfev=2000)
+
+
+def _trim_rounds(d, lin, residual, z0, t, modes, labels, tol):
+    """Solve in ``modes`` (the start point's), then again from the point found in the modes
+    the blocks take there (:func:`_settled_modes`) until they no longer change: ``(sol,
+    modes)`` of a point whose residuals meet ``tol`` in the modes it has. Raises
+    :class:`AnalysisError` when they do not (naming the mode changes met on the way) or the
+    modes keep changing."""
+    n_x = d.layout.n_x
+    modes = modes.copy()
+    seen, changes = [modes.copy()], []
+    for _ in range(TRIM_MODE_ROUNDS):
+        lin.at(t, z0[:n_x], modes)
+        sol = _trim_solve(residual, z0)
+        res = residual(sol.x)
+        new = _settled_modes(d, lin, t, sol.x[:n_x], sol.x[n_x:], modes)
+        if np.array_equal(new, modes):
+            _check_trim_residuals(d, res, dict(zip(labels, res)), sol, tol, changes)
+            return sol, modes
+        changes.append(_mode_changes(d, modes, new))
+        if any(np.array_equal(new, m) for m in seen):
+            break
+        seen.append(new.copy())
+        modes, z0 = new, sol.x
+    raise AnalysisError("trim found no point consistent with its blocks' modes: they "
+                        "change at every point found (" + "; then ".join(changes) + "); "
+                        "largest residuals in the last modes: " + _worst(labels, res),
+                        file=d.file)
+
+
+def _settled_modes(d, lin, t, x, u, modes):
+    """The modes the blocks take at states ``x`` and free inputs ``u``, as at the start of a
+    simulation: every block that sets its modes from its inputs (an ``initialize`` kernel,
+    no time events) from its declared initial modes, the others (sampled blocks, timed
+    sources) keep theirs from ``modes``."""
+    m = modes.copy()
+    for bl in d.layout.blocks.values():
+        if bl.cls.has_kernel("initialize") and not bl.cls.has_kernel("next_time"):
+            for name, (a, b) in bl.modes.items():
+                m[a:b] = bl.cls.initial_value(bl.cls.modes[name], b - a, bl.params)
+    system = lin.system
+    lin.evaluate(x, u)                          # the free inputs into the parameters
+    saved = system.modes.copy()
+    system.modes[:] = m
+    system.initialize(t, np.array(x, dtype=float))    # (a copy: only the modes are kept)
+    m = system.modes.copy()
+    system.modes[:] = saved
+    return m
+
+
+def _mode_changes(d, old, new):
+    """The modes that differ between ``old`` and ``new``, by block: ``'sat' (Saturation)
+    mode m 0 -> 1 (-1 at lower, 0 linear, +1 at upper)``."""
+    items = []
+    for bl in d.layout.blocks.values():
+        for name, (a, b) in bl.modes.items():
+            for i in range(a, b):
+                if old[i] != new[i]:
+                    nm = name if b - a == 1 else f"{name}[{i - a}]"
+                    doc = bl.cls.modes[name].doc
+                    items.append(f"'{bl.path}' ({bl.cls.type_name}) mode {nm} "
+                                 f"{old[i]:g} -> {new[i]:g}" + (f" ({doc})" if doc else ""))
+    return ", ".join(items)
+
+
+def _worst(labels, res):
+    """The six largest residuals by name: ``sat.y = -0.2, ...``."""
+    worst = sorted(zip(labels, res), key=lambda kv: -abs(kv[1]))[:6]
+    return ", ".join(f"{k} = {v:.3g}" for k, v in worst)
 
 
 def _trim_x0(d, x0):
