@@ -365,6 +365,7 @@ class Linearizer:
         refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
         blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
         self.quantizers = []
+        self.kinks = []      #: see :meth:`state_space`
         if linear:
             path = _path_blocks(blocks, conns, points, refs, outputs)
             found = sampled_on_path(blocks, path)
@@ -451,14 +452,25 @@ class Linearizer:
         return xdot, (np.concatenate(y) if y else np.zeros(0))
 
     def state_space(self):
+        """The named ``control.StateSpace`` at the operating point (central differences);
+        :attr:`kinks` lists the one-sided slopes that differ there (:func:`_kinks`)."""
         import control
         nu = sum(b - a for _, a, b in self.in_p)
-        A, B, C, D = jacobians(self.evaluate, self.x, np.zeros(nu))
+        calls = []
+
+        def recorded(x, u):
+            xdot, y = self.evaluate(x, u)
+            calls.append((np.concatenate((x, u)), np.concatenate((xdot, y))))
+            return xdot, y
+
+        A, B, C, D = jacobians(recorded, self.x, np.zeros(nu))
         if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
             self._non_finite()
         in_names = [nm for name, a, b in self.in_p for nm in _channel_names(name, b - a)]
         out_names = [nm for name, arr, a, b in self.out_slices
                      for nm in _channel_names(name, b - a)]
+        self.kinks = _kinks(calls, self.state_names() + in_names,
+                            [f"d/dt {n}" for n in self.state_names()] + out_names)
         return control.ss(A, B, C, D, states=[control_name(n) for n in self.state_names()],
                           inputs=[control_name(n) for n in in_names],
                           outputs=[control_name(n) for n in out_names],
@@ -479,6 +491,55 @@ class Linearizer:
         why = diagnose(self.t, self.x) if diagnose is not None else ""
         raise AnalysisError("cannot linearize: the perturbed model has non-finite values"
                             + (f" ({why})" if why else ""), file=self.d.file)
+
+
+#: one-sided slopes that differ by more than this fraction of the larger mark a kink
+KINK_SLOPE_JUMP = 0.1
+
+
+def _kinks(calls, var_names, row_names):
+    """``(variable, row, forward slope, backward slope)`` wherever the one-sided differences
+    of a central-difference Jacobian disagree: the operating point sits on a kink (a
+    Saturation's limit or a DeadZone's edge without zero crossing), and the central
+    difference is the mean of two slopes, neither of which the model has on either side.
+
+    ``calls``: ``(z, F)`` of every evaluation of ``(x, u) -> (xdot, y)``, the operating point
+    first; each other one perturbs one variable. A difference counts when it exceeds
+    :data:`KINK_SLOPE_JUMP` of the larger slope and the round-off of the evaluations (the
+    loops are solved to 1e-13, so ``1e-9 |F| / h``); a smooth function's slopes differ by
+    ``h f''`` only (``h`` = 6e-6 of the variable)."""
+    z0, F0 = calls[0]
+    sides = {}
+    for z, F in calls[1:]:
+        j = np.flatnonzero(z != z0)
+        if j.size == 1:
+            sides.setdefault(int(j[0]), {})[bool(z[j[0]] > z0[j[0]])] = (z[j[0]] - z0[j[0]], F)
+    found = []
+    for j, side in sorted(sides.items()):
+        if len(side) < 2:
+            continue
+        (hp, Fp), (hm, Fm) = side[True], side[False]
+        fwd, bwd = (Fp - F0) / hp, (Fm - F0) / hm
+        size = np.maximum(np.maximum(abs(F0), abs(Fp)), abs(Fm))
+        floor = (1e-9 * size + 1e-12) / hp
+        with np.errstate(invalid="ignore"):
+            jump = abs(fwd - bwd) > np.maximum(KINK_SLOPE_JUMP * np.maximum(abs(fwd), abs(bwd)),
+                                               floor)
+        found += [(var_names[j], row_names[i], float(fwd[i]) + 0.0, float(bwd[i]) + 0.0)
+                  for i in np.flatnonzero(jump)]
+    return found
+
+
+def kink_note(kinks):
+    """The :class:`~spidersim.errors.LinearizationWarning` text for :func:`_kinks`."""
+    items = [f"{row} by {var}: {fwd:.6g} above, {bwd:.6g} below" for var, row, fwd, bwd in
+             kinks[:6]]
+    more = f" and {len(kinks) - 6} more" if len(kinks) > 6 else ""
+    return ("the operating point sits on a kink within the difference step (a Saturation "
+            "limit or DeadZone edge without zero crossing, |v| of a friction model near "
+            "rest): the one-sided slopes differ, and the linear model holds their mean: "
+            + "; ".join(items) + more + ". Move the operating point off the corner, or give "
+            "a Saturation or DeadZone zero_crossing: true (its mode then picks the side)")
 
 
 def _instance(path, type_name, params, file):
@@ -615,7 +676,13 @@ def linearize(d, inputs, outputs, at=None, open=(), jit=True):
     lin.system_jit = jit
     op = operating_point(d, at, jit)
     lin.at(op.t, op.x, op.modes)
-    return lin.state_space()
+    sys = lin.state_space()
+    if lin.kinks:
+        import warnings
+
+        from ..errors import LinearizationWarning
+        warnings.warn(kink_note(lin.kinks), LinearizationWarning, stacklevel=3)
+    return sys
 
 
 def loop_transfer(d, signal, at=None, jit=True):
