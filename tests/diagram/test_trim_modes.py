@@ -170,3 +170,19 @@ def test_linearize_off_corners_and_on_smooth_curves_adds_no_note(fn, u):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         d.linearize(["c.y"], ["sat.y" if fn == "sat" else "a.y"], jit=False)
+
+
+def test_modes_that_keep_changing_are_refused(monkeypatch):
+    # no block of the library is known to cycle; a stand-in that flips the Saturation's
+    # mode at every point found: the second flip returns to modes already solved in
+    from spidersim.diagram import analysis
+
+    monkeypatch.setattr(analysis, "_settled_modes",
+                        lambda d, lin, t, x, u, modes: 1.0 - modes)
+    with pytest.raises(AnalysisError) as ei:
+        spidersim.loads(SAT_GAIN).trim(targets={"sat.y": 0.9}, free_inputs=["c.y"],
+                                       jit=False)
+    msg = str(ei.value)
+    assert "trim found no point consistent with its blocks' modes" in msg
+    assert msg.count("'sat' (Saturation) mode m") == 2          # 0 -> 1; then 1 -> 0
+    assert "mode m 0 -> 1" in msg and "then 'sat' (Saturation) mode m 1 -> 0" in msg
