@@ -457,20 +457,13 @@ class Linearizer:
         import control
         nu = sum(b - a for _, a, b in self.in_p)
         calls = []
-
-        def recorded(x, u):
-            xdot, y = self.evaluate(x, u)
-            calls.append((np.concatenate((x, u)), np.concatenate((xdot, y))))
-            return xdot, y
-
-        A, B, C, D = jacobians(recorded, self.x, np.zeros(nu))
+        A, B, C, D = jacobians(_recording(self.evaluate, calls), self.x, np.zeros(nu))
         if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
             self._non_finite()
         in_names = [nm for name, a, b in self.in_p for nm in _channel_names(name, b - a)]
         out_names = [nm for name, arr, a, b in self.out_slices
                      for nm in _channel_names(name, b - a)]
-        self.kinks = _kinks(calls, self.state_names() + in_names,
-                            [f"d/dt {n}" for n in self.state_names()] + out_names)
+        self.kinks = _kinks(calls, self.state_names(), in_names, out_names)
         return control.ss(A, B, C, D, states=[control_name(n) for n in self.state_names()],
                           inputs=[control_name(n) for n in in_names],
                           outputs=[control_name(n) for n in out_names],
@@ -493,11 +486,21 @@ class Linearizer:
                             + (f" ({why})" if why else ""), file=self.d.file)
 
 
+def _recording(evaluate, calls):
+    """``evaluate(x, u) -> (xdot, y)`` that also appends ``(z, F)`` (``(x, u)`` and
+    ``(xdot, y)`` joined, copies) of every call to ``calls``."""
+    def recorded(x, u):
+        xdot, y = evaluate(x, u)
+        calls.append((np.concatenate((x, u)), np.concatenate((xdot, y))))
+        return xdot, y
+    return recorded
+
+
 #: one-sided slopes that differ by more than this fraction of the larger mark a kink
 KINK_SLOPE_JUMP = 0.1
 
 
-def _kinks(calls, var_names, row_names):
+def _kinks(calls, states, in_names, out_names):
     """``(variable, row, forward slope, backward slope)`` wherever the one-sided differences
     of a central-difference Jacobian disagree: the operating point sits on a kink (a
     Saturation's limit or a DeadZone's edge without zero crossing), and the central
@@ -507,7 +510,10 @@ def _kinks(calls, var_names, row_names):
     first; each other one perturbs one variable. A difference counts when it exceeds
     :data:`KINK_SLOPE_JUMP` of the larger slope and the round-off of the evaluations (the
     loops are solved to 1e-13, so ``1e-9 |F| / h``); a smooth function's slopes differ by
-    ``h f''`` only (``h`` = 6e-6 of the variable)."""
+    ``h f''`` only (``h`` = 6e-6 of the variable). Variables are named by ``states`` and
+    ``in_names``, rows by ``d/dt`` of the states and ``out_names``."""
+    var_names = states + in_names
+    row_names = [f"d/dt {n}" for n in states] + out_names
     z0, F0 = calls[0]
     sides = {}
     for z, F in calls[1:]:

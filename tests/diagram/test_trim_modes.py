@@ -186,3 +186,16 @@ def test_modes_that_keep_changing_are_refused(monkeypatch):
     assert "trim found no point consistent with its blocks' modes" in msg
     assert msg.count("'sat' (Saturation) mode m") == 2          # 0 -> 1; then 1 -> 0
     assert "mode m 0 -> 1" in msg and "then 'sat' (Saturation) mode m 1 -> 0" in msg
+
+
+def test_cli_prints_the_kink_note(tmp_path, capsys):
+    from spidersim.cli import main
+    path = tmp_path / "corner.yaml"
+    path.write_text(CORNERS)
+    rc = main(["linearize", str(path), "--input", "c.y", "--output", "sat.y", "--no-jit",
+               "--out", str(tmp_path / "out")])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    assert "spidersim: note: the operating point sits on a kink" in err
+    assert "sat.y by c.y: 0 above, 1 below" in err
+    assert "DC gain:               0.5" in out
