@@ -22,6 +22,10 @@ values that remove it (the staircase has zero slope almost everywhere; its descr
 for small signals many steps wide is 1). :attr:`Linearizer.quantizers` lists the blocks on
 the path so treated.
 
+Kinks: where the one-sided differences of a column disagree (the operating point on a
+Saturation's limit without zero crossing: slopes 0 and 1, central difference 0.5),
+:func:`linearize` keeps the central value and warns, naming both slopes (:func:`_kinks`).
+
 python-control does not allow '.' in signal names, so the state space names its states,
 inputs and outputs with '/' in place of '.' (``j3.motor.w`` -> ``j3/motor/w``).
 
