@@ -22,6 +22,10 @@ values that remove it (the staircase has zero slope almost everywhere; its descr
 for small signals many steps wide is 1). :attr:`Linearizer.quantizers` lists the blocks on
 the path so treated.
 
+Kinks: where the one-sided differences of a column disagree (the operating point on a
+Saturation's limit without zero crossing: slopes 0 and 1, central difference 0.5),
+:func:`linearize` keeps the central value and warns, naming both slopes (:func:`_kinks`).
+
 python-control does not allow '.' in signal names, so the state space names its states,
 inputs and outputs with '/' in place of '.' (``j3.motor.w`` -> ``j3/motor/w``).
 
@@ -365,6 +369,7 @@ class Linearizer:
         refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
         blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
         self.quantizers = []
+        self.kinks = []      #: see :meth:`state_space`
         if linear:
             path = _path_blocks(blocks, conns, points, refs, outputs)
             found = sampled_on_path(blocks, path)
@@ -451,14 +456,18 @@ class Linearizer:
         return xdot, (np.concatenate(y) if y else np.zeros(0))
 
     def state_space(self):
+        """The named ``control.StateSpace`` at the operating point (central differences);
+        :attr:`kinks` lists the one-sided slopes that differ there (:func:`_kinks`)."""
         import control
         nu = sum(b - a for _, a, b in self.in_p)
-        A, B, C, D = jacobians(self.evaluate, self.x, np.zeros(nu))
+        calls = []
+        A, B, C, D = jacobians(_recording(self.evaluate, calls), self.x, np.zeros(nu))
         if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
             self._non_finite()
         in_names = [nm for name, a, b in self.in_p for nm in _channel_names(name, b - a)]
         out_names = [nm for name, arr, a, b in self.out_slices
                      for nm in _channel_names(name, b - a)]
+        self.kinks = _kinks(calls, self.state_names(), in_names, out_names)
         return control.ss(A, B, C, D, states=[control_name(n) for n in self.state_names()],
                           inputs=[control_name(n) for n in in_names],
                           outputs=[control_name(n) for n in out_names],
@@ -479,6 +488,68 @@ class Linearizer:
         why = diagnose(self.t, self.x) if diagnose is not None else ""
         raise AnalysisError("cannot linearize: the perturbed model has non-finite values"
                             + (f" ({why})" if why else ""), file=self.d.file)
+
+
+def _recording(evaluate, calls):
+    """``evaluate(x, u) -> (xdot, y)`` that also appends ``(z, F)`` (``(x, u)`` and
+    ``(xdot, y)`` joined, copies) of every call to ``calls``."""
+    def recorded(x, u):
+        xdot, y = evaluate(x, u)
+        calls.append((np.concatenate((x, u)), np.concatenate((xdot, y))))
+        return xdot, y
+    return recorded
+
+
+#: one-sided slopes that differ by more than this fraction of the larger mark a kink
+KINK_SLOPE_JUMP = 0.1
+
+
+def _kinks(calls, states, in_names, out_names):
+    """``(variable, row, forward slope, backward slope)`` wherever the one-sided differences
+    of a central-difference Jacobian disagree: the operating point sits on a kink (a
+    Saturation's limit or a DeadZone's edge without zero crossing), and the central
+    difference is the mean of two slopes, neither of which the model has on either side.
+
+    ``calls``: ``(z, F)`` of every evaluation of ``(x, u) -> (xdot, y)``, the operating point
+    first; each other one perturbs one variable. A difference counts when it exceeds
+    :data:`KINK_SLOPE_JUMP` of the larger slope and the round-off of the evaluations (the
+    loops are solved to 1e-13, so ``1e-9 |F| / h``); a smooth function's slopes differ by
+    ``h f''`` only (``h`` = 6e-6 of the variable). Variables are named by ``states`` and
+    ``in_names``, rows by ``d/dt`` of the states and ``out_names``."""
+    var_names = states + in_names
+    row_names = [f"d/dt {n}" for n in states] + out_names
+    z0, F0 = calls[0]
+    sides = {}
+    for z, F in calls[1:]:
+        j = np.flatnonzero(z != z0)
+        if j.size == 1:
+            sides.setdefault(int(j[0]), {})[bool(z[j[0]] > z0[j[0]])] = (z[j[0]] - z0[j[0]], F)
+    found = []
+    for j, side in sorted(sides.items()):
+        if len(side) < 2:
+            continue
+        (hp, Fp), (hm, Fm) = side[True], side[False]
+        fwd, bwd = (Fp - F0) / hp, (Fm - F0) / hm
+        size = np.maximum(np.maximum(abs(F0), abs(Fp)), abs(Fm))
+        floor = (1e-9 * size + 1e-12) / hp
+        with np.errstate(invalid="ignore"):
+            jump = abs(fwd - bwd) > np.maximum(KINK_SLOPE_JUMP * np.maximum(abs(fwd), abs(bwd)),
+                                               floor)
+        found += [(var_names[j], row_names[i], float(fwd[i]) + 0.0, float(bwd[i]) + 0.0)
+                  for i in np.flatnonzero(jump)]
+    return found
+
+
+def kink_note(kinks):
+    """The :class:`~spidersim.errors.LinearizationWarning` text for :func:`_kinks`."""
+    items = [f"{row} by {var}: {fwd:.6g} above, {bwd:.6g} below" for var, row, fwd, bwd in
+             kinks[:6]]
+    more = f" and {len(kinks) - 6} more" if len(kinks) > 6 else ""
+    return ("the operating point sits on a kink within the difference step (a Saturation "
+            "limit or DeadZone edge without zero crossing, |v| of a friction model near "
+            "rest): the one-sided slopes differ, and the linear model holds their mean: "
+            + "; ".join(items) + more + ". Move the operating point off the corner, or give "
+            "a Saturation or DeadZone zero_crossing: true (its mode then picks the side)")
 
 
 def _instance(path, type_name, params, file):
@@ -615,7 +686,13 @@ def linearize(d, inputs, outputs, at=None, open=(), jit=True):
     lin.system_jit = jit
     op = operating_point(d, at, jit)
     lin.at(op.t, op.x, op.modes)
-    return lin.state_space()
+    sys = lin.state_space()
+    if lin.kinks:
+        import warnings
+
+        from ..errors import LinearizationWarning
+        warnings.warn(kink_note(lin.kinks), LinearizationWarning, stacklevel=3)
+    return sys
 
 
 def loop_transfer(d, signal, at=None, jit=True):
@@ -658,14 +735,20 @@ def _derivative_rows(d, derivatives, names):
     return rows
 
 
-def _check_trim_residuals(d, res, resid, sol, tol):
+def _check_trim_residuals(d, res, resid, sol, tol, changes=()):
     """Every residual ``res`` finite and at most ``tol``; otherwise an
-    :class:`AnalysisError` with the solver's message and the six largest residuals by name
-    (``resid``: label -> residual)."""
+    :class:`AnalysisError` with the solver's message, the mode changes that led to the
+    modes solved in (``changes``, texts of :func:`_mode_changes`) and the six largest
+    residuals by name (``resid``: label -> residual)."""
     if not np.all(np.isfinite(res)) or np.max(np.abs(res), initial=0.0) > tol:
-        worst = sorted(resid.items(), key=lambda kv: -abs(kv[1]))[:6]
-        raise AnalysisError("trim did not converge (" + sol.message + "); largest residuals: "
-                            + ", ".join(f"{k} = {v:.3g}" for k, v in worst), file=d.file)
+        where = ""
+        if changes:
+            where = (": the point solved for in the blocks' earlier modes puts them in "
+                     "others (" + "; then ".join(changes) + "), and in those the targets "
+                     "and derivatives are not met")
+        raise AnalysisError("trim did not converge" + where + " (" + sol.message + "); "
+                            "largest residuals: " + _worst(list(resid), list(resid.values())),
+                            file=d.file)
 
 
 def _check_trim_start(d, res, labels, given):
@@ -698,10 +781,10 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
     ``derivatives``: ``"all"`` or a list of state names (``block.state`` or
     ``block.state[i]``). Solved by ``scipy.optimize.least_squares`` from ``x0`` (default:
     the initial state). Raises :class:`AnalysisError` naming the residuals when the solution
-    does not reach ``tol``.
+    does not reach ``tol``. The point returned carries the modes its blocks take there
+    (a Saturation at its limit, a clamped PI): the solve starts in the start point's modes
+    and is repeated from the point found in the modes taken there (:func:`_trim_rounds`).
     """
-    from scipy.optimize import least_squares
-
     _check_diagram(d, "trim")
     if d.layout.n_x > dense_size.MAX_DENSE_STATES:     # least_squares' dense Jacobian
         raise AnalysisError(f"trim solves with a dense {d.layout.n_x}-column Jacobian: at "
@@ -736,13 +819,96 @@ def trim(d, targets=None, derivatives="all", free_inputs=(), x0=None, t=0.0, jit
         nm for n in outs for nm in _channel_names(n, np.size(targets[n]))]
     z0 = np.concatenate((x_start, np.zeros(nu)))
     _check_trim_start(d, residual(z0), labels, x0 is not None)
-    sol = least_squares(residual, z0, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
-    res = residual(sol.x)
-    resid = dict(zip(labels, res))
-    _check_trim_residuals(d, res, resid, sol, tol)
+    sol, modes = _trim_rounds(d, lin, residual, z0, t, base.modes, labels, tol)
     x = sol.x[:len(x_start)]
     u = sol.x[len(x_start):]
-    return OperatingPoint(float(t), x, base.modes.copy(), _named_inputs(lin, u), resid)
+    return OperatingPoint(float(t), x, modes, _named_inputs(lin, u),
+                          dict(zip(labels, residual(sol.x))))
+
+
+#: trim's solves at most: each after the first in the modes the blocks took at the point
+#: the one before found
+TRIM_MODE_ROUNDS = 4
+
+
+def _trim_solve(residual, z0):
+    """``least_squares`` of ``residual`` from ``z0``. With fewer residuals than unknowns
+    (free inputs or states no residual depends on) 'dogbox': 'trf' with its exact
+    trust-region solver stops at the start there (``[z1 - 0.5]`` from ``(0, 0)``), and
+    dogbox moves only the unknowns the residuals need (``(0, 0.5)``)."""
+    from scipy.optimize import least_squares
+    method = "dogbox" if np.size(residual(z0)) < np.size(z0) else "trf"
+    return least_squares(residual, z0, method=method, xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                         max_nfev=2000)
+
+
+def _trim_rounds(d, lin, residual, z0, t, modes, labels, tol):
+    """Solve in ``modes`` (the start point's), then again from the point found in the modes
+    the blocks take there (:func:`_settled_modes`) until they no longer change: ``(sol,
+    modes)`` of a point whose residuals meet ``tol`` in the modes it has. Raises
+    :class:`AnalysisError` when they do not (naming the mode changes met on the way) or the
+    modes keep changing."""
+    n_x = d.layout.n_x
+    modes = modes.copy()
+    seen, changes = [modes.copy()], []
+    for _ in range(TRIM_MODE_ROUNDS):
+        lin.at(t, z0[:n_x], modes)
+        sol = _trim_solve(residual, z0)
+        res = residual(sol.x)
+        new = _settled_modes(d, lin, t, sol.x[:n_x], sol.x[n_x:], modes)
+        if np.array_equal(new, modes):
+            _check_trim_residuals(d, res, dict(zip(labels, res)), sol, tol, changes)
+            return sol, modes
+        changes.append(_mode_changes(d, modes, new))
+        if any(np.array_equal(new, m) for m in seen):
+            break
+        seen.append(new.copy())
+        modes, z0 = new, sol.x
+    raise AnalysisError("trim found no point consistent with its blocks' modes: they "
+                        "change at every point found (" + "; then ".join(changes) + "); "
+                        "largest residuals in the last modes: " + _worst(labels, res),
+                        file=d.file)
+
+
+def _settled_modes(d, lin, t, x, u, modes):
+    """The modes the blocks take at states ``x`` and free inputs ``u``, as at the start of a
+    simulation: every block that sets its modes from its inputs (an ``initialize`` kernel,
+    no time events) from its declared initial modes, the others (sampled blocks, timed
+    sources) keep theirs from ``modes``."""
+    m = modes.copy()
+    for bl in d.layout.blocks.values():
+        if bl.cls.has_kernel("initialize") and not bl.cls.has_kernel("next_time"):
+            for name, (a, b) in bl.modes.items():
+                m[a:b] = bl.cls.initial_value(bl.cls.modes[name], b - a, bl.params)
+    system = lin.system
+    lin.evaluate(x, u)                          # the free inputs into the parameters
+    saved = system.modes.copy()
+    system.modes[:] = m
+    system.initialize(t, np.array(x, dtype=float))    # (a copy: only the modes are kept)
+    m = system.modes.copy()
+    system.modes[:] = saved
+    return m
+
+
+def _mode_changes(d, old, new):
+    """The modes that differ between ``old`` and ``new``, by block: ``'sat' (Saturation)
+    mode m 0 -> 1 (-1 at lower, 0 linear, +1 at upper)``."""
+    items = []
+    for bl in d.layout.blocks.values():
+        for name, (a, b) in bl.modes.items():
+            for i in range(a, b):
+                if old[i] != new[i]:
+                    nm = name if b - a == 1 else f"{name}[{i - a}]"
+                    doc = bl.cls.modes[name].doc
+                    items.append(f"'{bl.path}' ({bl.cls.type_name}) mode {nm} "
+                                 f"{old[i]:g} -> {new[i]:g}" + (f" ({doc})" if doc else ""))
+    return ", ".join(items)
+
+
+def _worst(labels, res):
+    """The six largest residuals by name: ``sat.y = -0.2, ...``."""
+    worst = sorted(zip(labels, res), key=lambda kv: -abs(kv[1]))[:6]
+    return ", ".join(f"{k} = {v:.3g}" for k, v in worst)
 
 
 def _trim_x0(d, x0):
