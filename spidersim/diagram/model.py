@@ -17,7 +17,8 @@ import numpy as np
 
 from ..errors import DiagramError, ParameterError, SpidersimError, described
 from ..solver import CompiledSystem, integrate
-from ..solver.compiled import load_module
+from ..solver import loop_warm
+from ..solver.compiled import is_cached, load_module, loop_cached
 from ..solver.events import MIN_SPAN, STALL_COUNT, STALL_STEP
 from ..solver.integrate import COMPILED, STIFF
 from ..solver.system import loop_compiled
@@ -552,7 +553,14 @@ class Diagram:
                 self._modules[jit] = (mod, None)
                 self._system(jit).warm_up()
 
-            mod, key, _ = load_module(self.source(jit, jacobian), jit, check=warm_up)
+            text = self.source(jit, jacobian)
+            second = self._loop_in_second_process(jit, loop, text)
+            ok = False
+            try:
+                mod, key, _ = load_module(text, jit, check=warm_up)
+                ok = True
+            finally:        # wait for the loop's compile (stop it after an error)
+                loop_warm.finish(second, ok)
             self._modules[jit] = (mod, key)
             self._compile_time = time.perf_counter() - t0
         else:
@@ -563,6 +571,17 @@ class Diagram:
             t0 = time.perf_counter()
             self._system(jit).warm_up_loop(method)
             self._compile_time += time.perf_counter() - t0
+
+    def _loop_in_second_process(self, jit, loop, text):
+        """Start compiling the integration loop's entry of the run's method in a second
+        process (:mod:`spidersim.solver.loop_warm`) when both it and the module ``text``
+        are to be compiled; the process, or None."""
+        if not (jit and loop):
+            return None
+        method = loop if isinstance(loop, str) else self.simulation["method"]
+        if loop_compiled(method) or loop_cached(method) or is_cached(text):
+            return None
+        return loop_warm.start(method)
 
     def _system(self, jit):
         mod, key = self._modules[jit]
