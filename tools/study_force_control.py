@@ -1,8 +1,8 @@
 """The paper's force-control study (Fig. 10) with and without the drive trains.
 
 Runs ``diagrams/force_control_rigid.yaml`` (seven torque-mode SPIDER joints: driver, motor
-with ripple, Harmonic Drive with compliance and LuGre friction, active damping of the gear
-mode) with friction on and off, and ``diagrams/force_control_rigid_ideal.yaml`` (ideal joint
+(its ripple sources off: joint_torque.yaml's zeros), Harmonic Drive with compliance and
+LuGre friction, active damping of the gear mode) with friction on and off, and ``diagrams/force_control_rigid_ideal.yaml`` (ideal joint
 torques), prints for every force step the 2 % settling time, the overshoot and the steady
 error (mean over the last 0.2 s before the next step), and writes one plot of the three
 contact forces against the set point.
