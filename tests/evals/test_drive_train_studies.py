@@ -87,3 +87,42 @@ def test_capture_through_the_drive_trains(capture_run):
     # the payload is carried: the flange ends 20 cm along x from its start
     assert r["arm.flange_pos"][-1, 0] - r["arm.flange_pos"][0, 0] == pytest.approx(0.2,
                                                                                   abs=0.02)
+
+
+def _capture_tool():
+    """tools/study_payload_capture.py by path (tools/ is not a package)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(
+        "_study_payload_capture", os.path.join(ROOT, "tools", "study_payload_capture.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_capture_jump_is_read_at_the_latch_event(capture_run):
+    """The joint speeds jump at the latch (a plastic capture: ``M' qd+ = M qd- + J_c^T M_p
+    V_p``, 5e-16 relative measured). Through the drive trains the gear mode undoes half of
+    the jump within 5 ms, so the study tool reads it from the two rows the run records at
+    the event (measured 0.0423 rad/s, joint 5), not from the output samples around it
+    (0.021 rad/s)."""
+    r, tool = capture_run, _capture_tool()
+    k0, k1 = tool.latch_rows(r)
+    assert k1 > k0 and r.t[k0] == r.t[k1] == 3.0
+    jump = np.abs(r["arm.qd"][k1] - r["arm.qd"][k0])
+    fig = tool.figures(r)
+    assert fig["joint speed jump max [rad/s]"] == jump.max()
+    assert fig["joint speed jump max [rad/s]"] == pytest.approx(0.0423, rel=0.02)
+    assert fig["joint with the largest jump"] == 5
+    assert fig["generalized momentum after - before (relative)"] < 1e-12
+    grid = np.abs(r["arm.qd"][k1 + 1] - r["arm.qd"][k0 - 1]).max()    # 5 ms grid around it
+    assert grid < 0.6 * jump.max()
+
+
+def test_capture_tool_rms_is_time_weighted():
+    """The tool's rms weighs rows by time (a run recorded at every step has uneven rows):
+    a unit sine sampled densely over half of the window and sparsely over the rest."""
+    tool = _capture_tool()
+    t = np.concatenate([np.linspace(0, 1, 5001), np.linspace(1, 2, 41)[1:]])
+    y = np.sin(2 * math.pi * 5 * t) + (t >= 1)
+    exact = math.sqrt((0.5 + 1.5) / 2)    # sin over [0, 1], sin + 1 over [1, 2]
+    assert tool.rms(t, y, -1, 3) == pytest.approx(exact, rel=2e-3)
