@@ -175,11 +175,19 @@ def _quantity(value, scope, decl, file, line, what, block, record):
     if isinstance(x, bool) or not isinstance(x, (int, float, list)):
         raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
                              f"numbers", file=file, line=line, block=block)
+    return _converted(x, ab, value["unit"], file, line, what, block)
+
+
+def _converted(x, ab, unit, file, line, what, block):
+    """``a * x + b`` for ``ab = (a, b)`` (``x`` a number or a list given in ``unit``), as
+    a list or a float. A finite value the conversion makes infinite (``1e308 km``) is a
+    ParameterError: it was kept as inf, read as 'never' by ``Step.t_step``; an infinity
+    given with a unit stays one."""
     a, b = ab
     with np.errstate(all="ignore"):
         out = np.asarray(x, dtype=float) * a + b
     if np.isinf(out).any() and np.isfinite(x).all():
-        raise ParameterError(f"{what}: {x!r} [{value['unit']}] overflows to infinity when "
+        raise ParameterError(f"{what}: {x!r} [{unit}] overflows to infinity when "
                              f"converted (beyond 1.8e308)", file=file, line=line, block=block)
     return out.tolist()
 

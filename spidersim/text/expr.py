@@ -259,9 +259,10 @@ def _finite_operands(node, operands, text):
     for sub, v in operands:
         if _nonfinite(v) == "inf":
             raise ExprError(
-                f"'{_short(ast.unparse(sub))}' is infinite in {where}: an infinity is passed on only whole (t_step: t_cut, "
-                f"upper: -lim) to a parameter that may be infinite; an operator or function "
-                f"would hide it (1/inf is 0, min(2, inf) is 2)")
+                f"'{_short(ast.unparse(sub))}' is infinite in {where}: an infinity is "
+                f"passed on only whole (t_step: t_cut, upper: -lim) to a parameter that may "
+                f"be infinite; an operator or function would hide it (1/inf is 0, "
+                f"min(2, inf) is 2)")
 
 
 def _finite_result(node, value, text):
@@ -331,9 +332,11 @@ def _call(node, names, text):
 def _extreme(name, args):
     """``min`` or ``max`` (``name``) of evaluated ``args``: of one flat list of numbers its
     extreme element; of several numbers the extreme one; of several arguments holding a
-    list the element-wise extreme (lists of one shape, a number applied to every element).
-    Python's own compared lists as sequences (``max([1, 5], [2, 0])`` was ``[2, 0]``,
-    ``min([[1, 2], [3, 4]])`` the row ``[1, 2]``); a ValueError says what is wrong."""
+    list the element-wise extreme (:func:`_element_wise_extreme`). Python's own compared
+    lists as sequences (``max([1, 5], [2, 0])`` was ``[2, 0]``, ``min([[1, 2], [3, 4]])``
+    the row ``[1, 2]``); a ValueError says what is wrong."""
+    if not args:
+        raise ValueError(f"{name}() needs at least one argument")
     if len(args) == 1:
         arr = np.asarray(args[0], dtype=float)
         if arr.ndim != 1 or arr.size == 0:
@@ -342,10 +345,15 @@ def _extreme(name, args):
                              f"element); for the element-wise {name} of rows give them as "
                              f"separate arguments: {name}([1, 2], [3, 4])")
         return float(arr.min() if name == "min" else arr.max())
-    if not args:
-        raise ValueError(f"{name}() needs at least one argument")
     if not any(isinstance(a, list) for a in args):
         return min(args) if name == "min" else max(args)
+    return _element_wise_extreme(name, args)
+
+
+def _element_wise_extreme(name, args):
+    """The element-wise ``min`` or ``max`` of ``args`` holding lists, all of one shape (a
+    number applies to every element), as a list; a ValueError naming the shapes
+    otherwise."""
     arrs = [np.asarray(a, dtype=float) for a in args]
     shapes = {a.shape for a in arrs if a.ndim}
     if len(shapes) > 1:
