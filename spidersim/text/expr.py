@@ -238,8 +238,18 @@ def _nonfinite(v):
     """``"NaN"`` or ``"inf"`` when the number or list ``v`` holds one (NaN first), else
     None (also for what is no number: a boolean, a text, a ragged list, refused
     elsewhere)."""
-    if isinstance(v, (bool, np.bool_, str)) or v is None:
+    if isinstance(v, float):                # the common case, without numpy
+        return None if math.isfinite(v) else ("NaN" if math.isnan(v) else "inf")
+    if isinstance(v, (bool, np.bool_, str, int)) or v is None:
         return None
+    if isinstance(v, list):
+        found = None
+        for x in v:
+            kind = _nonfinite(x)
+            if kind == "NaN":
+                return kind
+            found = found or kind
+        return found
     try:
         arr = np.asarray(v, dtype=float)
     except (TypeError, ValueError, OverflowError):
@@ -253,11 +263,11 @@ def _finite_operands(node, operands, text):
     """An operator or a function (``node``) takes finite numbers only: an infinite operand
     (``(operand node, value)`` pairs) would be hidden by the result (``1/inf`` is 0,
     ``min(2, inf)`` 2, ``atan(inf)`` pi/2). An ExprError names the operand."""
-    whole = ast.unparse(node)
-    where = (f"'{_short(whole)}'" if whole.replace(" ", "") == text.replace(" ", "") else
-             f"'{_short(whole)}' ('{_short(text)}')")
     for sub, v in operands:
         if _nonfinite(v) == "inf":
+            whole = ast.unparse(node)
+            where = (f"'{_short(whole)}'" if whole.replace(" ", "") == text.replace(" ", "")
+                     else f"'{_short(whole)}' ('{_short(text)}')")
             raise ExprError(
                 f"'{_short(ast.unparse(sub))}' is infinite in {where}: an infinity is "
                 f"passed on only whole (t_step: t_cut, upper: -lim) to a parameter that may "
