@@ -237,19 +237,19 @@ def _same_shape(node, sa, sb, text):
 def _nonfinite(v):
     """``"NaN"`` or ``"inf"`` when the number or list ``v`` holds one (NaN first), else
     None (also for what is no number: a boolean, a text, a ragged list, refused
-    elsewhere)."""
-    if isinstance(v, float):                # the common case, without numpy
+    elsewhere). Numbers and lists are looked at without numpy (this runs at every node)."""
+    if isinstance(v, float):
         return None if math.isfinite(v) else ("NaN" if math.isnan(v) else "inf")
+    if isinstance(v, list):
+        kinds = {_nonfinite(x) for x in v}
+        return "NaN" if "NaN" in kinds else ("inf" if "inf" in kinds else None)
     if isinstance(v, (bool, np.bool_, str, int)) or v is None:
         return None
-    if isinstance(v, list):
-        found = None
-        for x in v:
-            kind = _nonfinite(x)
-            if kind == "NaN":
-                return kind
-            found = found or kind
-        return found
+    return _nonfinite_array(v)
+
+
+def _nonfinite_array(v):
+    """:func:`_nonfinite` of anything else (a NumPy value given from Python)."""
     try:
         arr = np.asarray(v, dtype=float)
     except (TypeError, ValueError, OverflowError):
