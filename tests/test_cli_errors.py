@@ -276,6 +276,14 @@ def test_set_without_equals_sign(set_diagram, capsys):
     assert_clean_error(rc, out, err, None, "--set expects path=value", "'gain'")
 
 
+@pytest.mark.parametrize("item, words", [("gain=.nan", "--set gain must not be NaN"),
+                                         ("l.tau=.nan", "--set l.tau must not be NaN")])
+def test_set_nan_is_refused(set_diagram, capsys, item, words):
+    """``--set gain=.nan`` was accepted (a NaN diagram parameter vanished in min/max)."""
+    rc, out, err = run_cli(["check", set_diagram, "--set", item], capsys)
+    assert_clean_error(rc, out, err, None, words)
+
+
 def test_set_valid_value_still_works(set_diagram, capsys):
     rc, out, err = run_cli(["check", set_diagram, "--set", "gain=3", "--set", "l.tau=0.2"],
                            capsys)

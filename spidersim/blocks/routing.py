@@ -153,7 +153,10 @@ class UnitCast(Block):
     taken as a current set point, a normalised force fed to a torque input).
 
     No scaling is applied: ``unit: mm`` on a signal in ``m`` relabels it, it does not multiply
-    by 1000. The input takes any unit.
+    by 1000. The input takes any unit. A temperature scale with an offset (``degC``,
+    ``degF``) is refused: the blocks downstream multiply, integrate and add the signal by
+    factors (2 x 20 degC is not 40 degC, 20 degC + 300 K is not 320 K); use ``K``, or
+    ``delta_degC`` for a temperature difference.
     """
 
     category = "routing"
@@ -164,9 +167,11 @@ class UnitCast(Block):
 
     @classmethod
     def check(cls, params):
-        from ..text.units import UnitError, parse
+        from ..text.units import UnitError, check_no_offset, parse
         try:
-            parse(params["unit"])
+            check_no_offset(parse(params["unit"]), "a signal (multiplied, integrated and "
+                                                   "added by factors: 2 x 20 degC is not "
+                                                   "40 degC)")
         except UnitError as exc:
             raise ValueError(f"parameter 'unit': {exc}") from None
 

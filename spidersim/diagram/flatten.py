@@ -175,9 +175,21 @@ def _quantity(value, scope, decl, file, line, what, block, record):
     if isinstance(x, bool) or not isinstance(x, (int, float, list)):
         raise ParameterError(f"{what}: a value with a unit must be a number or a list of "
                              f"numbers", file=file, line=line, block=block)
+    return _converted(x, ab, value["unit"], file, line, what, block)
+
+
+def _converted(x, ab, unit, file, line, what, block):
+    """``a * x + b`` for ``ab = (a, b)`` (``x`` a number or a list given in ``unit``), as
+    a list or a float. A finite value the conversion makes infinite (``1e308 km``) is a
+    ParameterError: it was kept as inf, read as 'never' by ``Step.t_step``; an infinity
+    given with a unit stays one."""
     a, b = ab
-    with np.errstate(all="ignore"):        # an overflow is inf: the parameter checks say so
-        return (np.asarray(x, dtype=float) * a + b).tolist()
+    with np.errstate(all="ignore"):
+        out = np.asarray(x, dtype=float) * a + b
+    if np.isinf(out).any() and np.isfinite(x).all():
+        raise ParameterError(f"{what}: {x!r} [{unit}] overflows to infinity when "
+                             f"converted (beyond 1.8e308)", file=file, line=line, block=block)
+    return out.tolist()
 
 
 def _plain_value(value, scope, file, line, what, block=None):
@@ -217,6 +229,27 @@ def _eval_value(value, scope, decl, file, line, what, block=None, record=None):
                              block=block) from None
 
 
+def _parameter_value(raw, scope, file, line, what, block=None):
+    """The value of a diagram or subsystem parameter (in the file, of an instance, by
+    ``--set`` or ``set=``): :func:`_eval_value` without a declaration, and never NaN (a
+    ParameterError located at ``file:line``). NaN has no use as a parameter and vanished
+    silently (``min(2, tau)`` was 2). An infinity is kept: passed on whole it meets the
+    check of the block parameter it reaches (allowed for a limit, ``Step.t_step``), and
+    an expression refuses to compute with it (see :mod:`spidersim.text.expr`)."""
+    value = _eval_value(raw, scope, None, file, line, what, block)
+    if isinstance(value, (int, float, list)) and not isinstance(value, bool):
+        with np.errstate(all="ignore"):
+            try:
+                nan = np.isnan(np.asarray(value, dtype=float)).any()
+            except (TypeError, ValueError, OverflowError):
+                nan = False
+        if nan:
+            raise ParameterError(f"{what} must not be NaN, got {value!r}: a parameter is a "
+                                 f"number (min, max and comparisons would drop a NaN "
+                                 f"silently)", file=file, line=line, block=block)
+    return value
+
+
 def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
     """Evaluate the diagram's parameters in order, with instance values ``given``."""
     scope = {}
@@ -224,8 +257,8 @@ def eval_parameters(spec: DiagramSpec, given: dict, prefix: str):
         if name in given:
             scope[name] = given[name]
             continue
-        scope[name] = _eval_value(raw, scope, None, spec.file, spec.param_lines.get(name),
-                                  f"parameter '{prefix}{name}'")
+        scope[name] = _parameter_value(raw, scope, spec.file, spec.param_lines.get(name),
+                                       f"parameter '{prefix}{name}'")
     unknown = [k for k in given if k not in spec.parameters]
     return scope, unknown
 
@@ -263,7 +296,7 @@ def _top_level_given(spec, overrides, used):
             raise ParameterError(f"--set {k}: the diagram has no parameter '{k}'{hint}",
                                  file=spec.file)
         _check_declared_unit(v, spec.parameters[k], spec.file, None, f"--set {k}")
-        given[k] = _eval_value(v, {}, None, spec.file, None, f"--set {k}")
+        given[k] = _parameter_value(v, {}, spec.file, None, f"--set {k}")
         used.add(k)
     return given
 
@@ -428,9 +461,9 @@ def _subsystem_given(level, b, path, sub):
                 file=spec.file, line=b.param_lines.get(pname), block=path)
         _check_declared_unit(raw, sub.parameters[pname], spec.file,
                              b.param_lines.get(pname), f"parameter '{pname}'", block=path)
-        given[pname] = _eval_value(raw, level.scope, None, spec.file,
-                                   b.param_lines.get(pname), f"parameter '{pname}'",
-                                   block=path)
+        given[pname] = _parameter_value(raw, level.scope, spec.file,
+                                        b.param_lines.get(pname), f"parameter '{pname}'",
+                                        block=path)
     return given
 
 
@@ -443,8 +476,8 @@ def _subsystem_overrides(level, b, path, sub, own, given):
         if pname in sub.parameters:
             _check_declared_unit(v, sub.parameters[pname], spec.file, b.line,
                                  f"--set {prefix}{key}", block=path)
-            given[pname] = _eval_value(v, level.scope, None, spec.file, b.line,
-                                       f"--set {prefix}{key}", block=path)
+            given[pname] = _parameter_value(v, level.scope, spec.file, b.line,
+                                            f"--set {prefix}{key}", block=path)
             level.used.add(key)
             continue
         what = (f"'{pname}' is a block of it: write {prefix}{key}.param"

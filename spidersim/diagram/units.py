@@ -133,6 +133,23 @@ def related_names(cls, params) -> set:
     return out
 
 
+def _refuse_offset(inst, v, rule, fixed):
+    """A port or state (``v``) may not be declared in a temperature scale with an offset
+    (``degC``, ``degF``): the unit rules multiply, integrate and add signals by factors,
+    which such a scale does not obey (a Gain of 2 on 20 degC gave 40 degC, and 20 degC
+    summed with 300 K gave 320 K where 293.15 + 300 was meant). A UnitMismatchError at
+    the block names the unit and what to write instead. A parameter may be declared in
+    one (its value is converted to it)."""
+    if v[1] == "param":
+        return
+    try:
+        U.check_no_offset(fixed, "a signal (multiplied, integrated and added by factors)")
+    except U.UnitError as exc:
+        raise UnitMismatchError(f"{inst.cls.type_name}: '{v[2]}' is declared [{rule}]: "
+                                f"{exc}", file=inst.file, line=inst.line,
+                                block=inst.path) from None
+
+
 def _describe(v):
     path, kind, name = v
     return f"{path}.{name}"
@@ -174,6 +191,7 @@ class _Problem:
         if rule == U.ANY:
             return
         refs, fixed = U.rule_terms(rule)
+        _refuse_offset(inst, v, rule, fixed)
         for name, _p in refs:
             if name not in names:
                 raise ValueError(f"{inst.cls.type_name}: unit rule '{rule}' of "

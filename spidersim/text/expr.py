@@ -7,11 +7,26 @@ comprehensions, lambdas and calls to anything but the listed functions are rejec
 The text is ASCII (a look-alike letter is not read as the letter it resembles), a value is
 never complex (refused at the operation that made it), a boolean is neither a number nor
 an index, and a list is rectangular.
+
+Non-finite numbers: NaN is refused wherever it appears (a name, an argument, a result:
+``min(2, nan)`` would silently be 2). An infinity (``inf``, ``1e400``, a parameter set to
+``.inf``) may only be passed on whole: as a name, the constant, with a sign (``-inf``), as a
+list element or picked by an index; an operator or a function refuses an infinite operand
+(``1/inf`` would silently be 0, ``min(2, inf)`` 2) and an infinite result of finite operands
+(an overflow, ``1e200*1e200``, or ``[1]/[0]``). An infinity passed on whole then meets the
+parameter check of the block it reaches, which refuses it unless the parameter may be
+infinite (a limit, ``Step.t_step``).
+
+Lists: arithmetic is element by element, a number with a list applies to every element,
+and two lists must have the same shape (``[1, 2] + [3]`` is refused, not broadcast);
+``min``/``max`` of one flat list is its extreme element, of several arguments the
+element-wise extreme (lists of one shape, numbers applied to every element).
 """
 from __future__ import annotations
 
 import ast
 import difflib
+import functools
 import math
 import operator
 import unicodedata
@@ -81,7 +96,7 @@ def evaluate(text: str, names: dict):
                         f"levels (a sum or product of n terms is n levels deep): "
                         f"'{_short(text)}'")
     try:
-        with np.errstate(all="ignore"):     # inf/nan are reported by the parameter checks
+        with np.errstate(all="ignore"):     # inf/nan results are refused by _finite_result
             value = _eval(tree.body, names, text)
     except ExprError:
         raise
@@ -180,31 +195,93 @@ def _operand(v, text):
 
 
 def _binop(node, names, text):
-    """``a op b`` for ``+ - * / // % **``; with a list on either side, element-wise
-    (numpy broadcasting) and a list again."""
+    """``a op b`` for ``+ - * / // % **``; with a list on either side, element-wise and a
+    list again: a number with a list applies to every element, two lists must have the same
+    shape (:func:`_same_shape`). An infinite operand or result is refused
+    (:func:`_finite_operands`, :func:`_finite_result`)."""
     op = _BINOPS.get(type(node.op))
     if op is None:
         raise _not_allowed(node, text)
     a = _int_as_float(_operand(_eval(node.left, names, text), text))
     b = _int_as_float(_operand(_eval(node.right, names, text), text))
+    _finite_operands(node, [(node.left, a), (node.right, b)], text)
     if isinstance(a, list) or isinstance(b, list):
         a, b = np.asarray(a, float), np.asarray(b, float)
-        _check_size(np.broadcast_shapes(a.shape, b.shape), node, text)
-        return op(a, b).tolist()
-    return op(a, b)
+        _same_shape(node, a.shape if a.ndim else None, b.shape if b.ndim else None, text)
+        value = op(a, b).tolist()
+    else:
+        value = op(a, b)
+    return _finite_result(node, value, text)
 
 
-def _check_size(shape, node, text):
-    """Refuse an element-wise result of more than :data:`limits.MAX_ARRAY_ELEMENTS` values
-    *before* it is computed: broadcasting ``[[1],[1]] + [1, 1]``-like operands multiplies
-    their sizes, and four short nested lists (a 2 KB expression) asked for gigabytes."""
-    n = math.prod(shape)
-    if n > limits.MAX_ARRAY_ELEMENTS:
-        dims = " x ".join(str(k) for k in shape) if len(shape) <= 8 else \
-            f"{len(shape)} dimensions"
-        raise ExprError(f"'{_short(ast.unparse(node))}' would give {n:.3g} elements "
-                        f"({dims}), more than the limit of {limits.MAX_ARRAY_ELEMENTS}, "
-                        f"in '{_short(text)}'")
+def _shape_text(shape):
+    """``3 elements`` for a flat list (``1 element``), ``2 x 3`` for a matrix."""
+    if len(shape) == 1:
+        return f"{shape[0]} element{'' if shape[0] == 1 else 's'}"
+    return " x ".join(map(str, shape))
+
+
+def _same_shape(node, sa, sb, text):
+    """Two lists in one element-wise operation must have the same shape (``sa``, ``sb``;
+    None for a number, which applies to every element): numpy broadcasting read
+    ``[1, 2] + [3]`` as ``[4, 5]`` and ``[1, 2] + [[1], [2]]`` as a 2 x 2 matrix (and four
+    short nested lists as 9.2e7 elements). An ExprError naming both shapes otherwise."""
+    if sa is None or sb is None or sa == sb:
+        return
+    raise ExprError(f"'{_short(ast.unparse(node))}' combines lists of different shapes "
+                    f"({_shape_text(sa)} and {_shape_text(sb)}) in '{_short(text)}': two "
+                    f"lists are combined element by element and must have the same shape "
+                    f"(a number with a list applies to every element)")
+
+
+def _nonfinite(v):
+    """``"NaN"`` or ``"inf"`` when the number or list ``v`` holds one (NaN first), else
+    None (also for what is no number: a boolean, a text, a ragged list, refused
+    elsewhere). Numbers and lists are looked at without numpy (this runs at every node)."""
+    if isinstance(v, float):
+        return None if math.isfinite(v) else ("NaN" if math.isnan(v) else "inf")
+    if isinstance(v, list):
+        kinds = {_nonfinite(x) for x in v}
+        return "NaN" if "NaN" in kinds else ("inf" if "inf" in kinds else None)
+    if isinstance(v, (bool, np.bool_, str, int)) or v is None:
+        return None
+    return _nonfinite_array(v)
+
+
+def _nonfinite_array(v):
+    """:func:`_nonfinite` of anything else (a NumPy value given from Python)."""
+    try:
+        arr = np.asarray(v, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if np.isnan(arr).any():
+        return "NaN"
+    return "inf" if np.isinf(arr).any() else None
+
+
+def _finite_operands(node, operands, text):
+    """An operator or a function (``node``) takes finite numbers only: an infinite operand
+    (``(operand node, value)`` pairs) would be hidden by the result (``1/inf`` is 0,
+    ``min(2, inf)`` 2, ``atan(inf)`` pi/2). An ExprError names the operand."""
+    for sub, v in operands:
+        if _nonfinite(v) == "inf":
+            whole = ast.unparse(node)
+            where = (f"'{_short(whole)}'" if whole.replace(" ", "") == text.replace(" ", "")
+                     else f"'{_short(whole)}' ('{_short(text)}')")
+            raise ExprError(
+                f"'{_short(ast.unparse(sub))}' is infinite in {where}: an infinity is "
+                f"passed on only whole (t_step: t_cut, upper: -lim) to a parameter that may "
+                f"be infinite; an operator or function would hide it (1/inf is 0, "
+                f"min(2, inf) is 2)")
+
+
+def _finite_result(node, value, text):
+    """``value``, unless the operation ``node`` made it infinite from finite operands (an
+    overflow, ``1e200*1e200``, or a list divided by zero): an ExprError."""
+    if _nonfinite(value) == "inf":
+        raise ExprError(f"'{_short(ast.unparse(node))}' gives an infinite value (an overflow "
+                        f"beyond 1.8e308 or a division by zero) in '{_short(text)}'")
+    return value
 
 
 def _unaryop(node, names, text):
@@ -243,15 +320,59 @@ def _subscript(node, names, text):
 
 
 def _call(node, names, text):
-    """``f(a, ...)`` for ``f`` in :data:`FUNCTIONS` (positional arguments only)."""
+    """``f(a, ...)`` for ``f`` in :data:`FUNCTIONS` (positional arguments only); ``min`` and
+    ``max`` are :func:`_extreme`. An infinite argument (but to ``len``) or result is
+    refused."""
     if not isinstance(node.func, ast.Name) or node.keywords:
         raise _not_allowed(node, text)
-    fn = FUNCTIONS.get(node.func.id)
-    if fn is None:
-        raise ExprError(f"unknown function '{node.func.id}' in '{text}' "
+    name = node.func.id
+    if name not in FUNCTIONS:
+        raise ExprError(f"unknown function '{name}' in '{text}' "
                         f"(allowed: {', '.join(sorted(FUNCTIONS))})")
     args = [_eval(a, names, text) for a in node.args]
-    return fn(*(args if fn is len else [_operand(a, text) for a in args]))
+    if name == "len":
+        return len(*args)
+    args = [_operand(a, text) for a in args]
+    _finite_operands(node, list(zip(node.args, args)), text)
+    if name in ("min", "max"):
+        return _finite_result(node, _extreme(name, args), text)
+    return _finite_result(node, FUNCTIONS[name](*args), text)
+
+
+def _extreme(name, args):
+    """``min`` or ``max`` (``name``) of evaluated ``args``: of one flat list of numbers its
+    extreme element; of several numbers the extreme one; of several arguments holding a
+    list the element-wise extreme (:func:`_element_wise_extreme`). Python's own compared
+    lists as sequences (``max([1, 5], [2, 0])`` was ``[2, 0]``, ``min([[1, 2], [3, 4]])``
+    the row ``[1, 2]``); a ValueError says what is wrong."""
+    if not args:
+        raise ValueError(f"{name}() needs at least one argument")
+    if len(args) == 1:
+        arr = np.asarray(args[0], dtype=float)
+        if arr.ndim != 1 or arr.size == 0:
+            raise ValueError(f"{name}() of one argument takes a non-empty flat list of "
+                             f"numbers (its {'smallest' if name == 'min' else 'largest'} "
+                             f"element); for the element-wise {name} of rows give them as "
+                             f"separate arguments: {name}([1, 2], [3, 4])")
+        return float(arr.min() if name == "min" else arr.max())
+    if not any(isinstance(a, list) for a in args):
+        return min(args) if name == "min" else max(args)
+    return _element_wise_extreme(name, args)
+
+
+def _element_wise_extreme(name, args):
+    """The element-wise ``min`` or ``max`` of ``args`` holding lists, all of one shape (a
+    number applies to every element), as a list; a ValueError naming the shapes
+    otherwise."""
+    arrs = [np.asarray(a, dtype=float) for a in args]
+    shapes = {a.shape for a in arrs if a.ndim}
+    if len(shapes) > 1:
+        raise ValueError(f"{name}() of lists of different shapes "
+                         f"({' and '.join(_shape_text(s) for s in sorted(shapes))}): the "
+                         f"element-wise {name} needs lists of one shape (a number applies to "
+                         f"every element)")
+    fn = np.minimum if name == "min" else np.maximum
+    return functools.reduce(fn, arrs).tolist()
 
 
 #: syntax node type -> its evaluator ``f(node, names, text)``; any other node is refused
@@ -269,6 +390,11 @@ def _eval(node, names, text):
     value = evaluator(node, names, text)
     if isinstance(value, complex):
         raise _complex(node, value, text)
+    if _nonfinite(value) == "NaN":
+        what = "is" if isinstance(node, ast.Name) else "gives"
+        raise ExprError(f"'{_short(ast.unparse(node))}' {what} NaN (not a number) in "
+                        f"'{_short(text)}': parameters are numbers (min and max would drop a "
+                        f"NaN silently)")
     return value
 
 

@@ -297,7 +297,8 @@ def check_no_offset(unit: pint.Unit, why: str) -> None:
     unit without converting the value (``why`` says where)."""
     if _offset_names(unit):
         raise UnitError(f"{text(unit)} is a temperature scale with an offset, which {why} "
-                        f"cannot carry; give the value in K")
+                        f"cannot carry; give the value in K (a temperature difference in K "
+                        f"or delta_degC)")
 
 
 def terms(unit: pint.Unit) -> list:

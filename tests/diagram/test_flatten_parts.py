@@ -273,3 +273,89 @@ def test_quantity_converts_numbers_and_lists():
     with pytest.raises(ParameterError, match="a value with a unit must be a number"):
         F._quantity({"value": True, "unit": "mOhm"}, {}, Param(1.0, "Ohm"), "f", 1, "p",
                     None, None)
+
+
+NAN_PARAM = """\
+parameters:
+  tau: 1
+blocks:
+  c: {type: Constant, value: 1}
+  g: {type: Gain, k: 'min(2, tau)'}
+connections:
+  - c.y -> g.u
+"""
+
+
+@pytest.mark.parametrize("text, overrides, words", [
+    (NAN_PARAM.replace("tau: 1", "tau: .nan"), {}, "d.yaml:2: parameter 'tau' must not be NaN"),
+    (NAN_PARAM.replace("tau: 1", "tau: [1, .nan]"), {}, "parameter 'tau' must not be NaN"),
+    (NAN_PARAM, {"tau": float("nan")}, "--set tau must not be NaN"),
+])
+def test_a_nan_diagram_parameter_is_refused_where_it_is_given(text, overrides, words):
+    """``tau: .nan`` with ``k: min(2, tau)`` gave k = 2 (Python's min drops a NaN after a
+    number): the parameter is refused at its line, or the override naming it."""
+    with pytest.raises(ParameterError) as ei:
+        F.flatten(parse_text(text, "d.yaml"), overrides)
+    assert words in str(ei.value)
+
+
+def test_a_nan_subsystem_parameter_is_refused_at_the_instance(tmp_path):
+    """An instance value and a ``--set`` of a subsystem parameter get the same check."""
+    (tmp_path / "sub.yaml").write_text("parameters:\n  a: 1\nblocks:\n"
+                                       "  g: {type: Gain, k: 'max(a, 0)'}\n"
+                                       "inputs: {u: g.u}\noutputs: {y: g.y}\n")
+    top = ("subsystems: {s: sub.yaml}\nblocks:\n  c: {type: Constant, value: 1}\n"
+           "  x: {type: s, a: .nan}\nconnections:\n  - c.y -> x.u\n")
+    path = tmp_path / "top.yaml"
+    path.write_text(top)
+    with pytest.raises(ParameterError, match=r"top.yaml:4: block 'x': parameter 'a' must "
+                                             r"not be NaN"):
+        F.flatten(F.parse_file(str(path)))
+    path.write_text(top.replace("a: .nan", "a: 2"))
+    with pytest.raises(ParameterError, match="--set x.a must not be NaN"):
+        F.flatten(F.parse_file(str(path)), {"x.a": float("nan")})
+    assert F.flatten(F.parse_file(str(path))).blocks["x.g"].params["k"][0] == 2.0
+
+
+INF_PARAM = """\
+parameters:
+  t_cut: inf
+blocks:
+  c: {type: Constant, value: 1}
+  cut: {type: Step, t_step: t_cut}
+  g: {type: Gain, k: K}
+connections:
+  - c.y -> g.u
+"""
+
+
+@pytest.mark.parametrize("k, words", [
+    ("1/t_cut", "'t_cut' is infinite in '1 / t_cut'"),    # was k = 0
+    ("min(2, t_cut)", "'t_cut' is infinite"),             # was k = 2
+    ("t_cut", "must be finite"),                          # the Gain's own check
+    ("1/1e400", "'1e309' is infinite"),
+])
+def test_an_infinite_diagram_parameter_feeds_only_parameters_that_may_be_infinite(k, words):
+    """``t_cut: inf`` passed on whole to ``Step.t_step`` (allowed: never) is kept, as in
+    joint_torque.yaml; arithmetic on it, or passing it to a Gain's ``k``, is refused at
+    the block's line."""
+    flat = F.flatten(parse_text(INF_PARAM.replace("K}", "2}"), "d.yaml"))
+    assert flat.blocks["cut"].params["t_step"] == float("inf")
+    with pytest.raises(ParameterError) as ei:
+        F.flatten(parse_text(INF_PARAM.replace("K}", f"'{k}'}}"), "d.yaml"))
+    assert "d.yaml:6" in str(ei.value) and words in str(ei.value)
+    with pytest.raises(ParameterError, match="'t_cut' is infinite"):
+        F.flatten(parse_text(INF_PARAM.replace("K}", "'1/t_cut'}").replace("t_cut: inf",
+                                                                            "t_cut: 5"),
+                             "d.yaml"), {"t_cut": float("inf")})
+
+
+def test_a_unit_conversion_that_overflows_is_refused():
+    """1e308 km is 1e311 m: infinite; it was kept as inf (accepted by a parameter that may
+    be infinite, Step.t_step as 'never'); an infinity given with a unit stays one."""
+    from spidersim.blocks.base import Param
+    with pytest.raises(ParameterError, match="overflows to infinity when converted"):
+        F._quantity({"value": 1e308, "unit": "ks"}, {}, Param(0.0, "s", allow_inf=True),
+                    "f", 1, "p", None, None)
+    assert F._quantity({"value": "inf", "unit": "ks"}, {}, Param(0.0, "s", allow_inf=True),
+                       "f", 1, "p", None, None) == float("inf")

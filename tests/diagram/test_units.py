@@ -569,3 +569,55 @@ def test_a_duty_cycle_controller_on_a_speed_error_is_accepted(ctrl, port):
     r = spidersim.loads(DUTY % (ctrl, port)).simulate(t_end=0.01, jit=False, method="RK45")
     np.testing.assert_allclose(r["drv.y"], 0.24 * r["kp.y"], rtol=1e-12)
     assert r["kp.y"][0] == pytest.approx(200.0)          # 2 %/(rad/s) x 100 rad/s
+
+
+DEGC_GAIN = """\
+blocks:
+  c: {type: Constant, value: 20}
+  u: {type: UnitCast, unit: UNIT}
+  g: {type: Gain, k: 2}
+  i: {type: Integrator}
+connections:
+  - c.y -> u.u
+  - u.y -> g.u, i.u
+"""
+
+
+@pytest.mark.parametrize("unit", ["degC", "degF"])
+def test_a_signal_in_a_temperature_scale_with_an_offset_is_refused(unit):
+    """A UnitCast to degC let a Gain double 20 degC into 40 degC (20 degC is 293.15 K), an
+    Integrator make [s.degC] and a Sum add 300 K to it (hostile review 15): a scale with an
+    offset is refused as a signal's unit, at the UnitCast's line, saying what to write."""
+    with pytest.raises(ParameterError) as ei:
+        spidersim.loads(DEGC_GAIN.replace("UNIT", unit), file="t.yaml")
+    msg = str(ei.value)
+    assert "t.yaml:3" in msg and "parameter 'unit'" in msg and "offset" in msg
+    assert "give the value in K (a temperature difference in K or delta_degC)" in msg
+
+
+@pytest.mark.parametrize("unit, gain", [("K", "K"), ("delta_degC", "delta_degC")])
+def test_a_signal_in_kelvin_or_a_temperature_difference_is_accepted(unit, gain):
+    d = spidersim.loads(DEGC_GAIN.replace("UNIT", unit))
+    assert d.units[("u", "out", "y")] == unit and d.units[("i", "out", "y")] == f"s.{gain}"
+
+
+def test_a_block_declaring_a_port_in_degc_is_refused_at_the_block():
+    """No library block declares a temperature; one that declared a port or state in degC
+    would have its signal scaled by the unit rules like R6's UnitCast: unit inference
+    refuses it at the block's line (a declared parameter in degC is converted, as today)."""
+    from spidersim.blocks.base import REGISTRY, Block, Port
+
+    class Thermo(Block):
+        type_name = "_TestThermoDegC"
+        outputs = {"T": Port("degC")}
+
+        @staticmethod
+        def output(t, T):
+            T[0] = 20.0
+    try:
+        with pytest.raises(UnitMismatchError, match=r"t.yaml:2: .*_TestThermoDegC: 'T' is "
+                                                    r"declared \[degC\]: degC is a "
+                                                    r"temperature scale with an offset"):
+            spidersim.loads("blocks:\n  th: {type: _TestThermoDegC}\n", file="t.yaml")
+    finally:
+        REGISTRY.pop("_TestThermoDegC", None)

@@ -185,11 +185,105 @@ def _axis_list(n, k, dims=4):
 
 def test_broadcasting_is_refused_before_it_allocates():
     """Four short nested lists broadcast to 98^4 = 9.2e7 elements (a 1,979-character
-    expression that took 4.7 GB in the service): refused at the operation that would make
-    them, naming the shape, before numpy computes it; a result within the limit is made."""
+    expression that took 4.7 GB in the service): two lists of different shapes are refused
+    at the first operation, naming the shapes, before numpy computes anything; lists of one
+    shape are combined element by element."""
     e = "+".join(_axis_list(98, k) for k in range(4))
     assert len(e) < 2000
-    with pytest.raises(ExprError, match=r"9\.22e\+07 elements \(98 x 98 x 98 x 98\)"):
+    with pytest.raises(ExprError, match=r"lists of different shapes \(98 x 1 x 1 x 1 and "
+                                        r"1 x 98 x 1 x 1\)"):
         evaluate(e, {})
-    assert np.shape(evaluate("+".join(_axis_list(30, k) for k in range(4)), {})) == (30,) * 4
-    assert evaluate("[1, 2] + [[1], [2]]", {}) == [[2.0, 3.0], [3.0, 4.0]]
+    assert np.shape(evaluate("+".join(_axis_list(30, 0) for _ in range(4)), {})) == \
+        (30, 1, 1, 1)
+
+
+@pytest.mark.parametrize("text, shapes", [
+    ("[1, 2] + [3]", "2 elements and 1 element"),       # was [4, 5]
+    ("[1, 2] + [[1], [2]]", "2 elements and 2 x 1"),    # was a 2 x 2 matrix
+    ("[[1, 2], [3, 4]] * [1, 2]", "2 x 2 and 2 elements"),
+    ("L - [1, 2]", "3 elements and 2 elements"),
+])
+def test_lists_of_different_shapes_are_not_broadcast(text, shapes):
+    """Two lists are combined element by element only when their shapes are equal (numpy
+    broadcast a one-element list over the other, ``[1, 2] + [3]`` = ``[4, 5]``); a number
+    with a list still applies to every element (the README's expressions)."""
+    with pytest.raises(ExprError, match="combines lists of different shapes") as ei:
+        evaluate(text, NAMES)
+    assert f"({shapes})" in str(ei.value)
+    assert evaluate("[1, 2] * [3, 4]", NAMES) == [3.0, 8.0]
+    assert evaluate("[[1, 2], [3, 4]] - a", NAMES) == [[-1.0, 0.0], [1.0, 2.0]]
+    assert evaluate("a * [1, 2]", NAMES) == [2.0, 4.0]
+
+
+@pytest.mark.parametrize("text, want", [
+    ("max([1, 5], [2, 0])", [2.0, 5.0]),      # Python compared the lists: [2, 0]
+    ("min([1, 5], [2, 0])", [1.0, 0.0]),      # Python: [1, 5]
+    ("max([1, 5], 2)", [2.0, 5.0]),           # a number applies to every element
+    ("min([[1, 9], [3, 4]], [[2, 0], [5, 1]])", [[1.0, 0.0], [3.0, 1.0]]),
+    ("max(L)", 3.0), ("min(L)", 1.0), ("max(2, a, 1)", 2.0),
+])
+def test_min_and_max_of_lists_are_element_wise(text, want):
+    """Several arguments: the element-wise extreme; one flat list: its extreme element."""
+    assert evaluate(text, NAMES) == want
+
+
+@pytest.mark.parametrize("text, words", [
+    ("min([[1, 2], [3, 4]])", "non-empty flat list"),   # Python gave the row [1, 2]
+    ("max(2)", "non-empty flat list"),
+    ("max([])", "non-empty flat list"),
+    ("max([1, 2], [3])", "lists of different shapes (1 element and 2 elements)"),
+    ("max()", "at least one argument"),
+])
+def test_min_and_max_refuse_what_has_no_element_wise_meaning(text, words):
+    with pytest.raises(ExprError) as ei:
+        evaluate(text, NAMES)
+    assert words in str(ei.value)
+
+
+NONFINITE = {"nan": float("nan"), "inf": float("inf"), "L": [1.0, float("inf")],
+             "N": [1.0, float("nan")]}
+
+
+@pytest.mark.parametrize("text, words", [
+    ("min(2, nan)", "'nan' is NaN"),          # was 2: Python's min drops a NaN after 2
+    ("max(2, nan)", "'nan' is NaN"),
+    ("nan", "'nan' is NaN"),
+    ("[1, nan]", "'nan' is NaN"),
+    ("N", "'N' is NaN"),
+    ("[-1, 4] ** 0.5", "'[-1, 4] ** 0.5' gives NaN"),
+])
+def test_nan_is_refused_wherever_it_appears(text, words):
+    """A NaN name, element or result is an ExprError (``min(2, nan)`` was 2, silently);
+    ``nan`` here is a parameter named so, as a diagram parameter ``.nan`` would be."""
+    with pytest.raises(ExprError) as ei:
+        evaluate(text, NONFINITE)
+    assert words in str(ei.value) and "NaN (not a number)" in str(ei.value)
+
+
+@pytest.mark.parametrize("text", ["1/inf", "min(2, inf)", "max(inf, 2)", "2*inf", "inf - inf",
+                                  "atan(inf)", "abs(-inf)", "1/1e400", "L * 2", "max(L)",
+                                  "exp(-inf)"])
+def test_an_infinite_operand_is_refused(text):
+    """An operator or function would hide an infinity (``1/inf`` was 0, ``min(2, inf)``
+    2): refused, naming the infinite operand; ``inf`` is a parameter set to .inf here."""
+    with pytest.raises(ExprError, match="is infinite in .*an infinity is passed on only "
+                                        "whole"):
+        evaluate(text, NONFINITE)
+
+
+@pytest.mark.parametrize("text, want", [
+    ("inf", math.inf), ("-inf", -math.inf), ("1e400", math.inf), ("[0, inf]", [0.0, math.inf]),
+    ("L[1]", math.inf), ("-L[1]", -math.inf), ("len(L)", 2),
+])
+def test_an_infinity_passed_on_whole_is_kept(text, want):
+    """By name, constant, sign, list element or index: the block parameter it reaches
+    decides (a limit may be infinite; see tests/diagram for the block check)."""
+    assert evaluate(text, NONFINITE) == want
+
+
+@pytest.mark.parametrize("text", ["1e200*1e200", "[1]/[0]", "[1e200] * 1e200", "1e308 + 1e308",
+                                  "-[1e308] - 1e308"])
+def test_an_infinite_result_of_finite_operands_is_refused(text):
+    """An overflow or a list divided by zero (a number divided by zero is named as such)."""
+    with pytest.raises(ExprError, match="gives an infinite value"):
+        evaluate(text, {})
