@@ -37,7 +37,9 @@ import itertools
 import math
 import os
 import re
+import shutil
 import sys
+import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -796,7 +798,7 @@ def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, conne
             client.cancel([futures[k] for k in unfinished])
         client.close()
         if cluster is not None:
-            cluster.close()
+            _close_local_cluster(cluster)
 
 
 #: seconds between two looks at ``should_stop`` while waiting for Dask runs
@@ -846,14 +848,41 @@ def _dask_client(workers, scheduler, connect_timeout):
                                  f"{type(exc).__name__}: {exc}") from None
     if workers < 1:
         raise SpidersimError(f"--workers must be >= 0, got {workers}")
+    scratch = tempfile.mkdtemp(prefix="spidersim-dask-")
     try:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=None, silence_logs=logging.ERROR,
+                               local_directory=scratch,
+                               scheduler_kwargs={"local_directory": scratch})
     except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
+        shutil.rmtree(scratch, ignore_errors=True)
         raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
                              f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
             from None
-    return Client(cluster), cluster
+    cluster.spidersim_scratch = scratch
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        _close_local_cluster(cluster)
+        raise
+
+
+def _close_local_cluster(cluster):
+    """Close a local cluster of :func:`_dask_client` and remove its scratch folder.
+
+    Dask's workers keep their scratch space (and lock files that outlive them) in the
+    cluster's ``local_directory``, by default ``<temp>/dask-scratch-space``: a sweep gives
+    its cluster a temporary folder of its own instead, so nothing is left behind.
+
+    Parameters
+    ----------
+    cluster : distributed.LocalCluster
+        Made by :func:`_dask_client` (its folder is ``cluster.spidersim_scratch``).
+    """
+    try:
+        cluster.close()
+    finally:
+        shutil.rmtree(cluster.spidersim_scratch, ignore_errors=True)
 
 
 def print_progress(row, done, total, stream=None):

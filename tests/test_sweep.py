@@ -281,6 +281,28 @@ def test_cli_sweep_writes_table_and_plots(drop_file, tmp_path, capsys):
     assert "4 run(s), 0 failed" in printed.out
 
 
+def test_a_dask_sweep_leaves_nothing_in_the_temporary_folder(grow_file, tmp_path):
+    """A local cluster's scratch space (Dask's default ``<temp>/dask-scratch-space``, with
+    lock files that outlive the cluster) is a folder of the sweep's own, removed at the
+    end: a sweep in a fresh TMPDIR leaves it empty."""
+    import subprocess
+    import sys
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    out = tmp_path / "out"
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    res = subprocess.run([sys.executable, "-m", "spidersim.cli", "sweep", grow_file,
+                          "--vary", "a=1,2", "--workers", "1", "--no-plots", "--out",
+                          str(out)], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "2 run(s), 0 failed" in res.stdout
+    left = sorted(os.path.relpath(os.path.join(d, f), tmp)
+                  for d, ds, fs in os.walk(tmp) for f in ds + fs)
+    assert left == []
+    assert sorted(os.listdir(out)) == ["sweep.csv"]
+
+
 def test_cli_sweep_with_a_failed_run_exits_nonzero_after_writing(grow_file, tmp_path,
                                                                  capsys):
     rc = main(["sweep", grow_file, "--vary", "a=1,1e3", "--workers", "0", "--out",
