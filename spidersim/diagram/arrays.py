@@ -27,8 +27,9 @@ from ..errors import DiagramError, described
 #: most instances one array entry may make (a bounded input)
 MAX_INSTANCES = 1000
 
-ARRAY_KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[\s*(\d+)\s*\.\.\s*(\d+)\s*\]\Z")
-_PLACE = re.compile(r"\{\s*i\s*(?:([+-])\s*(\d+)\s*)?\}")
+#: ASCII digits only (``\d`` matches other scripts' digits, which ``int`` reads as numbers)
+ARRAY_KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*\]\Z")
+_PLACE = re.compile(r"\{\s*i\s*(?:([+-])\s*([0-9]+)\s*)?\}")
 #: ``name{i}`` as the block of an endpoint: not after a dot, so the port of ``m.u{i}``
 #: (inputs u1, u2, ... of one block) is not read as an array ``u``
 _USES = re.compile(r"(?<![.\w])([A-Za-z_][A-Za-z0-9_]*)\{\s*i\s*\}")
