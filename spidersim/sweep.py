@@ -47,9 +47,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import DiagramError, SpidersimError, SweepWarning
+from .errors import ASCII_RULE, DiagramError, SpidersimError, SweepWarning, non_ascii
 from .outputs import safe_stem, save_figure, write_atomic
-from .plots import math_text_problem, signal_values, split_signal
+from .plots import element_problem, math_text_problem, signal_values, split_signal
 from .text.yamlio import number_problem
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
@@ -133,9 +133,12 @@ def parse_metrics(diagram) -> list[Metric]:
 
 def _metric_signal(text, sizes, fail):
     """``(signal, index or None, size)`` of a metric's ``signal`` among the logged
-    ``sizes``; ``fail(message)`` raises."""
+    ``sizes`` (a negative index, from the end, given as the element it names: ``[-1]`` of 3
+    is 2); ``fail(message)`` raises."""
     if not isinstance(text, str):
         fail(f"'signal' must be 'block.port' or 'block.port[i]', got {text!r}")
+    if non_ascii(text):
+        fail(f"signal '{text}': {non_ascii(text)}: {ASCII_RULE}")
     sig, idx = split_signal(text)
     if sig not in sizes:
         import difflib
@@ -144,10 +147,11 @@ def _metric_signal(text, sizes, fail):
                                             if near else ""))
     n = sizes[sig]
     if idx is None and n > 1:
-        fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]'")
-    if idx is not None and idx >= n:
-        fail(f"index {idx} out of range for '{sig}' ({n} element(s))")
-    return sig, idx, n
+        fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]' ('{sig}[-1]': "
+             f"the last)")
+    if idx is not None and element_problem(sig, idx, n):
+        fail(element_problem(sig, idx, n))
+    return sig, (None if idx is None else idx % n), n
 
 
 def _metric_unit(unit, fail):

@@ -234,6 +234,11 @@ def test_vary_values():
     ("{signal: wall.f, reduce: max}", "no logged signal 'wall.f'; did you mean wall.fn"),
     ("{signal: body.vel, reduce: max}", "has 3 elements; pick one"),
     ("{signal: 'body.vel[3]', reduce: max}", "index 3 out of range"),
+    ("{signal: 'body.vel[-4]', reduce: max}", r"index -4 out of range, 'body.vel' has 3 "
+                                              r"element\(s\) \(0..2, or -3..-1 from the end\)"),
+    ("{signal: 'body.vel[٢]', reduce: max}", r"signal 'body.vel\[٢\]': non-ASCII character "
+                                             r"'٢' \(U\+0662 ARABIC-INDIC DIGIT TWO\) at "
+                                             r"character 10"),
     ("{signal: wall.fn, reduce: biggest}", "unknown reduce 'biggest'"),
     ("{signal: wall.fn, reduce: max, scale: 2}", "unknown key"),
     # the unit labels the sweep plot's axis: math text matplotlib cannot draw failed the
@@ -250,6 +255,24 @@ def test_metric_errors_name_the_metric_and_line(tmp_path, entry, message):
     assert "metric 'bad'" in str(info.value)
     assert str(path) in str(info.value) or "bad.yaml" in str(info.value)
 
+
+def test_a_metric_index_counts_from_the_end(tmp_path):
+    """``body.vel[-1]`` is ``body.vel[2]``, as in connections (it was 'no logged signal
+    'body.vel[-1]''); the metric keeps the element it names."""
+    text = DROP.split("metrics:")[0] + ("metrics:\n  last: {signal: 'body.vel[-1]', reduce: "
+                                        "final}\n  third: {signal: 'body.vel[2]', reduce: "
+                                        "final}\n  first: {signal: 'body.vel[-3]', reduce: "
+                                        "final}\n")
+    path = tmp_path / "neg.yaml"
+    path.write_text(text)
+    res = sw.sweep(str(path), [("K", [1e4])], workers=0)
+    row, = res.rows
+    assert row["status"] == "ok"
+    assert row["last"] == row["third"] == pytest.approx(1.0, rel=1e-3)   # rebound speed
+    assert row["first"] == 0.0
+    import spidersim
+    assert [(m.signal, m.index) for m in sw.parse_metrics(spidersim.load(str(path)))] == [
+        ("body.vel", 2), ("body.vel", 2), ("body.vel", 0)]
 
 def test_a_diagram_without_metrics_is_refused(tmp_path):
     path = tmp_path / "nometrics.yaml"
