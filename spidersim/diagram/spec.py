@@ -420,6 +420,14 @@ def _parse_connection(item, file, line):
     return conns
 
 
+def _check_connection_ascii(item, file, line):
+    """The texts of connection ``item`` (a string or a pair) are ASCII, checked before
+    ``{i}`` is worked out (a ``{i+١}`` is named by its digit, not as a bad brace)."""
+    for t in (item if isinstance(item, list) else [item]):
+        if isinstance(t, str):
+            _check_ascii(t, f"connection '{t.strip()}'", file, line)
+
+
 def _parse_connections(data, arrays, file):
     """The ``connections`` section -> list of :class:`ConnSpec`, lines over block
     ``arrays`` expanded first (every line is expanded before any is parsed)."""
@@ -427,9 +435,7 @@ def _parse_connections(data, arrays, file):
     items = []
     for k, item in enumerate(conns_raw):
         line = conns_raw.lines[k] if hasattr(conns_raw, "lines") else None
-        for t in (item if isinstance(item, list) else [item]):
-            if isinstance(t, str):      # before {i} is worked out: '{i+١}' names the digit
-                _check_ascii(t, f"connection '{t.strip()}'", file, line)
+        _check_connection_ascii(item, file, line)
         items += [(x, line) for x in expand_connection(item, arrays, file, line)]
     conns = []
     for item, line in items:
