@@ -22,6 +22,26 @@ def printable(text) -> str:
     return "".join(out)
 
 
+def non_ascii(text):
+    """Where ``text`` leaves ASCII, for a message: ``non-ASCII character '𝟏' (U+1D7CF
+    MATHEMATICAL BOLD DIGIT ONE) at character 5``; None for an ASCII text.
+
+    Names, ports and indices are ASCII: Python's ``int`` and a regular expression's ``\\d``
+    read other scripts' digits (Arabic-Indic ``١``, bold ``𝟏``) as 1, and a look-alike
+    letter would be taken for another name (:data:`ASCII_RULE` says so).
+    """
+    for pos, ch in enumerate(str(text)):
+        if ord(ch) > 127:
+            return (f"non-ASCII character '{printable(ch)}' (U+{ord(ch):04X} "
+                    f"{unicodedata.name(ch, 'unnamed')}) at character {pos + 1}")
+    return None
+
+
+#: why :func:`non_ascii` characters are refused, for the end of a message
+ASCII_RULE = ("names and indices are ASCII (a look-alike digit or letter would be read as "
+              "the one it resembles)")
+
+
 def described(v) -> str:
     """What a Python argument of the wrong type is, for a message: ``None``, ``the boolean
     True``, ``the string '1'``, ``a list of 2``, ``an array of shape (1,)``, ``a mapping``,

@@ -40,7 +40,7 @@ import re
 
 import numpy as np
 
-from .errors import DiagramError
+from .errors import ASCII_RULE, DiagramError, non_ascii
 from .outputs import BARE_NAME, atomic_path
 
 def _pyplot():
@@ -60,15 +60,29 @@ def _slug(text):
     return re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_").lower()[:80].strip("_") or "plot"
 
 
-_ELEM = re.compile(r"^(.*?)\[\s*(\d+)\s*\]\Z")
+#: one element ``name[i]``, ``i`` in ASCII digits (``\d`` read ``[١]`` as 1), negative
+#: from the end (``[-1]`` is the last)
+_ELEM = re.compile(r"^(.*?)\[\s*(-?[0-9]+)\s*\]\Z")
 #: a connection's element range (``[1:]``, ``[:2]``, ``[0:3]``), which a plot does not read
 _RANGE = re.compile(r"^[^\[]*\[[^\[\]]*:[^\[\]]*\]\Z")
 
 
 def split_signal(s):
-    """``"arm.q[2]"`` -> ``("arm.q", 2)``; ``"arm.q"`` -> ``("arm.q", None)``."""
+    """``"arm.q[2]"`` -> ``("arm.q", 2)``; ``"arm.q[-1]"`` -> ``("arm.q", -1)`` (from the
+    end, as in Python and in connections); ``"arm.q"`` -> ``("arm.q", None)``."""
     m = _ELEM.match(str(s).strip())
-    return (m.group(1).strip(), int(m.group(2))) if m else (str(s).strip(), None)
+    if not m or len(m.group(2)) > 100:       # int() of thousands of digits fails
+        return str(s).strip(), None
+    return m.group(1).strip(), int(m.group(2))
+
+
+def element_problem(name, idx, size):
+    """Why element ``idx`` of signal ``name`` of ``size`` values does not exist (``index 7
+    out of range, 'arm.q' has 7 element(s) (0..6, or -7..-1 from the end)``), or None."""
+    if -size <= idx < size:
+        return None
+    return (f"index {idx} out of range, '{name}' has {size} element(s) (0..{size - 1}, or "
+            f"-{size}..-1 from the end)")
 
 
 def signal_values(result, s):
@@ -221,8 +235,13 @@ def _logged_size(signals, name):
 
 
 def _check_plot_signal(s, k, signals, file, line):
-    """Plot signal ``s`` (``name`` or ``name[i]``) is logged, and ``i`` within its size
-    when the size is known; an unknown name suggests the nearest logged ones."""
+    """Plot signal ``s`` (``name`` or ``name[i]``, ``i`` negative from the end) is ASCII and
+    logged, and ``i`` within its size when the size is known; an unknown name suggests the
+    nearest logged ones."""
+    problem = non_ascii(s)
+    if problem:
+        raise DiagramError(f"plots[{k}]: signal '{s}': {problem}: {ASCII_RULE}", file=file,
+                           line=line)
     name, idx = split_signal(s)
     if name not in signals and _RANGE.match(str(s).strip()):
         base = str(s).partition("[")[0].strip()
@@ -236,9 +255,9 @@ def _check_plot_signal(s, k, signals, file, line):
         raise DiagramError(f"plots[{k}]: signal '{s}' is not logged{hint}", file=file,
                            line=line)
     size = _logged_size(signals, name)
-    if idx is not None and size is not None and idx >= size:
-        raise DiagramError(f"plots[{k}]: '{s}': index {idx} out of range, "
-                           f"'{name}' has {size} element(s)", file=file, line=line)
+    problem = element_problem(name, idx, size) if None not in (idx, size) else None
+    if problem:
+        raise DiagramError(f"plots[{k}]: '{s}': {problem}", file=file, line=line)
 
 
 #: most lines (and legend entries) one time or spectrum plot draws: one per element of

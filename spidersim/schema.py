@@ -21,11 +21,11 @@ from .plots import KINDS as PLOT_KINDS
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 NAME = r"^[A-Za-z_][A-Za-z0-9_]*$"
-_IDX = r"(-?\d+|\{i([+-]\d+)?\})"
+_IDX = r"(-?[0-9]+|\{i([+-][0-9]+)?\})"
 _ID = r"[A-Za-z_]([A-Za-z0-9_.]|\{i\})*"
 #: ``block.port``, ``[i]``, ``[a:b]`` with either bound left out (``[1:]``, ``[:2]``, ``[:]``)
 _ADDR = rf"{_ID}\.{_ID}(\[\s*{_IDX}\s*\]|\[\s*({_IDX}\s*)?:\s*({_IDX}\s*)?\])?"
-BLOCK_KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\[\d+\.\.\d+\])?$"
+BLOCK_KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+\.\.[0-9]+\])?$"
 CONNECTION = rf"^\s*{_ADDR}\s*->\s*{_ADDR}(\s*,\s*{_ADDR})*\s*$"
 SIM_METHODS = ["LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF", "DP54", "ROS34PW2", "NDF"]
 REDUCERS = ["max", "min", "absmax", "final", "initial", "mean", "rms", "integral"]

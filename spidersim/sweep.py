@@ -37,7 +37,9 @@ import itertools
 import math
 import os
 import re
+import shutil
 import sys
+import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -45,9 +47,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import DiagramError, SpidersimError, SweepWarning
+from .errors import ASCII_RULE, DiagramError, SpidersimError, SweepWarning, non_ascii
 from .outputs import safe_stem, save_figure, write_atomic
-from .plots import math_text_problem, signal_values, split_signal
+from .plots import element_problem, math_text_problem, signal_values, split_signal
 from .text.yamlio import number_problem
 
 _trapz = getattr(np, "trapezoid", None) or np.trapz      # numpy 2 renamed it
@@ -131,9 +133,12 @@ def parse_metrics(diagram) -> list[Metric]:
 
 def _metric_signal(text, sizes, fail):
     """``(signal, index or None, size)`` of a metric's ``signal`` among the logged
-    ``sizes``; ``fail(message)`` raises."""
+    ``sizes`` (a negative index, from the end, given as the element it names: ``[-1]`` of 3
+    is 2); ``fail(message)`` raises."""
     if not isinstance(text, str):
         fail(f"'signal' must be 'block.port' or 'block.port[i]', got {text!r}")
+    if non_ascii(text):
+        fail(f"signal '{text}': {non_ascii(text)}: {ASCII_RULE}")
     sig, idx = split_signal(text)
     if sig not in sizes:
         import difflib
@@ -142,10 +147,11 @@ def _metric_signal(text, sizes, fail):
                                             if near else ""))
     n = sizes[sig]
     if idx is None and n > 1:
-        fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]'")
-    if idx is not None and idx >= n:
-        fail(f"index {idx} out of range for '{sig}' ({n} element(s))")
-    return sig, idx, n
+        fail(f"signal '{sig}' has {n} elements; pick one, e.g. '{sig}[0]' ('{sig}[-1]': "
+             f"the last)")
+    if idx is not None and element_problem(sig, idx, n):
+        fail(element_problem(sig, idx, n))
+    return sig, (None if idx is None else idx % n), n
 
 
 def _metric_unit(unit, fail):
@@ -796,7 +802,7 @@ def _run_dask(file, base, points, sim, rows, workers, scheduler, progress, conne
             client.cancel([futures[k] for k in unfinished])
         client.close()
         if cluster is not None:
-            cluster.close()
+            _close_local_cluster(cluster)
 
 
 #: seconds between two looks at ``should_stop`` while waiting for Dask runs
@@ -846,14 +852,41 @@ def _dask_client(workers, scheduler, connect_timeout):
                                  f"{type(exc).__name__}: {exc}") from None
     if workers < 1:
         raise SpidersimError(f"--workers must be >= 0, got {workers}")
+    scratch = tempfile.mkdtemp(prefix="spidersim-dask-")
     try:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=None, silence_logs=logging.ERROR,
+                               local_directory=scratch,
+                               scheduler_kwargs={"local_directory": scratch})
     except Exception as exc:  # noqa: BLE001 - e.g. no ports, no process start-up
+        shutil.rmtree(scratch, ignore_errors=True)
         raise SpidersimError(f"cannot start a local Dask cluster of {workers} worker(s): "
                              f"{type(exc).__name__}: {exc} (--workers 0 runs serially)") \
             from None
-    return Client(cluster), cluster
+    cluster.spidersim_scratch = scratch
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        _close_local_cluster(cluster)
+        raise
+
+
+def _close_local_cluster(cluster):
+    """Close a local cluster of :func:`_dask_client` and remove its scratch folder.
+
+    Dask's workers keep their scratch space (and lock files that outlive them) in the
+    cluster's ``local_directory``, by default ``<temp>/dask-scratch-space``: a sweep gives
+    its cluster a temporary folder of its own instead, so nothing is left behind.
+
+    Parameters
+    ----------
+    cluster : distributed.LocalCluster
+        Made by :func:`_dask_client` (its folder is ``cluster.spidersim_scratch``).
+    """
+    try:
+        cluster.close()
+    finally:
+        shutil.rmtree(cluster.spidersim_scratch, ignore_errors=True)
 
 
 def print_progress(row, done, total, stream=None):

@@ -65,6 +65,46 @@ def test_every_analysis_without_a_name(tmp_path, capsys):
         assert (tmp_path / name / "bode.png").exists()
 
 
+LIN3 = """\
+blocks:
+  c: {type: Constant, value: [1, 2, 3]}
+  g: {type: Gain, k: [2, 3, 5]}
+  i: {type: Integrator, x0: [0, 0, 0]}
+connections: [c.y -> g.u, g.y -> i.u]
+simulation: {t_end: 1}
+"""
+
+
+@pytest.mark.parametrize("inp,out,dc", [("c.y[-1]", "g.y[-1]", 5), ("c.y[-3]", "g.y[0]", 2),
+                                        ("c.y[-1]", "g.y[1]", 0)])
+def test_ad_hoc_signals_count_from_the_end(tmp_path, capsys, inp, out, dc):
+    """``c.y[-1]`` is the last element, as in connections (it was 'index out of range
+    (size 3)'); the model's names are the ones given."""
+    f = tmp_path / "lin3.yaml"
+    f.write_text(LIN3)
+    rc, text, err = _run(capsys, "linearize", f, "--input", inp, "--output", out,
+                         "--no-jit", "--out", tmp_path / "o")
+    assert rc == 0, err
+    assert f"{inp.replace('.', '/')} -> {out.replace('.', '/')}" in text
+    data = np.load(tmp_path / "o" / "linearization.npz")
+    np.testing.assert_allclose(np.asarray(data["D"]).ravel(), [dc], atol=1e-8)
+
+
+@pytest.mark.parametrize("inp,words", [
+    ("c.y[-4]", "signal 'c.y[-4]': index -4 out of range (size 3: 0..2, or -3..-1 from the "
+                "end)"),
+    ("c.y[١]", "signal 'c.y[١]': non-ASCII character '١' (U+0661 ARABIC-INDIC DIGIT ONE) at "
+               "character 5"),
+])
+def test_ad_hoc_signal_index_errors(tmp_path, capsys, inp, words):
+    f = tmp_path / "lin3.yaml"
+    f.write_text(LIN3)
+    rc, text, err = _run(capsys, "linearize", f, "--input", inp, "--output", "g.y[0]",
+                         "--no-jit", "--out", tmp_path / "o")
+    assert rc == 2 and words in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_errors(tmp_path, capsys):
     rc, out, err = _run(capsys, "linearize", SERVO, "speed_closd", "--no-jit")
     assert rc == 2 and "did you mean speed_closed" in err

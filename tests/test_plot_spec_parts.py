@@ -76,6 +76,45 @@ def test_signal_index_checked_only_when_sizes_are_known():
         P._check_plot_signal("motor.ww", 0, SIZES, None, None)
 
 
+@pytest.mark.parametrize("s,idx", [("arm.q[-1]", -1), ("arm.q[-7]", -7), ("arm.q[ -2 ]", -2),
+                                   ("motor.w[-1]", -1)])
+def test_a_negative_index_counts_from_the_end(s, idx):
+    """``arm.q[-1]`` is the last joint, as in connections (it was 'not logged; did you
+    mean arm.q?'); the samples are that column."""
+    import numpy as np
+    assert P.split_signal(s) == (s.partition("[")[0], idx)
+    P._check_plot_signal(s, 0, SIZES, None, None)
+
+    class R:
+        def __getitem__(self, name):
+            return np.arange(14.0).reshape(2, 7) if name == "arm.q" else np.ones(2)
+    want = R()[P.split_signal(s)[0]]
+    assert list(P.signal_values(R(), s)) == list(want if want.ndim == 1 else want[:, idx])
+
+
+@pytest.mark.parametrize("s,words", [
+    ("arm.q[-8]", "'arm.q[-8]': index -8 out of range, 'arm.q' has 7 element(s) (0..6, or "
+                  "-7..-1 from the end)"),
+    ("motor.w[-2]", "index -2 out of range, 'motor.w' has 1 element(s) (0..0, or -1..-1"),
+    ("arm.q[١]", "signal 'arm.q[١]': non-ASCII character '١' (U+0661 ARABIC-INDIC DIGIT "
+                 "ONE) at character 7: names and indices are ASCII"),
+    ("arm.q[𝟏]", "non-ASCII character '𝟏' (U+1D7CF MATHEMATICAL BOLD DIGIT ONE)"),
+])
+def test_element_errors(s, words):
+    """Past either end, and digits of other scripts (``\\d`` read ``[١]`` as 1: now the
+    character is named)."""
+    with pytest.raises(DiagramError) as e:
+        P._check_plot_signal(s, 0, SIZES, "f.yaml", 3)
+    assert "plots[0]: " in str(e.value) and words in str(e.value) and e.value.line == 3
+
+
+@pytest.mark.parametrize("s", ["arm.q[١]", "arm.q[𝟏]", "arm.q[-١]", "arm.q[1_0]"])
+def test_split_signal_reads_ascii_digits_only(s):
+    """What ``int`` would read but is not written in ASCII digits is no index (the Python
+    API's Result.plot goes through split_signal without the plot-entry check)."""
+    assert P.split_signal(s) == (s, None)
+
+
 @pytest.mark.parametrize("s", ["arm.q[1:]", "arm.q[:2]", "arm.q[0:3]", "arm.q[::2]"])
 def test_an_element_range_in_a_plot_is_named_as_such(s):
     """A connection's range (``arm.q[1:]``) is not read by a plot: said so, with the two

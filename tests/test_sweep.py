@@ -234,6 +234,11 @@ def test_vary_values():
     ("{signal: wall.f, reduce: max}", "no logged signal 'wall.f'; did you mean wall.fn"),
     ("{signal: body.vel, reduce: max}", "has 3 elements; pick one"),
     ("{signal: 'body.vel[3]', reduce: max}", "index 3 out of range"),
+    ("{signal: 'body.vel[-4]', reduce: max}", r"index -4 out of range, 'body.vel' has 3 "
+                                              r"element\(s\) \(0..2, or -3..-1 from the end\)"),
+    ("{signal: 'body.vel[٢]', reduce: max}", r"signal 'body.vel\[٢\]': non-ASCII character "
+                                             r"'٢' \(U\+0662 ARABIC-INDIC DIGIT TWO\) at "
+                                             r"character 10"),
     ("{signal: wall.fn, reduce: biggest}", "unknown reduce 'biggest'"),
     ("{signal: wall.fn, reduce: max, scale: 2}", "unknown key"),
     # the unit labels the sweep plot's axis: math text matplotlib cannot draw failed the
@@ -250,6 +255,24 @@ def test_metric_errors_name_the_metric_and_line(tmp_path, entry, message):
     assert "metric 'bad'" in str(info.value)
     assert str(path) in str(info.value) or "bad.yaml" in str(info.value)
 
+
+def test_a_metric_index_counts_from_the_end(tmp_path):
+    """``body.vel[-1]`` is ``body.vel[2]``, as in connections (it was 'no logged signal
+    'body.vel[-1]''); the metric keeps the element it names."""
+    text = DROP.split("metrics:")[0] + ("metrics:\n  last: {signal: 'body.vel[-1]', reduce: "
+                                        "final}\n  third: {signal: 'body.vel[2]', reduce: "
+                                        "final}\n  first: {signal: 'body.vel[-3]', reduce: "
+                                        "final}\n")
+    path = tmp_path / "neg.yaml"
+    path.write_text(text)
+    res = sw.sweep(str(path), [("K", [1e4])], workers=0)
+    row, = res.rows
+    assert row["status"] == "ok"
+    assert row["last"] == row["third"] == pytest.approx(1.0, rel=1e-3)   # rebound speed
+    assert row["first"] == 0.0
+    import spidersim
+    assert [(m.signal, m.index) for m in sw.parse_metrics(spidersim.load(str(path)))] == [
+        ("body.vel", 2), ("body.vel", 2), ("body.vel", 0)]
 
 def test_a_diagram_without_metrics_is_refused(tmp_path):
     path = tmp_path / "nometrics.yaml"
@@ -279,6 +302,28 @@ def test_cli_sweep_writes_table_and_plots(drop_file, tmp_path, capsys):
                                                        sorted(METRICS)]
     printed = capsys.readouterr()
     assert "4 run(s), 0 failed" in printed.out
+
+
+def test_a_dask_sweep_leaves_nothing_in_the_temporary_folder(grow_file, tmp_path):
+    """A local cluster's scratch space (Dask's default ``<temp>/dask-scratch-space``, with
+    lock files that outlive the cluster) is a folder of the sweep's own, removed at the
+    end: a sweep in a fresh TMPDIR leaves it empty."""
+    import subprocess
+    import sys
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    out = tmp_path / "out"
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    res = subprocess.run([sys.executable, "-m", "spidersim.cli", "sweep", grow_file,
+                          "--vary", "a=1,2", "--workers", "1", "--no-plots", "--out",
+                          str(out)], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "2 run(s), 0 failed" in res.stdout
+    left = sorted(os.path.relpath(os.path.join(d, f), tmp)
+                  for d, ds, fs in os.walk(tmp) for f in ds + fs)
+    assert left == []
+    assert sorted(os.listdir(out)) == ["sweep.csv"]
 
 
 def test_cli_sweep_with_a_failed_run_exits_nonzero_after_writing(grow_file, tmp_path,

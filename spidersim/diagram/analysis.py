@@ -42,11 +42,12 @@ from typing import NamedTuple
 
 import math
 import numbers
+import re
 
 import numpy as np
 
 from ..blocks.base import REGISTRY
-from ..errors import SpidersimError, described
+from ..errors import ASCII_RULE, SpidersimError, described, non_ascii
 from ..solver import dense_size
 from ..solver.linearize import jacobians
 from .flatten import FlatConn, Instance
@@ -93,16 +94,31 @@ def _signal_names(v, what, d, kind="signal name 'block.port'"):
     return list(v)
 
 
+#: ``block.port[i]``: ``i`` in ASCII digits (``int`` read ``[١]`` as 1 and ``[1_0]`` as 10),
+#: negative from the end
+_ELEMENT = re.compile(r"^([^\[\]]*)\[\s*(-?[0-9]{1,100})\s*\]\Z")
+
+
+def _split_name(d, name):
+    """``(base, index or None)`` of signal name ``name`` (``g.y[-1]`` -> ``("g.y", -1)``);
+    an AnalysisError for non-ASCII text or brackets that hold no index."""
+    problem = non_ascii(name)
+    if problem:
+        raise AnalysisError(f"signal '{name}': {problem}: {ASCII_RULE}", file=d.file)
+    if not ("[" in name or "]" in name):
+        return name, None
+    m = _ELEMENT.match(name)
+    if not m:
+        raise AnalysisError(f"cannot read signal '{name}' (use block.port or "
+                            f"block.port[i], i negative from the end: [-1] is the last)",
+                            file=d.file)
+    return m.group(1), int(m.group(2))
+
+
 def _signal_ref(d, name):
-    """``(path, port, s0, s1, size, unit)`` of a signal name of diagram ``d``."""
-    base, idx = name, None
-    if name.endswith("]") and "[" in name:
-        base, _, rest = name.partition("[")
-        try:
-            idx = int(rest[:-1])
-        except ValueError:
-            raise AnalysisError(f"cannot read signal '{name}' (use block.port or "
-                                f"block.port[i])", file=d.file) from None
+    """``(path, port, s0, s1, size, unit)`` of a signal name of diagram ``d`` (``name[i]``
+    one element, ``i`` negative from the end as in connections)."""
+    base, idx = _split_name(d, name)
     path, _, port = base.rpartition(".")
     if base in d.flat.aliases:
         path, port, s0, s1 = d.flat.aliases[base]
@@ -118,10 +134,11 @@ def _signal_ref(d, name):
     if s0 is None:
         s0, s1 = 0, full
     if idx is not None:
-        if not 0 <= idx < s1 - s0:
-            raise AnalysisError(f"signal '{name}': index out of range (size {s1 - s0})",
-                                file=d.file)
-        s0, s1 = s0 + idx, s0 + idx + 1
+        n = s1 - s0
+        if not -n <= idx < n:
+            raise AnalysisError(f"signal '{name}': index {idx} out of range (size {n}: "
+                                f"0..{n - 1}, or -{n}..-1 from the end)", file=d.file)
+        s0, s1 = s0 + idx % n, s0 + idx % n + 1
     return path, port, s0, s1, s1 - s0, bl.ports[("out", port)].unit
 
 

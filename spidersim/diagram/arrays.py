@@ -12,6 +12,10 @@ each instance its own value, any other value is shared. A connection holding ``{
       - q_ref.y{i} -> j{i}.q_ref          # q_ref.y1 -> j1.q_ref ... q_ref.y7 -> j7.q_ref
       - arm.q[{i-1}] -> j{i}.phi_l        # element i-1 of the arm's joint angles
 
+An index worked out from ``{i-N}`` may not be negative (``c.y[{i-2}]`` for ``g[1..3]``
+is refused at ``g1``): a negative index written out (``c.y[-1]``) counts from the end, a
+computed one is an off-by-one that would read another element.
+
 Errors name the array entry and the instance (``block 'j[1..7]', instance j3``).
 """
 from __future__ import annotations
@@ -23,8 +27,9 @@ from ..errors import DiagramError, described
 #: most instances one array entry may make (a bounded input)
 MAX_INSTANCES = 1000
 
-ARRAY_KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[\s*(\d+)\s*\.\.\s*(\d+)\s*\]\Z")
-_PLACE = re.compile(r"\{\s*i\s*(?:([+-])\s*(\d+)\s*)?\}")
+#: ASCII digits only (``\d`` matches other scripts' digits, which ``int`` reads as numbers)
+ARRAY_KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*\]\Z")
+_PLACE = re.compile(r"\{\s*i\s*(?:([+-])\s*([0-9]+)\s*)?\}")
 #: ``name{i}`` as the block of an endpoint: not after a dot, so the port of ``m.u{i}``
 #: (inputs u1, u2, ... of one block) is not read as an array ``u``
 _USES = re.compile(r"(?<![.\w])([A-Za-z_][A-Za-z0-9_]*)\{\s*i\s*\}")
@@ -93,9 +98,24 @@ def expand_connection(text, arrays, file, line):
     for i in idx:
         def sub(m, i=i):
             v = i + (int(m.group(2)) * (1 if m.group(1) == "+" else -1) if m.group(1) else 0)
+            if v < 0:
+                raise _negative(text, m.group(0), f"{known[0]}{i}", i, v, file, line)
             return str(v)
         out.append(_PLACE.sub(sub, text))
     if any("{" in o for o in out):
         raise DiagramError(f"connection '{text}': only {{i}}, {{i+N}} and {{i-N}} may stand "
                            f"in braces", file=file, line=line)
     return out
+
+
+def _negative(text, place, inst, i, v, file, line):
+    """The error for ``place`` (``{i-2}``) of connection ``text`` working out to the
+    negative number ``v`` for instance ``inst`` (index ``i``).
+
+    A written ``[-1]`` counts from the end, as in Python; a computed one is an off-by-one
+    (``{i-1}`` of an array starting at 0), which would silently read the last element.
+    """
+    return DiagramError(f"connection '{text}': for instance {inst} (i = {i}), {place} is {v}: "
+                        f"an index computed from {{i}} may not be negative (it would count "
+                        f"from the end, reading another element); start the array higher "
+                        f"or change the offset", file=file, line=line)

@@ -771,6 +771,30 @@ def _check_no_shadowing(spec):
                 line=spec.subsystem_lines.get(name))
 
 
+def _check_unused_subsystems(spec):
+    """Every subsystem type of ``spec`` that no block uses still names a readable diagram
+    file: such an entry was never opened, so ``subsystems: {A: nothere.yaml, B: /dev/zero}``
+    passed ``check``. A missing, unreadable or malformed file is a DiagramError (at the
+    entry's line, or in that file with the entry named); the file's own subsystems are not
+    opened (nothing instantiates it). A valid unused entry is allowed."""
+    used = {b.type for b in spec.blocks.values()}
+    for name, path in spec.subsystems.items():
+        if name in used:
+            continue
+        line = spec.subsystem_lines.get(name)
+        what = file_problem(path)
+        if what:
+            raise DiagramError(f"subsystem file for type '{name}' {what}: {path} (no block "
+                               f"uses the type: fix the path or remove the entry)",
+                               file=spec.file, line=line)
+        try:
+            parse_file(path)
+        except DiagramError as exc:
+            exc.message += (f" (subsystem type '{name}', {os.path.basename(spec.file)}:"
+                            f"{line}, used by no block)")
+            raise
+
+
 def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False) -> PortMaps:
     """Add the blocks of ``spec`` under ``prefix`` to ``flat``; return its port maps.
 
@@ -796,6 +820,7 @@ def _instantiate(spec, prefix, scope, overrides, flat, stack, used, top=False) -
     """
     level = _Level(spec, prefix, scope, flat, stack, used)
     _check_no_shadowing(spec)
+    _check_unused_subsystems(spec)
     _check_override_targets(spec, prefix, overrides)
     sub_specs = {}
     local_subs = {}  # instance name -> PortMaps

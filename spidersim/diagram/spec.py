@@ -33,7 +33,7 @@ import re
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from ..errors import DiagramError, WiringError
+from ..errors import ASCII_RULE, DiagramError, WiringError, non_ascii
 from ..text.yamlio import LineDict, file_problem, load_text, read_file
 from .arrays import array_key, expand_block, expand_connection
 
@@ -48,8 +48,11 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\Z")
 _ADDR = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)"
                    r"(?:\[([^\[\]]*)\])?\s*\Z")
 #: inside the brackets: ``i``, or ``a:b`` with either bound left out (``1:``, ``:2``, ``:``)
-_INDEX = re.compile(r"^\s*(-?\d+)\s*\Z")
-_SLICE = re.compile(r"^\s*(-?\d+)?\s*:\s*(-?\d+)?\s*\Z")
+#: (ASCII digits: ``\d`` matches other scripts' digits, which ``int`` reads: ``[١]`` was 1)
+_INDEX = re.compile(r"^\s*(-?[0-9]+)\s*\Z")
+_SLICE = re.compile(r"^\s*(-?[0-9]+)?\s*:\s*(-?[0-9]+)?\s*\Z")
+#: a log entry naming elements of a signal (``i.y[1]``, ``i.y[-1]``, ``j3.motor.w[0:2]``)
+_LOG_ELEMENTS = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_.]*)\s*\[[^\[\]]*\]\s*\Z")
 _FORMS = "'block.port', 'block.port[i]' or 'block.port[i:j]' (i or j may be left out)"
 
 
@@ -123,6 +126,7 @@ def parse_address(text, file, line, what="address"):
     if not isinstance(text, str):
         raise WiringError(f"{what} must be a string 'block.port', got {text!r}", file=file,
                           line=line)
+    _check_ascii(text, f"{what} '{text.strip()}'", file, line)
     m = _ADDR.match(text)
     if not m:
         raise WiringError(f"cannot read {what} '{text.strip()}': expected {_FORMS}",
@@ -142,6 +146,15 @@ def parse_address(text, file, line, what="address"):
         return Address(block, port, a, a + 1 if a != -1 else None, single=True)
     return Address(block, port, 0 if a is None else int(a), None if b is None else int(b),
                    written=f"[{a or ''}:{b or ''}]")
+
+
+def _check_ascii(text, what, file, line):
+    """``text`` (of ``what``: ``connection 'c.y[𝟏] -> g.u'``) is ASCII, else a WiringError
+    naming the first other character (a bold or Arabic-Indic digit read as its value made
+    ``c.y[𝟏]`` element 1)."""
+    problem = non_ascii(text)
+    if problem:
+        raise WiringError(f"{what}: {problem}: {ASCII_RULE}", file=file, line=line)
 
 
 def _index_problem(text, inside, what):
@@ -353,8 +366,10 @@ def _parse_block(item: BlockEntry, file) -> BlockSpec:
     """
     name, entry, line = item
     if not isinstance(name, str) or not _NAME.match(name):
+        problem = non_ascii(name)
         raise DiagramError(f"block name '{name}' is not an identifier (letters, digits, "
-                           f"_; no dots)", file=file, line=line)
+                           f"_; no dots)" + (f": {problem}; {ASCII_RULE}" if problem else ""),
+                           file=file, line=line)
     if not isinstance(entry, dict) or "type" not in entry:
         raise DiagramError(f"block '{name}' must be a mapping with a 'type' key, e.g. "
                            f"'{name}: {{type: Gain, k: 2}}'", file=file, line=line)
@@ -405,6 +420,14 @@ def _parse_connection(item, file, line):
     return conns
 
 
+def _check_connection_ascii(item, file, line):
+    """The texts of connection ``item`` (a string or a pair) are ASCII, checked before
+    ``{i}`` is worked out (a ``{i+١}`` is named by its digit, not as a bad brace)."""
+    for t in (item if isinstance(item, list) else [item]):
+        if isinstance(t, str):
+            _check_ascii(t, f"connection '{t.strip()}'", file, line)
+
+
 def _parse_connections(data, arrays, file):
     """The ``connections`` section -> list of :class:`ConnSpec`, lines over block
     ``arrays`` expanded first (every line is expanded before any is parsed)."""
@@ -412,6 +435,7 @@ def _parse_connections(data, arrays, file):
     items = []
     for k, item in enumerate(conns_raw):
         line = conns_raw.lines[k] if hasattr(conns_raw, "lines") else None
+        _check_connection_ascii(item, file, line)
         items += [(x, line) for x in expand_connection(item, arrays, file, line)]
     conns = []
     for item, line in items:
@@ -476,12 +500,36 @@ def _parse_simulation(data, file):
 
 
 def _parse_log(data, file):
-    """The ``log`` section: ``"all"`` (the default) or a list of signal names."""
+    """The ``log`` section: ``"all"`` (the default) or a list of signal names (checked
+    against the diagram's signals once it is built; see :func:`_check_log_entry`)."""
     log = data.get("log", "all")
     if not (log == "all" or isinstance(log, list)):
         raise DiagramError("section 'log' must be 'all' or a list of 'block.port'",
                            file=file, line=data.line_of("log"))
+    if isinstance(log, list):
+        lines = getattr(log, "lines", [])
+        for k, name in enumerate(log):
+            _check_log_entry(name, file, lines[k] if k < len(lines) else
+                             data.line_of("log"))
     return log
+
+
+def _check_log_entry(name, file, line):
+    """A log entry names a whole signal: one with brackets (``i.y[-1]``, ``i.y[1]``) is
+    refused saying so (it was 'no signal'), and a non-ASCII one by its character; other
+    entries are left to the diagram's signal table."""
+    if not isinstance(name, str):
+        return
+    problem = non_ascii(name)
+    if problem:
+        raise DiagramError(f"log: '{name.strip()}': {problem}: {ASCII_RULE}", file=file,
+                           line=line)
+    m = _LOG_ELEMENTS.match(name)
+    if m:
+        base = m.group(1)
+        raise DiagramError(f"log: '{name.strip()}' names elements: the log records whole "
+                           f"signals ('{base}'); plots and metrics pick one element of it "
+                           f"('{base}[0]', '{base}[-1]' the last)", file=file, line=line)
 
 
 def _parse_data(data, file: str) -> DiagramSpec:

@@ -115,3 +115,31 @@ def test_named_inputs_scalars_and_vectors():
     out = A._named_inputs(lin, np.array([1.5, 2.0, 3.0, 4.0]))
     assert out["a"] == 1.5 and isinstance(out["a"], float)
     np.testing.assert_array_equal(out["b"], [2.0, 3.0, 4.0])
+
+
+@pytest.mark.parametrize("name,s0", [("u.y[-1]", 1), ("u.y[-2]", 0), ("u.y[ -1 ]", 1),
+                                     ("u.y[1]", 1)])
+def test_a_signal_index_counts_from_the_end(name, s0):
+    """``u.y[-1]`` is the last element, as in connections, plots and metrics (it was
+    'index out of range (size 2)')."""
+    d = spidersim.loads(CHAIN)
+    assert A._signal_ref(d, name)[2:5] == (s0, s0 + 1, 1)
+
+
+@pytest.mark.parametrize("name,words", [
+    ("u.y[-3]", "signal 'u.y[-3]': index -3 out of range (size 2: 0..1, or -2..-1 from the "
+                "end)"),
+    ("u.y[2]", "index 2 out of range (size 2"),
+    ("u.y[١]", "signal 'u.y[١]': non-ASCII character '١' (U+0661 ARABIC-INDIC DIGIT ONE) at "
+               "character 5: names and indices are ASCII"),
+    ("u.y[𝟏]", "non-ASCII character '𝟏' (U+1D7CF MATHEMATICAL BOLD DIGIT ONE)"),
+    ("u.y[1_0]", "cannot read signal 'u.y[1_0]' (use block.port or block.port[i]"),
+    ("u.y[0:1]", "cannot read signal 'u.y[0:1]'"),
+])
+def test_signal_index_errors(name, words):
+    """Past either end; digits ``int`` reads but that are not ASCII (``[١]`` was 1) or not
+    an index (``[1_0]`` was 10)."""
+    d = spidersim.loads(CHAIN)
+    with pytest.raises(AnalysisError) as ei:
+        A._signal_ref(d, name)
+    assert words in str(ei.value)

@@ -56,11 +56,32 @@ def test_element_index_arithmetic():
 
 
 def test_negative_element_indexes_count_from_the_end():
-    """src.y[-3], [-2], [-1] are its elements 0, 1, 2 as in Python ([-1] was refused:
-    'element range [-1:0] is outside', while an exposed output's [-1] was the last)."""
-    text = ARRAY.replace("  - split.y{i} -> g{i}.u", "  - src.y[{i-4}] -> g{i}.u")
+    """src.y[-3], [-2], [-1] written out are its elements 0, 1, 2 as in Python ([-1] was
+    refused: 'element range [-1:0] is outside', while an exposed output's [-1] was the
+    last)."""
+    text = ARRAY.replace("  - split.y{i} -> g{i}.u", "  - src.y[-3] -> g1.u\n"
+                         "  - src.y[-2] -> g2.u\n  - src.y[-1] -> g3.u")
     r = spidersim.loads(text).simulate(t_end=0.1, jit=False)
     assert list(r["out.y"][-1]) == [2.0, 6.0, 12.0]
+
+
+@pytest.mark.parametrize("place,inst,value", [("{i-2}", "g1", -1), ("{i-4}", "g1", -3),
+                                              ("{i - 3}", "g1", -2)])
+def test_a_computed_negative_index_is_refused(place, inst, value):
+    """An index that {i-N} makes negative is an off-by-one, not 'count from the end': it
+    silently read the last element (g1 of src.y[{i-2}] read src.y[-1] = 3)."""
+    text = ARRAY.replace("  - split.y{i} -> g{i}.u", f"  - src.y[{place}] -> g{{i}}.u")
+    with pytest.raises(SpidersimError) as exc:
+        spidersim.loads(text, file="arr.yaml")
+    assert exc.value.line == 8
+    assert (f"for instance {inst} (i = {int(inst[1:])}), {place} is {value}: an index "
+            f"computed from {{i}} may not be negative") in exc.value.message
+
+
+def test_a_computed_negative_index_in_a_range_is_refused():
+    text = ARRAY.replace("  - split.y{i} -> g{i}.u", "  - src.y[{i-2}:{i}] -> g{i}.u")
+    with pytest.raises(SpidersimError, match=r"instance g1 \(i = 1\), \{i-2\} is -1"):
+        spidersim.loads(text, file="arr.yaml")
 
 
 def test_port_pattern_is_not_read_as_an_array():

@@ -186,3 +186,61 @@ def test_simulation_and_log_sections():
     assert S._parse_log(data("blocks: {}\n"), "t.yaml") == "all"
     with pytest.raises(DiagramError, match="'all' or a list"):
         S._parse_log(data("blocks: {}\nlog: a.y\n"), "t.yaml")
+
+
+@pytest.mark.parametrize("text,char,code,pos", [
+    ("c.y[١] -> g.u", "١", "U+0661 ARABIC-INDIC DIGIT ONE", 5),
+    ("c.y[𝟏] -> g.u", "𝟏", "U+1D7CF MATHEMATICAL BOLD DIGIT ONE", 5),
+    ("c.y[١:] -> g.u", "١", "U+0661", 5),
+    ("c.y[:٢] -> g.u", "٢", "U+0662 ARABIC-INDIC DIGIT TWO", 6),
+    ("c.y[１] -> g.u", "１", "U+FF11 FULLWIDTH DIGIT ONE", 5),
+    ("c.y[{i+١}] -> g{i}.u", "١", "U+0661", 8),
+])
+def test_a_non_ascii_digit_is_no_index(text, char, code, pos):
+    """``\\d`` and ``int`` read other scripts' digits: ``c.y[𝟏]`` and ``c.y[١]`` were
+    element 1. Refused at the line, naming the character, its code point and position (a
+    ``{i+١}`` before the line is repeated over the array)."""
+    d = data(f"blocks: {{}}\nconnections:\n  - {text}\n")
+    with pytest.raises(WiringError) as ei:
+        S._parse_connections(d, {"g": range(1, 3)}, "t.yaml")
+    msg = str(ei.value)
+    assert ei.value.line == 3
+    assert (f"connection '{text}': non-ASCII character '{char}' ({code}" in msg and
+            f") at character {pos}: names and indices are ASCII" in msg)
+
+
+def test_a_non_ascii_digit_in_an_exposed_output_or_an_array_key():
+    """The same in a subsystem's exposed output, and in a block array's bounds
+    (``g[١..٣]`` made g1..g3)."""
+    with pytest.raises(WiringError, match="exposed output 'y' 'c.y\\[١\\]': non-ASCII "
+                                          "character '١' \\(U\\+0661"):
+        S._parse_exposed_ports(data("blocks: {}\noutputs:\n  y: c.y[١]\n"), "t.yaml")
+    with pytest.raises(DiagramError) as ei:
+        S._parse_blocks(data("blocks:\n  g[١..٣]: {type: Gain}\n"), "t.yaml")
+    assert ("block name 'g[١..٣]' is not an identifier (letters, digits, _; no dots): "
+            "non-ASCII character '١' (U+0661 ARABIC-INDIC DIGIT ONE) at character 3"
+            in str(ei.value)) and ei.value.line == 2
+
+
+@pytest.mark.parametrize("entry", ["i.y[-1]", "i.y[1]", "i.y[0:2]", "j3.motor.w [0]"])
+def test_a_log_entry_with_elements_is_refused_saying_so(entry):
+    """The log records whole signals; an element (any index, -1 too) was 'no signal
+    'i.y[-1]'; did you mean i.y?'. The message points to plots and metrics, which pick
+    elements; each entry at its own line."""
+    d = data(f"blocks: {{}}\nlog:\n  - i.y\n  - \"{entry}\"\n")
+    with pytest.raises(DiagramError) as ei:
+        S._parse_log(d, "t.yaml")
+    base = entry.partition("[")[0].strip()
+    assert ei.value.line == 4
+    assert (f"log: '{entry}' names elements: the log records whole signals ('{base}'); "
+            f"plots and metrics pick one element of it ('{base}[0]', '{base}[-1]' the "
+            f"last)") in str(ei.value)
+
+
+def test_log_entries_of_whole_signals_and_non_ascii_ones():
+    """Whole signals pass (an unknown one is the diagram's to name); a non-ASCII entry is
+    named by its character."""
+    assert S._parse_log(data("blocks: {}\nlog: [i.y, nothere.y, 5]\n"), "t.yaml") == [
+        "i.y", "nothere.y", 5]
+    with pytest.raises(DiagramError, match="log: 'i.y\\[١\\]': non-ASCII character '١'"):
+        S._parse_log(data("blocks: {}\nlog: ['i.y[١]']\n"), "t.yaml")

@@ -289,3 +289,51 @@ def test_negative_bounds_count_from_the_end_in_exposed_outputs(tmp_path, rng, pa
     (tmp_path / "parent.yaml").write_text(parent)
     r = spidersim.load(str(tmp_path / "parent.yaml")).simulate(jit=False)
     assert r["g.y"][-1] == pytest.approx(want)
+
+
+UNUSED = """\
+subsystems:
+  my: sub.yaml
+  spare: {spare}
+blocks:
+  c: {{type: Constant, value: 1}}
+  s: {{type: my}}
+connections:
+  - c.y -> s.u
+"""
+
+
+@pytest.mark.parametrize("spare,words", [
+    ("nothere.yaml", "subsystem file for type 'spare' not found: "),
+    ("/dev/zero", "subsystem file for type 'spare' is not a regular file (a character "
+                  "device): /dev/zero"),
+    (".", "subsystem file for type 'spare' is a folder, not a file"),
+])
+def test_an_unused_subsystem_entry_must_name_a_file(tmp_path, spare, words):
+    """A type no block uses was never opened: a missing file, a device or a folder
+    passed check with exit 0. Refused at the entry's line, saying no block uses it."""
+    err, msg = _error(tmp_path, SUB, UNUSED.format(spare=spare))
+    assert err.file.endswith("parent.yaml") and err.line == 3
+    assert words in msg and "(no block uses the type: fix the path or remove the entry)" in msg
+
+
+def test_an_unused_subsystem_file_must_parse(tmp_path):
+    """An unused entry's file with a syntax error is reported in that file, naming the
+    entry's line and that no block uses it."""
+    (tmp_path / "broken.yaml").write_text("blocks: [\n")
+    err, msg = _error(tmp_path, SUB, UNUSED.format(spare="broken.yaml"))
+    assert err.file.endswith("broken.yaml")
+    assert "YAML syntax error" in msg
+    assert "(subsystem type 'spare', parent.yaml:3, used by no block)" in msg
+
+
+def test_a_valid_unused_subsystem_entry_is_allowed(tmp_path):
+    """An unused entry naming a good file (here the used one again) is no error, and its
+    own subsystems are not opened."""
+    (tmp_path / "nested.yaml").write_text("subsystems:\n  x: nothere.yaml\nblocks:\n"
+                                          "  g: {type: Gain, k: 1}\n")
+    for spare in ("sub.yaml", "nested.yaml"):
+        (tmp_path / "sub.yaml").write_text(SUB)
+        (tmp_path / "parent.yaml").write_text(UNUSED.format(spare=spare))
+        d = spidersim.load(str(tmp_path / "parent.yaml"))
+        assert "s.g" in d.blocks
