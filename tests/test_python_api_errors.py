@@ -117,7 +117,9 @@ CASES = [
     ("r.plot([5])", lambda d, r, p: r.plot([5]), SignalError, ["plot", "'block.port'", "5"]),
     ("r.plot(5)", lambda d, r, p: r.plot(5), SignalError, ["plot: signals", "5 (int)"]),
     ("r.plot('x.y[1]')", lambda d, r, p: r.plot("x.y[1]"), SignalError,
-     ["'x.y[1]'", "index out of range", "1 value(s)"]),
+     ["'x.y[1]'", "index 1 out of range", "1 element(s)", "-1..-1 from the end"]),
+    ("r.plot('x.y[-2]')", lambda d, r, p: r.plot("x.y[-2]"), SignalError,
+     ["'x.y[-2]'", "index -2 out of range", "1 element(s)"]),
     ("r.plot(['nope'])", lambda d, r, p: r.plot(["nope.y"]), SignalError,
      ["no logged signal 'nope.y'"]),
     ("r.save(None)", lambda d, r, p: r.save(None), ResultError,
@@ -467,3 +469,14 @@ def test_a_run_after_compile_reports_that_compile():
     assert spent > 0
     assert d.simulate(jit=False, t_end=0.01).stats["compile_time"] == spent
     assert d.simulate(jit=False, t_end=0.01).stats["compile_time"] == 0.0
+
+
+def test_result_plot_counts_negative_indexes_from_the_end():
+    """``Result.plot("c.y[-1]")`` draws the last element, as a plot section, a metric and
+    a connection read it (it was refused as "index out of range")."""
+    pytest.importorskip("matplotlib")
+    r = spidersim.loads("blocks:\n  c: {type: Constant, value: [1, 2, 7]}\n"
+                        "simulation: {t_end: 0.1, method: LSODA}\n").simulate(jit=False)
+    fig = r.plot("c.y[-1]")
+    line = fig.axes[0].get_lines()[0]
+    assert set(line.get_ydata()) == {7.0}

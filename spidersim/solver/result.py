@@ -115,7 +115,7 @@ class Result:
         """The ``signals`` argument of :meth:`plot` as a list of logged names (``name`` or
         ``name[i]``): None is every logged signal (up to 8), a text one signal, else a
         non-empty list or tuple of texts; a :class:`SignalError` names what is wrong."""
-        from ..plots import split_signal
+        from ..plots import element_problem, split_signal
         if signals is None:
             return self.names[:8]
         if isinstance(signals, str):
@@ -129,9 +129,9 @@ class Result:
                                   f"{described(s_)}")
             name, idx = split_signal(s_)
             size = self[name].shape[1] if self[name].ndim > 1 else 1
-            if idx is not None and not 0 <= idx < size:
-                raise SignalError(f"plot: '{s_}': index out of range (the signal has "
-                                  f"{size} value(s))")
+            problem = element_problem(name, idx, size) if idx is not None else None
+            if problem:
+                raise SignalError(f"plot: '{s_}': {problem}")
         return list(signals)
 
     def to_dataframe(self):
