@@ -142,6 +142,23 @@ def _signal_ref(d, name):
     return path, port, s0, s1, s1 - s0, bl.ports[("out", port)].unit
 
 
+def _refs(d, inputs, outputs, open):
+    """``name -> _signal_ref`` of every input, output and opening; an AnalysisError when
+    two inputs (or two outputs, or two openings) share an element (``c.y`` and
+    ``c.y[2]``): the model had a column (row) more than it had names, and a perturbation
+    of the shared element was added twice."""
+    refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
+    for what, names in (("inputs", inputs), ("outputs", outputs), ("open", open)):
+        for k, a in enumerate(names):
+            for b in names[:k]:
+                (pa, qa, a0, a1), (pb, qb, b0, b1) = refs[a][:4], refs[b][:4]
+                if (pa, qa) == (pb, qb) and a0 < b1 and b0 < a1:
+                    raise AnalysisError(
+                        f"{what}: '{b}' and '{a}' share element(s) of one signal: give "
+                        f"each element once", file=d.file)
+    return refs
+
+
 def _alias_owner(d, name):
     """The subsystem instance whose exposed output ``name`` (or ``name[i]``) is (``p`` for
     ``p.y``), else None. An analysis point there is the output as the parent reads it: the
@@ -349,7 +366,7 @@ def check_continuous_path(d, inputs, outputs, open=()):
     ``open`` to ``outputs`` of diagram ``d`` (``check`` calls it for analysis entries);
     return the quantizers on the path (``(block path, {parameter: value})``)."""
     inputs, outputs, open = list(inputs), list(outputs), list(open or ())
-    refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
+    refs = _refs(d, inputs, outputs, open)
     blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
     path = _path_blocks(blocks, conns, points, refs, outputs)
     found = sampled_on_path(blocks, path)
@@ -383,7 +400,7 @@ class Linearizer:
     def __init__(self, d, inputs, outputs, open=(), jit=True, linear=True):
         self.d = d
         inputs, outputs, open = list(inputs), list(outputs), list(open or ())
-        refs = {n: _signal_ref(d, n) for n in inputs + outputs + open}
+        refs = _refs(d, inputs, outputs, open)
         blocks, conns, points = _with_analysis_points(d, inputs, open, refs)
         self.quantizers = []
         self.kinks = []      #: see :meth:`state_space`

@@ -788,3 +788,30 @@ def test_a_signal_named_twice_is_refused_as_such(kw):
     args.update(kw)
     with pytest.raises(AnalysisError, match="'(pos_ctrl|ref).y' is given twice"):
         d.linearize(**args)
+
+
+@pytest.mark.parametrize("inputs, outputs, open_, what", [
+    (["c.y", "c.y[2]"], ["g.y"], [], "inputs"),
+    (["c.y[-1]", "c.y[2]"], ["g.y"], [], "inputs"),
+    (["c.y"], ["g.y", "g.y[2]"], [], "outputs"),
+    (["c.y[0]"], ["g.y"], ["c.y", "c.y[1]"], "open"),
+])
+def test_inputs_sharing_an_element_are_refused(inputs, outputs, open_, what):
+    """Two inputs (outputs, openings) that share an element of one signal: the model had
+    one column (row) more than names (4 columns, 3 labels for ``c.y`` and ``c.y[2]``) and
+    the shared element's perturbation was added twice. Refused, naming both."""
+    d = spidersim.loads("blocks:\n  c: {type: Constant, value: [1, 2, 3]}\n"
+                        "  g: {type: Gain, k: 5}\nconnections: [c.y -> g.u]\n"
+                        "simulation: {t_end: 1}\n")
+    with pytest.raises(AnalysisError, match=rf"{what}: .* share element"):
+        d.linearize(inputs, outputs, open=open_)
+
+
+def test_disjoint_elements_of_one_signal_are_two_inputs():
+    """``c.y[0]`` and ``c.y[1:]``-like disjoint elements stay allowed: one column each."""
+    d = spidersim.loads("blocks:\n  c: {type: Constant, value: [1, 2, 3]}\n"
+                        "  g: {type: Gain, k: 5}\nconnections: [c.y -> g.u]\n"
+                        "simulation: {t_end: 1}\n")
+    sys = d.linearize(["c.y[0]", "c.y[2]"], ["g.y"])
+    assert sys.ninputs == 2 and len(sys.input_labels) == 2
+    np.testing.assert_allclose(sys.D, [[5, 0], [0, 0], [0, 5]], atol=1e-9)
