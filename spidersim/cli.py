@@ -660,6 +660,7 @@ def validate_run(d, t_end=None, method=None):
     _check_method(d, method)
     t_end = _check_t_end(d, t_end)
     _check_simulation_steps(d, t_end)
+    d.check_samples(t_end)
     raw = d.spec.data.get("plots") if hasattr(d.spec.data, "get") else None
     check_plot_specs(d.spec.plots, d.logged_sizes(), d.file,
                      lines=getattr(raw, "lines", None))

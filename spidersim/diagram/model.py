@@ -36,6 +36,11 @@ LOOP_TOL_FACTOR = 1e-3
 #: max_step when none is given: (t_end - t0) / AUTO_STEPS, as Simulink's "auto"
 AUTO_STEPS = 50
 
+#: the most sample instants one sampled block may take in a run (a 1 us sampler for 100 s):
+#: each is a time event of the integration, so 1e9 were about a day of computing with
+#: nothing saying so (a ``Ts: 1e-9`` typo for 1e-3)
+MAX_SAMPLES = 1e8
+
 DEFAULTS = {"t_end": 1.0, "method": "LSODA", "rtol": 1e-6, "atol": 1e-8, "max_step": None,
             "output_interval": None, "first_step": None}
 
@@ -689,6 +694,7 @@ class Diagram:
                                  jit, progress, should_stop)
         if cfg["max_step"] is None:
             cfg["max_step"] = cfg["t_end"] / AUTO_STEPS
+        self.check_samples(cfg["t_end"])
         self._ensure_compiled(jit, cfg["method"] in COMPILED and cfg["method"],
                               cfg["method"] in STIFF and jacobian != "fd")
         gen = self._param_gen
@@ -712,6 +718,22 @@ class Diagram:
             raise
         self._release(jit, system, modes0, sig0, gen)
         return result
+
+    def check_samples(self, t_end):
+        """Raise a :class:`DiagramError` at the block's line when a sampled block (its
+        ``sample_period`` parameter > 0) would take more than :data:`MAX_SAMPLES` samples
+        in a run of ``t_end`` seconds."""
+        for path, inst in self.flat.blocks.items():
+            name = inst.cls.sample_period
+            Ts = float(inst.params.get(name, 0.0)) if name else 0.0
+            if Ts > 0.0 and t_end / Ts > MAX_SAMPLES * (1.0 + 1e-9):
+                raise DiagramError(
+                    f"{inst.cls.type_name} samples every {name} = {Ts:g} "
+                    f"s: {t_end / Ts:.3g} samples in the run (t_end = {t_end:g} s), more "
+                    f"than the {MAX_SAMPLES:.0e} a run may take (each sample is a time "
+                    f"event of the integration: hours of computing); make {name} larger "
+                    f"or the run shorter", file=inst.file,
+                    line=inst.param_lines.get(name, inst.line), block=path)
 
     def _run_settings(self, given, jit, progress, should_stop):
         """The file's ``simulation`` settings with the arguments of :meth:`simulate` that

@@ -21,7 +21,8 @@ Contract:
    writes only numba's cache files of the entry (atomically: numba writes a temporary file
    and renames it), where this process would have written them.
 3. It is stopped (killed) when this process stops waiting for it because of an error or an
-   interrupt, and at this process's exit.
+   interrupt, at this process's exit, and (Linux) when this process dies without exiting
+   normally (``PR_SET_PDEATHSIG``).
 
 The argument types of the entry are those of any compiled system (:func:`loop_types`:
 arrays of fixed dtypes and dimensions, the system function's address an integer); a
@@ -86,18 +87,44 @@ def start(method):
     if _cores() < 2 or os.environ.get("SPIDERSIM_PARALLEL_COMPILE", "1") == "0":
         return None
     here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env = dict(os.environ)
-    env["PYTHONPATH"] = here + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH")
-                                else "")
     try:
         proc = subprocess.Popen([sys.executable, "-m", "spidersim.solver.loop_warm", method],
-                                cwd=here, env=env, stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                cwd=here, env=child_environment(here),
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, preexec_fn=_die_with_parent)
     except OSError:
         return None
     proc.stop_at_exit = functools.partial(_stop, proc)
     atexit.register(proc.stop_at_exit)
     return proc
+
+
+def child_environment(here):
+    """This process's environment for the second process, which runs in ``here`` (the
+    folder holding spidersim): ``here`` first on ``PYTHONPATH``, and the paths that name
+    folders relative to this process's working folder (``NUMBA_CACHE_DIR``,
+    ``SPIDERSIM_CACHE``, ``PYTHONPATH`` entries) made absolute, so that it imports the same
+    spidersim and writes numba's files where this process reads them (a relative
+    ``NUMBA_CACHE_DIR`` put them beside the package and this process compiled again)."""
+    env = dict(os.environ)
+    for key in ("NUMBA_CACHE_DIR", "SPIDERSIM_CACHE"):
+        if env.get(key):
+            env[key] = os.path.abspath(env[key])
+    path = [os.path.abspath(p) for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+    env["PYTHONPATH"] = os.pathsep.join([here] + path)
+    return env
+
+
+def _die_with_parent():
+    """In the second process before it starts (Linux): a SIGKILL when this process dies
+    (``prctl(PR_SET_PDEATHSIG)``), also when it is killed without running ``atexit``
+    (SIGTERM, SIGKILL): it was left compiling for half a minute on its own."""
+    try:
+        import ctypes
+        import signal
+        ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))   # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):       # pragma: no cover - not Linux
+        pass
 
 
 def finish(proc, ok=True):

@@ -136,3 +136,50 @@ def test_the_opt_out_starts_no_second_process(monkeypatch):
     monkeypatch.setattr(loop_warm, "_cores", lambda: 2)
     monkeypatch.setenv("SPIDERSIM_PARALLEL_COMPILE", "0")
     assert loop_warm.start("DP54") is None
+
+
+def test_relative_cache_folders_are_made_absolute_for_the_second_process(monkeypatch,
+                                                                          tmp_path):
+    """The second process runs in spidersim's parent folder: a relative NUMBA_CACHE_DIR
+    put numba's files beside the package (and this process, not finding them, compiled
+    the entry again); relative PYTHONPATH entries pointed elsewhere."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", "nb")
+    monkeypatch.setenv("SPIDERSIM_CACHE", "sc")
+    monkeypatch.setenv("PYTHONPATH", "lib" + os.pathsep + "/abs")
+    env = loop_warm.child_environment("/here")
+    assert env["NUMBA_CACHE_DIR"] == str(tmp_path / "nb")
+    assert env["SPIDERSIM_CACHE"] == str(tmp_path / "sc")
+    assert env["PYTHONPATH"].split(os.pathsep) == ["/here", str(tmp_path / "lib"), "/abs"]
+
+
+_PARENT = r"""
+import subprocess, sys
+sys.path.insert(0, {root!r})
+from spidersim.solver.loop_warm import _die_with_parent
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
+                         preexec_fn=_die_with_parent)
+print(child.pid, flush=True)
+time_to_die = sys.stdin.readline()
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl is Linux's")
+def test_the_second_process_dies_with_a_killed_parent():
+    """A parent killed without running atexit (SIGKILL; SIGTERM's default) takes the
+    second process with it (it was left compiling for half a minute, reparented to
+    init)."""
+    parent = subprocess.Popen([sys.executable, "-c", _PARENT.format(root=ROOT)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    pid = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait()
+    for _ in range(100):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, 9)
+        pytest.fail("the child outlived its killed parent")
