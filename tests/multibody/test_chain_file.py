@@ -96,8 +96,13 @@ def test_missing_file_and_the_diagram_error_through_the_arm_block(tmp_path):
     import spidersim
     bad = _write(tmp_path, "links:\n  - {d: 0, a: 0, alpha: 0, mass: 1, com: [0, 0], "
                            "inertia: [1, 1, 1]}\n")
+    huge = str(tmp_path / "huge.yaml")
+    with open(huge, "w") as fh:
+        fh.write(LINK1.replace("com: [0, 0, 0.15]", "com: [1e160, 0, 0]").join(["links:\n",
+                                                                               "\n"]))
     for model, words in ((str(tmp_path / "none.yaml"), ["not found"]),
-                         (bad, ["links[0].com", "3 numbers"])):
+                         (bad, ["links[0].com", "3 numbers"]),
+                         (huge, [f"{huge}:2: links[0].com: 1e+160 m is beyond the bound"])):
         text = ("blocks:\n  tau: {type: Constant, value: [0]}\n"
                 f"  arm: {{type: Arm, model: '{model}', q0: [0]}}\n"
                 "connections: [tau.y -> arm.tau]\n")
