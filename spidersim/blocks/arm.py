@@ -191,11 +191,9 @@ def _payload_start(p):
 
 
 def _unit_quat(Q):
-    Q = np.asarray(Q, float)
-    s = np.linalg.norm(Q)
-    if not s > 1e-12:
-        raise ValueError(f"payload_quat0: a unit quaternion [w, x, y, z] is needed, got {list(Q)}")
-    return Q / s
+    """``payload_quat0`` normalised (any non-zero finite [w, x, y, z]: 1e-300 and 1e300
+    components too, see :func:`unit_vector`)."""
+    return unit_vector(Q, "payload_quat0 (a quaternion [w, x, y, z], normalised)")
 
 
 class Arm(Block):

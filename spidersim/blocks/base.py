@@ -1025,12 +1025,21 @@ def _describe_event(n, e):
 
 def unit_vector(v, what):
     """``v / |v|`` for a direction parameter; ValueError (a parameter error of the block)
-    for the zero vector."""
+    for the zero vector or a non-finite component (the values printed as plain numbers).
+
+    A vector whose squares would under- or overflow (``[0, 0, 1e-300]`` had the norm 0,
+    ``[1e300, 1e300, 0, 0]`` infinity) is first divided by its largest ``|component|``;
+    others are divided by their norm directly (usual directions unchanged to the bit).
+    """
     v = np.asarray(v, dtype=float)
-    norm = float(np.linalg.norm(v))
-    if norm == 0.0:
+    big = float(np.max(np.abs(v), initial=0.0))
+    if not np.isfinite(big):
+        raise ValueError(f"{what} must be finite, got {[float(x) for x in v.ravel()]}")
+    if big == 0.0:
         raise ValueError(f"{what} must not be the zero vector")
-    return v / norm
+    if not 1e-150 < big < 1e150:
+        v = v / big
+    return v / float(np.linalg.norm(v))
 
 
 def lookup(type_name, file=None, line=None, extra=()):

@@ -182,11 +182,19 @@ class StateSpace(Block):
         elif D.shape != (C.shape[0], B.shape[1]):
             raise ValueError(f"D must have shape {(C.shape[0], B.shape[1])}, got {D.shape}")
         if len(params["x0"]) not in (1, n):
-            raise ValueError(f"x0 must have 1 or {n} elements, got {len(params['x0'])}")
+            raise ValueError(_x0_count_message(n, len(params["x0"])))
 
     derivative = staticmethod(_ss_derivative)
     output = staticmethod(_ss_output)
     partials = staticmethod(_ss_partials)
+
+
+def _x0_count_message(n, got):
+    """Why ``got`` start values do not fit ``n`` states (A is ``n x n``)."""
+    if n == 1:
+        return f"x0 must have 1 element (A is 1 x 1: one state), got {got}"
+    return (f"x0 must have 1 element (the same for every state) or {n} (one per state: A is "
+            f"{n} x {n}), got {got}")
 
 
 def check_matrix_size(rows, cols, what, instead):

@@ -62,27 +62,44 @@ def _gauss_reference(seed, k):
 
 
 def _quantize(theta, bits):
+    """``theta`` on the grid ``q = 2 pi / 2^bits``: ``q round(theta / q)`` (half counts
+    up); ``theta`` itself for ``bits = 0``.
+
+    The count stays a float (:func:`numpy.floor`): under numba ``math.floor`` returns an
+    int64, which wrapped to -2^63 once ``|theta| / q > 2^63`` (1e8 rad at 40 bits read
+    -5.3e7 rad). From 2^52 counts on, ``theta / q`` is a whole number and ``theta``'s own
+    spacing is about ``q``: ``theta`` is returned (its grid value to round-off; ``theta / q``
+    overflowed to infinity for ``|theta| > 1.7e311 q``).
+    """
     if bits <= 0:
         return theta
     q = 2.0 * math.pi / 2.0 ** bits
-    return q * math.floor(theta / q + 0.5)
+    x = theta / q
+    if not abs(x) < 4503599627370496.0:        # 2^52 counts, infinite or NaN
+        return theta
+    return q * np.floor(x + 0.5)
 
 
 def _quantize_speed(w, bits, w_max):
     """The converter's velocity word: a ``bits``-bit two's-complement count of
     ``lsb = w_max / 2^(bits - 1)`` (full scale ``+-w_max``), rounded to the nearest count
     and saturated at ``-2^(bits-1)`` and ``2^(bits-1) - 1`` counts; ``w`` itself for
-    ``bits = 0``."""
+    ``bits = 0``.
+
+    The count is a float (no int64 to wrap: ``w / lsb`` beyond 2^63, e.g. ``w_max =
+    1e-300``, read as the negative full scale) and is formed as ``w / w_max 2^(bits-1)``,
+    the same number as ``w / lsb`` in the normal range, with no ``lsb`` that underflows to
+    0 for a subnormal ``w_max``.
+    """
     if bits <= 0:
         return w
     half = 2.0 ** (bits - 1)
-    lsb = w_max / half
-    n = math.floor(w / lsb + 0.5)
+    n = np.floor(w / w_max * half + 0.5)
     if n > half - 1.0:
         n = half - 1.0
     elif n < -half:
         n = -half
-    return lsb * n
+    return w_max * (n / half)
 
 
 def _jit(fn):
@@ -262,6 +279,14 @@ class RDC(Block):
     states = {"theta_r": State("rad", initial="theta0", doc="tracked angle"),
               "w_r": State("rad/s", initial="w0", doc="loop integrator: the speed")}
     quantizer = {"bits": 0, "w_bits": 0}    # linearized as theta_d = theta_r, w_d = w_r
+
+    @classmethod
+    def check(cls, params):
+        if params["w_bits"] == 1:
+            raise ValueError(f"w_bits = 1 is a sign bit only: the word's counts are -1 and 0, "
+                             f"so w_d reads 0 for every speed >= -w_max/2 and -w_max "
+                             f"({-params['w_max']:g} rad/s) below; use 0 (w_d = w_r) or at "
+                             f"least 2 bits")
 
     @staticmethod
     def output(t, theta_r, w_r, bits, w_bits, w_max, theta_d, w_d):

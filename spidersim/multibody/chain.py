@@ -27,6 +27,11 @@ SPIDER = os.path.join(DATA, "spider_arm.yaml")
 
 #: most links a data file may describe
 MAX_LINKS = 64
+#: largest |length| (d, a, com components) [m], mass [kg] and inertia entry [kg m^2] of a
+#: data file: with these the mass matrix of 64 links stays below 1e25, far from overflow
+#: (com 1e160 m or mass 1e300 kg overflowed it, refused as "singular ... eigenvalue nan")
+MAX_LENGTH, MAX_MASS = 1e6, 1e6
+MAX_INERTIA = MAX_MASS * MAX_LENGTH ** 2
 LINK_KEYS = ("d", "a", "alpha", "mass", "com", "inertia")
 FILE_KEYS = ("name", "gravity", "links")
 
@@ -54,6 +59,16 @@ def _vector3(v, what, file, line):
         raise DiagramError(f"{what}: expected 3 numbers [x, y, z], got {found(v)}", file=file,
                            line=line)
     return [_num(x, what, file, line) for x in v]
+
+
+def _bounded(x, limit, unit, what, file, line):
+    """``x`` (a number or an array) with every ``|value| <= limit``, else a DiagramError
+    naming the largest value, the bound and the unit the file is read in."""
+    big = float(np.max(np.abs(x)))
+    if big > limit:
+        raise DiagramError(f"{what}: {big:g} {unit} is beyond the bound of {limit:g} {unit} "
+                           f"(an arm data file is in m, kg and kg m^2)", file=file, line=line)
+    return x
 
 
 def _inertia(v, what, file, line):
@@ -98,12 +113,33 @@ def _link(k, L, path, list_line=None):
         if key not in L:
             raise DiagramError(f"links[{k}] lacks '{key}'", file=path, line=line)
     dh = [_num(L[key], f"links[{k}].{key}", path, line) for key in ("d", "a", "alpha")]
+    for key, x in zip(("d", "a"), dh):
+        _bounded(x, MAX_LENGTH, "m", f"links[{k}].{key}", path, line)
     m = _num(L["mass"], f"links[{k}].mass", path, line)
     if m < 0.0:
         raise DiagramError(f"links[{k}].mass: expected a mass >= 0 kg, got {m}", file=path,
                            line=line)
+    _bounded(m, MAX_MASS, "kg", f"links[{k}].mass", path, line)
     c = _vector3(L["com"], f"links[{k}].com", path, line)
-    return dh, m, c, _inertia(L["inertia"], f"links[{k}].inertia", path, line)
+    _bounded(c, MAX_LENGTH, "m", f"links[{k}].com", path, line)
+    I = _inertia(L["inertia"], f"links[{k}].inertia", path, line)
+    return dh, m, c, _bounded(I, MAX_INERTIA, "kg m^2", f"links[{k}].inertia", path, line)
+
+
+def _sizes(dh, masses, coms, inertias):
+    """The largest length, mass and inertia of a chain's links, each named by its key:
+    ``links[1].com 1e+160 m, links[0].mass 1 kg, links[0].inertia 0.1 kg m^2``."""
+    kinds = (("m", [(f"links[{i}].{key}", dh[i][j]) for i in range(len(dh))
+                    for j, key in ((0, "d"), (1, "a"))]
+              + [(f"links[{i}].com", c) for i, c in enumerate(coms)]),
+             ("kg", [(f"links[{i}].mass", m) for i, m in enumerate(masses)]),
+             ("kg m^2", [(f"links[{i}].inertia", I) for i, I in enumerate(inertias)]))
+    out = []
+    for unit, entries in kinds:
+        key, big = max(((k, float(np.max(np.abs(np.asarray(v, dtype=float)))))
+                        for k, v in entries), key=lambda e: e[1])
+        out.append(f"{key} {big:g} {unit}")
+    return ", ".join(out)
 
 
 def dh_transform(q, d, a, alpha):
@@ -134,6 +170,7 @@ class Chain:
             P[i, 4:7] = R.T @ (np.asarray(coms_base[i], dtype=float) - o)
             P[i, 7:16] = (R.T @ I_b @ R).ravel()
         self.P = P
+        self._given = (dh, masses, coms_base, inertias_base)     # for error messages
         self._ws = np.zeros(K.WS_PER_LINK * (n + 1))
         self._M = np.zeros((n, n))
         self._tmp = np.zeros(6 * n)
@@ -186,10 +223,15 @@ class Chain:
         return chain
 
     def _check_inertia(self, path):
-        """The mass matrix at q = 0 must be positive definite: every joint moves some
-        inertia (a chain whose last links are massless points is refused here, not by a
-        NaN in the middle of a run)."""
+        """The mass matrix at q = 0 must be finite (no overflow: a chain built in Python has
+        no bounds on its values, see :data:`MAX_LENGTH`) and positive definite: every joint
+        moves some inertia (a chain whose last links are massless points is refused here,
+        not by a NaN in the middle of a run)."""
         M = self.mass_matrix(np.zeros(self.n))
+        if not np.all(np.isfinite(M)):
+            raise DiagramError(f"the chain's joint-space mass matrix at q = 0 is not finite "
+                               f"(it overflowed): a mass, length or inertia is too large; the "
+                               f"largest are {_sizes(*self._given)}", file=path)
         smallest = np.linalg.eigvalsh(0.5 * (M + M.T)).min()
         if not smallest > 1e-12 * max(np.abs(M).max(), 1e-300):
             raise DiagramError(f"the chain's joint-space mass matrix is singular at q = 0 "

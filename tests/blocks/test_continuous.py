@@ -187,6 +187,22 @@ def test_state_space_rejects_inconsistent_shapes(field, value, match):
                         f"  c: {{type: Constant}}\nconnections:\n  - c.y -> ss.u\n")
 
 
+@pytest.mark.parametrize("A, x0, words", [
+    ([[-1.0]], [1, 2, 3], "x0 must have 1 element (A is 1 x 1: one state), got 3"),
+    ([[0.0, 1.0], [-1.0, 0.0]], [1, 2, 3],
+     "x0 must have 1 element (the same for every state) or 2 (one per state: A is 2 x 2), "
+     "got 3"),
+])
+def test_state_space_x0_count_in_words(A, x0, words):
+    """One state: 'x0 must have 1 or 1 elements' (a hostile review, session 15) is said as
+    one element; more states name both choices."""
+    B, C = [[1.0]] * len(A), [[1.0] * len(A)]
+    with pytest.raises(ParameterError) as ei:
+        spidersim.loads(f"blocks:\n  ss: {{type: StateSpace, A: {A}, B: {B}, C: {C}, "
+                        f"x0: {x0}}}\n  c: {{type: Constant}}\nconnections:\n  - c.y -> ss.u\n")
+    assert words in str(ei.value) and "1 or 1" not in str(ei.value)
+
+
 @pytest.mark.parametrize("lower, upper", [(1.0, -1.0), (0.5, 0.5)])
 def test_limited_integrator_refuses_limits_out_of_order(lower, upper):
     """``lower`` must be below ``upper``; said so, not as an ``x0`` outside [1, -1]."""
