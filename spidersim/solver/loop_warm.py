@@ -91,7 +91,7 @@ def start(method):
         proc = subprocess.Popen([sys.executable, "-m", "spidersim.solver.loop_warm", method],
                                 cwd=here, env=child_environment(here),
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, preexec_fn=_die_with_parent)
+                                stderr=subprocess.DEVNULL, preexec_fn=_die_with_parent())
     except OSError:
         return None
     proc.stop_at_exit = functools.partial(_stop, proc)
@@ -116,15 +116,18 @@ def child_environment(here):
 
 
 def _die_with_parent():
-    """In the second process before it starts (Linux): a SIGKILL when this process dies
-    (``prctl(PR_SET_PDEATHSIG)``), also when it is killed without running ``atexit``
-    (SIGTERM, SIGKILL): it was left compiling for half a minute on its own."""
+    """The ``preexec_fn`` that makes the second process receive a SIGKILL when this process
+    dies (Linux ``prctl(PR_SET_PDEATHSIG)``), also when it is killed without running
+    ``atexit`` (SIGTERM, SIGKILL: it was left compiling for half a minute on its own);
+    None elsewhere. The C function is looked up here, in this process: between ``fork``
+    and ``exec`` the child only calls it (no import, as ``preexec_fn`` must be with other
+    threads running)."""
     try:
         import ctypes
         import signal
-        ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))   # 1: PR_SET_PDEATHSIG
+        return functools.partial(ctypes.CDLL(None).prctl, 1, int(signal.SIGKILL))
     except (OSError, AttributeError):       # pragma: no cover - not Linux
-        pass
+        return None
 
 
 def finish(proc, ok=True):

@@ -158,7 +158,7 @@ import subprocess, sys
 sys.path.insert(0, {root!r})
 from spidersim.solver.loop_warm import _die_with_parent
 child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
-                         preexec_fn=_die_with_parent)
+                         preexec_fn=_die_with_parent())
 print(child.pid, flush=True)
 time_to_die = sys.stdin.readline()
 """
