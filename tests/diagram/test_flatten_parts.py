@@ -3,6 +3,8 @@
 These run the parts alone on specs parsed from short texts: no compilation, no port graph.
 Whole diagrams with subsystems are covered by test_subsystem_errors.py and test_errors.py.
 """
+import math
+
 import pytest
 
 from spidersim.diagram import flatten as F
@@ -329,25 +331,63 @@ connections:
 """
 
 
-@pytest.mark.parametrize("k, words", [
-    ("1/t_cut", "'t_cut' is infinite in '1 / t_cut'"),    # was k = 0
-    ("min(2, t_cut)", "'t_cut' is infinite"),             # was k = 2
-    ("t_cut", "must be finite"),                          # the Gain's own check
-    ("1/1e400", "'1e309' is infinite"),
-])
-def test_an_infinite_diagram_parameter_feeds_only_parameters_that_may_be_infinite(k, words):
+@pytest.mark.parametrize("k, want", [("1/t_cut", 0.0),       # an infinite time: a zero rate
+                                     ("min(2, t_cut)", 2.0), ("max(-t_cut, -5)", -5.0)])
+def test_an_infinite_diagram_parameter_in_exact_arithmetic_is_kept(k, want):
     """``t_cut: inf`` passed on whole to ``Step.t_step`` (allowed: never) is kept, as in
-    joint_torque.yaml; arithmetic on it, or passing it to a Gain's ``k``, is refused at
-    the block's line."""
-    flat = F.flatten(parse_text(INF_PARAM.replace("K}", "2}"), "d.yaml"))
+    joint_torque.yaml; arithmetic with an exact result uses it (``1/t_cut`` is 0, also
+    when ``--set`` makes it infinite)."""
+    flat = F.flatten(parse_text(INF_PARAM.replace("K}", f"'{k}'}}"), "d.yaml"))
     assert flat.blocks["cut"].params["t_step"] == float("inf")
+    assert flat.blocks["g"].params["k"][0] == want
+    flat = F.flatten(parse_text(INF_PARAM.replace("K}", f"'{k}'}}").replace("t_cut: inf",
+                                                                             "t_cut: 5"),
+                                "d.yaml"), {"t_cut": float("inf")})
+    assert flat.blocks["g"].params["k"][0] == want
+
+
+@pytest.mark.parametrize("k, words", [
+    ("t_cut", "must be finite"),                          # the Gain's own check
+    ("2*t_cut", "must be finite"),
+    ("t_cut - t_cut", "'t_cut - t_cut' gives NaN"),
+    ("0*t_cut", "'0 * t_cut' gives NaN"),
+    ("1e200*1e200", "gives an infinite value from finite numbers"),
+    ("1/1e400", "beyond the float range"),
+])
+def test_an_infinite_or_undefined_value_is_refused_at_the_block(k, words):
+    """An infinity reaching a parameter that must be finite, a NaN made from infinities, an
+    overflow or a literal beyond the float range: refused at the block's line."""
     with pytest.raises(ParameterError) as ei:
         F.flatten(parse_text(INF_PARAM.replace("K}", f"'{k}'}}"), "d.yaml"))
     assert "d.yaml:6" in str(ei.value) and words in str(ei.value)
-    with pytest.raises(ParameterError, match="'t_cut' is infinite"):
-        F.flatten(parse_text(INF_PARAM.replace("K}", "'1/t_cut'}").replace("t_cut: inf",
-                                                                            "t_cut: 5"),
-                             "d.yaml"), {"t_cut": float("inf")})
+
+
+LIMIT_PARAM = """\
+parameters:
+  lim: .inf
+  lo: -.inf
+  x: [1, .inf]
+blocks:
+  s: {type: Sine, amplitude: 2, f: 1}
+  sat: {type: Saturation, lower: LOWER, upper: UPPER}
+connections:
+  - s.y -> sat.u
+"""
+
+
+@pytest.mark.parametrize("lower, upper, want", [
+    ("-lim", "2*lim", (-math.inf, math.inf)),
+    ("'max(lo, -5)'", "'min(lim, 10)'", (-5.0, 10.0)),
+    ("-5", "'min(x)'", (-5.0, 1.0)),
+    ("lo - 1", "lim + 1", (-math.inf, math.inf)),
+])
+def test_infinite_limits_in_arithmetic_are_accepted(lower, upper, want):
+    """The regression review's cases (refused by the rule that no operator may take an
+    infinity): a Saturation's limits from infinite parameters with exact results."""
+    flat = F.flatten(parse_text(LIMIT_PARAM.replace("LOWER", lower).replace("UPPER", upper),
+                                "d.yaml"))
+    p = flat.blocks["sat"].params
+    assert (p["lower"], p["upper"]) == want
 
 
 def test_a_unit_conversion_that_overflows_is_refused():
