@@ -182,11 +182,13 @@ def _converted(x, ab, unit, file, line, what, block):
     """``a * x + b`` for ``ab = (a, b)`` (``x`` a number or a list given in ``unit``), as
     a list or a float. A finite value the conversion makes infinite (``1e308 km``) is a
     ParameterError: it was kept as inf, read as 'never' by ``Step.t_step``; an infinity
-    given with a unit stays one."""
+    given with a unit stays one, element by element (``[1e306, -.inf] km`` was kept whole as
+    ``[inf, -inf]``: the check looked at the list as a whole)."""
     a, b = ab
+    given = np.asarray(x, dtype=float)
     with np.errstate(all="ignore"):
-        out = np.asarray(x, dtype=float) * a + b
-    if np.isinf(out).any() and np.isfinite(x).all():
+        out = given * a + b
+    if (np.isinf(out) & np.isfinite(given)).any():
         raise ParameterError(f"{what}: {x!r} [{unit}] overflows to infinity when "
                              f"converted (beyond 1.8e308)", file=file, line=line, block=block)
     return out.tolist()
