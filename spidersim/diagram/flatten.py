@@ -776,8 +776,9 @@ def _check_no_shadowing(spec):
 def _check_unused_subsystems(spec):
     """Every subsystem type of ``spec`` that no block uses still names a readable diagram
     file: such an entry was never opened, so ``subsystems: {A: nothere.yaml, B: /dev/zero}``
-    passed ``check``. A missing, unreadable or malformed file is a DiagramError (at the
-    entry's line, or in that file with the entry named); the file's own subsystems are not
+    passed ``check``. A missing, unreadable or malformed file is a DiagramError at the
+    entry's line, or the file's own error (a DiagramError, a WiringError for a bad
+    connection) in that file with the entry named; the file's own subsystems are not
     opened (nothing instantiates it). A valid unused entry is allowed."""
     used = {b.type for b in spec.blocks.values()}
     for name, path in spec.subsystems.items():
@@ -791,7 +792,7 @@ def _check_unused_subsystems(spec):
                                file=spec.file, line=line)
         try:
             parse_file(path)
-        except DiagramError as exc:
+        except SpidersimError as exc:     # a DiagramError, a WiringError (c.y[1:2:3]), ...
             exc.message += (f" (subsystem type '{name}', {os.path.basename(spec.file)}:"
                             f"{line}, used by no block)")
             raise
