@@ -4,9 +4,11 @@ These run the parts alone on specs parsed from short texts: no compilation, no p
 Whole diagrams with subsystems are covered by test_subsystem_errors.py and test_errors.py.
 """
 import math
+import os
 
 import pytest
 
+import spidersim
 from spidersim.diagram import flatten as F
 from spidersim.diagram.spec import Address, parse_text
 from spidersim.diagram.sizes import range_bounds
@@ -388,6 +390,15 @@ def test_infinite_limits_in_arithmetic_are_accepted(lower, upper, want):
                                 "d.yaml"))
     p = flat.blocks["sat"].params
     assert (p["lower"], p["upper"]) == want
+
+
+def test_an_infinite_fault_time_is_the_no_fault_baseline():
+    """``check diagrams/impact_fault.yaml --set t_fault=inf`` (no fault) was refused at
+    ``detect: t_fault + t_detect``; the detection and the current cut are never too."""
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    m = spidersim.load(os.path.join(root, "diagrams", "impact_fault.yaml"),
+                       set={"t_fault": math.inf})
+    assert [m.flat.blocks[b].params["t_step"] for b in ("fault", "detect")] == [math.inf] * 2
 
 
 def test_a_unit_conversion_that_overflows_is_refused():
