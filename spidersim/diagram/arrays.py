@@ -14,7 +14,8 @@ each instance its own value, any other value is shared. A connection holding ``{
 
 An index worked out from ``{i-N}`` may not be negative (``c.y[{i-2}]`` for ``g[1..3]``
 is refused at ``g1``): a negative index written out (``c.y[-1]``) counts from the end, a
-computed one is an off-by-one that would read another element.
+computed one is an off-by-one that would read another element. A name worked out negative
+(``g{i-1}.y`` for ``g[0..2]`` gives ``g-1`` at ``g0``) is refused as naming nothing.
 
 Errors name the array entry and the instance (``block 'j[1..7]', instance j3``).
 """
@@ -99,7 +100,7 @@ def expand_connection(text, arrays, file, line):
         def sub(m, i=i):
             v = i + (int(m.group(2)) * (1 if m.group(1) == "+" else -1) if m.group(1) else 0)
             if v < 0:
-                raise _negative(text, m.group(0), f"{known[0]}{i}", i, v, file, line)
+                raise _negative(text, m, f"{known[0]}{i}", i, v, file, line)
             return str(v)
         out.append(_PLACE.sub(sub, text))
     if any("{" in o for o in out):
@@ -108,14 +109,26 @@ def expand_connection(text, arrays, file, line):
     return out
 
 
-def _negative(text, place, inst, i, v, file, line):
-    """The error for ``place`` (``{i-2}``) of connection ``text`` working out to the
-    negative number ``v`` for instance ``inst`` (index ``i``).
+def _negative(text, m, inst, i, v, file, line):
+    """The error for the place ``m`` (a match of ``{i-2}``) of connection ``text`` working
+    out to the negative number ``v`` for instance ``inst`` (index ``i``).
 
-    A written ``[-1]`` counts from the end, as in Python; a computed one is an off-by-one
-    (``{i-1}`` of an array starting at 0), which would silently read the last element.
+    Inside brackets it is an index: a written ``[-1]`` counts from the end, as in Python; a
+    computed one is an off-by-one (``{i-1}`` of an array starting at 0), which would
+    silently read the last element. Elsewhere it is part of a name (``g{i-1}.y`` of
+    ``g[0..2]`` gives ``g-1`` for ``g0``), which names nothing.
     """
-    return DiagramError(f"connection '{text}': for instance {inst} (i = {i}), {place} is {v}: "
-                        f"an index computed from {{i}} may not be negative (it would count "
-                        f"from the end, reading another element); start the array higher "
-                        f"or change the offset", file=file, line=line)
+    place = m.group(0)
+    before = text[:m.start()]
+    where = f"connection '{text}': for instance {inst} (i = {i})"
+    if before.count("[") > before.count("]"):
+        return DiagramError(f"{where}, {place} is {v}: an index computed from {{i}} may not "
+                            f"be negative (it would count from the end, reading another "
+                            f"element); start the array higher or change the offset",
+                            file=file, line=line)
+    stem = re.search(r"[A-Za-z0-9_]*$", before).group()
+    kind = "port" if before[:len(before) - len(stem)].endswith(".") else "block"
+    return DiagramError(f"{where}, the {kind} name {stem}{place} gives {stem}{v}, which "
+                        f"names no {kind}: the pattern runs over every instance of the "
+                        f"array; write the connections it cannot make one by one (a chain's "
+                        f"first link)", file=file, line=line)

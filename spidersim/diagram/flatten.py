@@ -182,11 +182,13 @@ def _converted(x, ab, unit, file, line, what, block):
     """``a * x + b`` for ``ab = (a, b)`` (``x`` a number or a list given in ``unit``), as
     a list or a float. A finite value the conversion makes infinite (``1e308 km``) is a
     ParameterError: it was kept as inf, read as 'never' by ``Step.t_step``; an infinity
-    given with a unit stays one."""
+    given with a unit stays one, element by element (``[1e306, -.inf] km`` was kept whole as
+    ``[inf, -inf]``: the check looked at the list as a whole)."""
     a, b = ab
+    given = np.asarray(x, dtype=float)
     with np.errstate(all="ignore"):
-        out = np.asarray(x, dtype=float) * a + b
-    if np.isinf(out).any() and np.isfinite(x).all():
+        out = given * a + b
+    if (np.isinf(out) & np.isfinite(given)).any():
         raise ParameterError(f"{what}: {x!r} [{unit}] overflows to infinity when "
                              f"converted (beyond 1.8e308)", file=file, line=line, block=block)
     return out.tolist()
@@ -774,8 +776,9 @@ def _check_no_shadowing(spec):
 def _check_unused_subsystems(spec):
     """Every subsystem type of ``spec`` that no block uses still names a readable diagram
     file: such an entry was never opened, so ``subsystems: {A: nothere.yaml, B: /dev/zero}``
-    passed ``check``. A missing, unreadable or malformed file is a DiagramError (at the
-    entry's line, or in that file with the entry named); the file's own subsystems are not
+    passed ``check``. A missing, unreadable or malformed file is a DiagramError at the
+    entry's line, or the file's own error (a DiagramError, a WiringError for a bad
+    connection) in that file with the entry named; the file's own subsystems are not
     opened (nothing instantiates it). A valid unused entry is allowed."""
     used = {b.type for b in spec.blocks.values()}
     for name, path in spec.subsystems.items():
@@ -789,7 +792,7 @@ def _check_unused_subsystems(spec):
                                file=spec.file, line=line)
         try:
             parse_file(path)
-        except DiagramError as exc:
+        except SpidersimError as exc:     # a DiagramError, a WiringError (c.y[1:2:3]), ...
             exc.message += (f" (subsystem type '{name}', {os.path.basename(spec.file)}:"
                             f"{line}, used by no block)")
             raise

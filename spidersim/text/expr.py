@@ -9,13 +9,15 @@ never complex (refused at the operation that made it), a boolean is neither a nu
 an index, and a list is rectangular.
 
 Non-finite numbers: NaN is refused wherever it appears (a name, an argument, a result:
-``min(2, nan)`` would silently be 2). An infinity (``inf``, ``1e400``, a parameter set to
-``.inf``) may only be passed on whole: as a name, the constant, with a sign (``-inf``), as a
-list element or picked by an index; an operator or a function refuses an infinite operand
-(``1/inf`` would silently be 0, ``min(2, inf)`` 2) and an infinite result of finite operands
-(an overflow, ``1e200*1e200``, or ``[1]/[0]``). An infinity passed on whole then meets the
-parameter check of the block it reaches, which refuses it unless the parameter may be
-infinite (a limit, ``Step.t_step``).
+``min(2, nan)`` would silently be 2; ``inf - inf``, ``0*inf``, ``inf/inf`` give one). An
+infinity (``inf``, a parameter set to ``.inf``) takes part in arithmetic where IEEE gives
+an exact result: ``2*inf`` and ``inf + 1`` are inf, ``min(inf, 10)`` is 10,
+``max(-inf, -5)`` -5, ``1/inf`` 0 (an infinite time constant is a zero rate). An infinite
+result of finite operands is refused (an overflow, ``1e200*1e200``, ``exp(1000)``, or
+``[1]/[0]``), element by element for lists, and so is a number literal beyond the float
+range (``1e400``: write ``inf``). An infinite value then meets the parameter check of the
+block it reaches, which refuses it unless the parameter may be infinite (a limit,
+``Step.t_step``).
 
 Lists: arithmetic is element by element, a number with a list applies to every element,
 and two lists must have the same shape (``[1, 2] + [3]`` is refused, not broadcast);
@@ -96,7 +98,7 @@ def evaluate(text: str, names: dict):
                         f"levels (a sum or product of n terms is n levels deep): "
                         f"'{_short(text)}'")
     try:
-        with np.errstate(all="ignore"):     # inf/nan results are refused by _finite_result
+        with np.errstate(all="ignore"):     # overflows: _finite_result; NaN: _eval
             value = _eval(tree.body, names, text)
     except ExprError:
         raise
@@ -154,9 +156,14 @@ def _constant(node, names, text):
     ``None`` are refused."""
     if isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
         try:
-            return float(node.value)
+            value = float(node.value)
         except OverflowError:
-            raise ExprError(f"number too large in '{text}'") from None
+            value = math.inf
+        if math.isinf(value):
+            raise ExprError(f"a number beyond the float range (1.8e308) in '{_short(text)}': "
+                            f"it would be read as infinity; write inf if an infinity is "
+                            f"meant")
+        return value
     raise ExprError(f"only numbers are allowed in '{text}', got {node.value!r}")
 
 
@@ -197,21 +204,20 @@ def _operand(v, text):
 def _binop(node, names, text):
     """``a op b`` for ``+ - * / // % **``; with a list on either side, element-wise and a
     list again: a number with a list applies to every element, two lists must have the same
-    shape (:func:`_same_shape`). An infinite operand or result is refused
-    (:func:`_finite_operands`, :func:`_finite_result`)."""
+    shape (:func:`_same_shape`). An infinite result of finite operands is refused
+    (:func:`_finite_result`)."""
     op = _BINOPS.get(type(node.op))
     if op is None:
         raise _not_allowed(node, text)
     a = _int_as_float(_operand(_eval(node.left, names, text), text))
     b = _int_as_float(_operand(_eval(node.right, names, text), text))
-    _finite_operands(node, [(node.left, a), (node.right, b)], text)
     if isinstance(a, list) or isinstance(b, list):
         a, b = np.asarray(a, float), np.asarray(b, float)
         _same_shape(node, a.shape if a.ndim else None, b.shape if b.ndim else None, text)
         value = op(a, b).tolist()
     else:
         value = op(a, b)
-    return _finite_result(node, value, text)
+    return _finite_result(node, [a, b], value, text)
 
 
 def _shape_text(shape):
@@ -259,29 +265,29 @@ def _nonfinite_array(v):
     return "inf" if np.isinf(arr).any() else None
 
 
-def _finite_operands(node, operands, text):
-    """An operator or a function (``node``) takes finite numbers only: an infinite operand
-    (``(operand node, value)`` pairs) would be hidden by the result (``1/inf`` is 0,
-    ``min(2, inf)`` 2, ``atan(inf)`` pi/2). An ExprError names the operand."""
-    for sub, v in operands:
-        if _nonfinite(v) == "inf":
-            whole = ast.unparse(node)
-            where = (f"'{_short(whole)}'" if whole.replace(" ", "") == text.replace(" ", "")
-                     else f"'{_short(whole)}' ('{_short(text)}')")
-            raise ExprError(
-                f"'{_short(ast.unparse(sub))}' is infinite in {where}: an infinity is "
-                f"passed on only whole (t_step: t_cut, upper: -lim) to a parameter that may "
-                f"be infinite; an operator or function would hide it (1/inf is 0, "
-                f"min(2, inf) is 2)")
-
-
-def _finite_result(node, value, text):
-    """``value``, unless the operation ``node`` made it infinite from finite operands (an
-    overflow, ``1e200*1e200``, or a list divided by zero): an ExprError."""
-    if _nonfinite(value) == "inf":
-        raise ExprError(f"'{_short(ast.unparse(node))}' gives an infinite value (an overflow "
-                        f"beyond 1.8e308 or a division by zero) in '{_short(text)}'")
+def _finite_result(node, operands, value, text):
+    """``value``, unless the operation ``node`` made it infinite from finite ``operands``
+    (an overflow, ``1e200*1e200``, or a list divided by zero): an ExprError. An infinite
+    result of an infinite operand is exact and kept (``2*inf``, ``-inf + 1``)."""
+    if _nonfinite(value) == "inf" and _overflowed(operands, value):
+        raise ExprError(f"'{_short(ast.unparse(node))}' gives an infinite value from finite "
+                        f"numbers (an overflow beyond 1.8e308 or a division by zero) in "
+                        f"'{_short(text)}'")
     return value
+
+
+def _overflowed(operands, value):
+    """Whether an infinite element of ``value`` comes from finite ``operands`` only: a
+    number from no infinite operand at all, a list's element from finite elements at its
+    place (a number operand applies to every element). An element-wise ``min``/``max``
+    or a binary operator gives a list of the operands' shape."""
+    if not isinstance(value, list):
+        return all(_nonfinite(v) != "inf" for v in operands)
+    out = np.asarray(value, dtype=float)
+    made = np.isinf(out)
+    for v in operands:
+        made &= np.isfinite(np.broadcast_to(np.asarray(v, dtype=float), out.shape))
+    return bool(made.any())
 
 
 def _unaryop(node, names, text):
@@ -321,8 +327,8 @@ def _subscript(node, names, text):
 
 def _call(node, names, text):
     """``f(a, ...)`` for ``f`` in :data:`FUNCTIONS` (positional arguments only); ``min`` and
-    ``max`` are :func:`_extreme`. An infinite argument (but to ``len``) or result is
-    refused."""
+    ``max`` are :func:`_extreme`. An infinite result of finite arguments is refused
+    (:func:`_finite_result`)."""
     if not isinstance(node.func, ast.Name) or node.keywords:
         raise _not_allowed(node, text)
     name = node.func.id
@@ -333,10 +339,9 @@ def _call(node, names, text):
     if name == "len":
         return len(*args)
     args = [_operand(a, text) for a in args]
-    _finite_operands(node, list(zip(node.args, args)), text)
     if name in ("min", "max"):
-        return _finite_result(node, _extreme(name, args), text)
-    return _finite_result(node, FUNCTIONS[name](*args), text)
+        return _finite_result(node, args, _extreme(name, args), text)
+    return _finite_result(node, args, FUNCTIONS[name](*args), text)
 
 
 def _extreme(name, args):

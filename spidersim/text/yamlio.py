@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import math
 import os
 import re
 import stat
@@ -159,7 +160,8 @@ def number_problem(text: str, tag: str | None = None):
     """Why the plain (unquoted) YAML scalar ``text`` is refused, or None.
 
     Refused: the YAML 1.1 number forms a reader does not expect (``010``: octal 8,
-    ``1:30``: base 60, 90), integers too long to convert, and a date that is none
+    ``1:30``: base 60, 90), integers too long to convert, a float beyond the float range
+    (``1.0e+400``, read as infinity; ``.inf`` is the spelling of one) and a date that is none
     (``2020-13-01``, which PyYAML fails on with a bare ValueError). The rule of diagram
     files, and of values on the command line (``--set``, ``--vary``).
 
@@ -172,26 +174,51 @@ def number_problem(text: str, tag: str | None = None):
     if tag is None:
         tag = _Loader.resolve(_Loader, yaml.ScalarNode, text, (True, False))
     if tag == _TIMESTAMP_TAG:
-        try:
-            yaml.constructor.SafeConstructor().construct_yaml_timestamp(
-                yaml.ScalarNode(tag, text))
-        except ValueError as exc:
-            return (f"'{text}' is written as a YAML date but is none ({exc}): quote it if "
-                    f"it is a text")
-        return None
+        return _date_problem(text)
     if tag not in (_INT_TAG, _FLOAT_TAG):
         return None
     if ":" in text:
         return (f"'{text}' is a base-60 number in YAML 1.1 (1:30 means 90): write the "
                 f"number, or quote it if it is a text")
-    if tag == _INT_TAG and _LEADING_ZERO.match(text):
+    if tag == _INT_TAG:
+        return _integer_problem(text)
+    if _overflows(text):
+        return (f"the number '{text}' is beyond the float range (1.8e308) and would be read "
+                f"as infinity: write .inf if an infinity is meant")
+    return None
+
+
+def _integer_problem(text):
+    """Why the YAML integer ``text`` is refused (a leading zero, too many digits), or
+    None."""
+    if _LEADING_ZERO.match(text):
         return (f"'{text}' has a leading zero, which YAML 1.1 reads as an octal number "
                 f"('010' is 8): write it without the zero")
     digits = len(text.replace("_", ""))
-    if tag == _INT_TAG and digits > MAX_INT_DIGITS:
+    if digits > MAX_INT_DIGITS:
         return (f"an integer of {digits} characters: no value of a diagram needs more than "
                 f"{MAX_INT_DIGITS}")
     return None
+
+
+def _date_problem(text):
+    """Why ``text``, resolved as a YAML date, is refused (``2020-13-01`` is none), or
+    None."""
+    try:
+        yaml.constructor.SafeConstructor().construct_yaml_timestamp(
+            yaml.ScalarNode(_TIMESTAMP_TAG, text))
+    except ValueError as exc:
+        return (f"'{text}' is written as a YAML date but is none ({exc}): quote it if it is "
+                f"a text")
+    return None
+
+
+def _overflows(text):
+    """Whether the YAML float ``text`` is a finite number too large for a float
+    (``1.0e+400``); ``.inf`` is the explicit spelling of infinity and stays (``.nan`` is
+    refused where it is used)."""
+    body = text.replace("_", "").lstrip("+-").lower()
+    return body not in (".inf", ".nan") and math.isinf(float(body))
 
 
 def command_line_value(text: str, what: str):

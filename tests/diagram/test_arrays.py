@@ -84,6 +84,22 @@ def test_a_computed_negative_index_in_a_range_is_refused():
         spidersim.loads(text, file="arr.yaml")
 
 
+@pytest.mark.parametrize("conn, words", [
+    ("g{i-1}.y -> g{i}.u", "the block name g{i-1} gives g-1, which names no block"),
+    ("g{i}.y -> out.u{i-1}", "the port name u{i-1} gives u-1, which names no port"),
+])
+def test_a_name_computed_negative_is_named_as_a_name(conn, words):
+    """``g{i-1}`` over ``g[0..2]`` is a block name (g-1 for g0), not an index: it was
+    reported as 'an index computed from {i} may not be negative'."""
+    text = ("blocks:\n  out: {type: Mux, n: 3}\n  g[0..2]: {type: Gain}\n"
+            f"connections:\n  - {conn}\n")
+    with pytest.raises(SpidersimError) as exc:
+        spidersim.loads(text, file="arr.yaml")
+    assert exc.value.line == 5
+    assert f"for instance g0 (i = 0), {words}" in exc.value.message
+    assert "index" not in exc.value.message
+
+
 def test_port_pattern_is_not_read_as_an_array():
     """In 'g{i}.y -> out.u{i}' only g{i} names an array: an unrelated array u[0..1] made it
     fail 'arrays 'g' and 'u' have different index ranges'."""

@@ -317,13 +317,18 @@ def test_an_unused_subsystem_entry_must_name_a_file(tmp_path, spare, words):
     assert words in msg and "(no block uses the type: fix the path or remove the entry)" in msg
 
 
-def test_an_unused_subsystem_file_must_parse(tmp_path):
-    """An unused entry's file with a syntax error is reported in that file, naming the
-    entry's line and that no block uses it."""
-    (tmp_path / "broken.yaml").write_text("blocks: [\n")
+@pytest.mark.parametrize("text, words", [
+    ("blocks: [\n", "YAML syntax error"),
+    # a WiringError, not a DiagramError: the note naming the entry was missing
+    ("blocks:\n  c: {type: Constant}\nconnections:\n  - 'c.y[1:2:3] -> d.u'\n", "step"),
+])
+def test_an_unused_subsystem_file_must_parse(tmp_path, text, words):
+    """An unused entry's file with a syntax error or a bad connection is reported in that
+    file, naming the entry's line and that no block uses it."""
+    (tmp_path / "broken.yaml").write_text(text)
     err, msg = _error(tmp_path, SUB, UNUSED.format(spare="broken.yaml"))
     assert err.file.endswith("broken.yaml")
-    assert "YAML syntax error" in msg
+    assert words in msg
     assert "(subsystem type 'spare', parent.yaml:3, used by no block)" in msg
 
 
