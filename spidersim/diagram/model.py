@@ -122,8 +122,8 @@ def sim_setting(key, v, what, file=None, line=None, text=True, shortest=True):
     if not math.isfinite(val) and not (key == "max_step" and not text):
         raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be finite, got "
                            f"{_shown(v, text)}"
-                           + (" (a number beyond 1.8e308, such as 1e400, is infinite)"
-                              if text else ""), file=file, line=line)
+                           + (" (.inf is infinite)" if text else ""), file=file,
+                           line=line)
     if key == "rtol":
         check_rtol(val, what=what, file=file, line=line)
     if shortest and key in SHORTEST:
@@ -161,7 +161,11 @@ def _setting_number(key, v, what, file, line, text):
         if isinstance(val, bool):
             raise TypeError("boolean")
         return float(val)
-    except (ExprError, TypeError, ValueError, OverflowError):
+    except ExprError as exc:        # say why (an overflowing 1e400, a NaN, ...)
+        raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got "
+                           f"{_shown(v, text)}: {exc}", file=file,
+                           line=line) from None
+    except (TypeError, ValueError, OverflowError):
         raise DiagramError(f"{what} ({SIM_KEYS[key]}) must be a number, got "
                            f"{_shown(v, text)}", file=file, line=line) from None
 
