@@ -166,7 +166,7 @@ def test_second_signal_while_writing_stops_at_once(tmp_path, monkeypatch, capsys
 
 
 # ------------------------------------------------------------------ interrupted sweeps
-# run 0 (Ts = 0.1) takes milliseconds, run 1 (Ts = 1e-9: a billion samples) far longer
+# run 0 (Ts = 0.1) takes milliseconds, run 1 (Ts = 1e-8: 1e8 samples, the most a run may take) far longer
 # than the test: the signal comes while run 1 integrates
 with open(os.path.join(os.path.dirname(__file__), "data", "held_sweep.yaml")) as _fh:
     SWEEP = _fh.read()
@@ -180,7 +180,7 @@ def _sweep_interrupted(tmp_path, workers, sig=signal.SIGINT):
     path.write_text(SWEEP)
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "spidersim.cli", "sweep", str(path),
-                             "--vary", "z.Ts=0.1,1e-9,0.2", "--workers", str(workers),
+                             "--vary", "z.Ts=0.1,1e-8,0.2", "--workers", str(workers),
                              "--out", str(out), "--no-plots"], stderr=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True, cwd=tmp_path)
     seen = []

@@ -464,7 +464,7 @@ def test_sweep_and_cli_say_a_varied_parameter_changes_nothing(grow_file, tmp_pat
 
 
 # ------------------------------------------------------------------ wall-time limit
-# z.Ts = 1e-9 asks for a billion samples: a run that would take hours
+# z.Ts = 1e-8 asks for 1e8 samples (the most a run may take): a run that would take hours
 with open(os.path.join(os.path.dirname(__file__), "data", "held_sweep.yaml")) as _fh:
     HELD = _fh.read()
 
@@ -472,7 +472,7 @@ with open(os.path.join(os.path.dirname(__file__), "data", "held_sweep.yaml")) as
 def test_run_timeout_stops_a_run_and_the_sweep_goes_on(tmp_path, capsys):
     f = tmp_path / "held.yaml"
     f.write_text(HELD)
-    rc = main(["sweep", str(f), "--vary", "z.Ts=0.1,1e-9,0.2", "--workers", "0",
+    rc = main(["sweep", str(f), "--vary", "z.Ts=0.1,1e-8,0.2", "--workers", "0",
                "--run-timeout", "0.5", "--out", str(tmp_path / "out"), "--no-plots"])
     assert rc == 1
     with open(tmp_path / "out" / "sweep.csv") as fh:
