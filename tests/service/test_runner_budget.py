@@ -24,14 +24,16 @@ class _Closed:
 
 def test_worker_process_applies_its_share(monkeypatch):
     """The worker sets the budget in its own environment before any job (called here in
-    the test process: its SIGINT handler, which the worker sets to ignore, is restored)."""
+    the test process: its SIGINT and SIGTERM handlers, which the worker sets to ignore, are
+    restored)."""
     import signal
     monkeypatch.setenv(rb.ENV, "999")
-    before = signal.getsignal(signal.SIGINT)
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         R._worker_main(_Closed(), os.getppid(), 12.5)
-    finally:
-        signal.signal(signal.SIGINT, before)
+    finally:                    # both handlers it sets to ignore (SIGTERM was left ignored)
+        for s, h in before.items():
+            signal.signal(s, h)
     assert os.environ[rb.ENV] == "12.5" and rb.budget_bytes() == 12.5e6
 
 
