@@ -351,7 +351,7 @@ class CompiledSystem:
                             + (f" (non-finite state: {bad_x[0]})" if bad_x else ""))
             if bad_x:
                 return f"state '{bad_x[0]}' is not finite at t = {t:.9g} s"
-            xdot = self.rhs(t, x)
+            xdot = np.array(self.rhs(t, x), dtype=float)
             for name, a, b in self.x_names:
                 if not np.all(np.isfinite(xdot[a:b])):
                     return (f"the derivative of state '{name}' is {xdot[a:b].tolist()} "
@@ -367,9 +367,46 @@ class CompiledSystem:
                                                                    initial=0.0))
                 parts.append(f"fastest state '{name}' (|derivative| "
                              f"{np.max(np.abs(xdot[a:b])):.3g})")
+                stiff = self._stiffest(t, x, xdot)
+                if stiff:
+                    parts.append(stiff)
             if parts:
                 return "at t = " + f"{t:.9g} s: " + ", ".join(parts)
         return ""
+
+
+    def _stiffest(self, t, x, xdot):
+        """``stiffest mode |lambda| rad/s (time constant T s), mostly state 'name'``: the
+        eigenvalue of largest magnitude of the Jacobian ``d xdot / d x`` (forward
+        differences, one evaluation per state) and the state with the largest component
+        of its eigenvector: what makes a stiff method's steps collapse (a stiffness of
+        1e300, an inductance of 1e-300), which the largest derivative does not name."""
+        n = len(x)
+        if n == 0 or n > 400:           # (a dense eigenproblem of a huge model: skip)
+            return ""
+        J = np.empty((n, n))
+        for i in range(n):
+            h = 1e-7 * max(1.0, abs(x[i]))
+            xp = x.copy()
+            xp[i] += h
+            J[:, i] = (np.array(self.rhs(t, xp), dtype=float) - xdot) / h
+        if not np.all(np.isfinite(J)):
+            bad = int(np.argwhere(~np.isfinite(J))[0][1])
+            return f"the derivatives are not finite near state '{self._state_name(bad)}'"
+        lam, vec = np.linalg.eig(J)
+        k = int(np.argmax(np.abs(lam)))
+        if abs(lam[k]) == 0.0:
+            return "no stiff mode (the Jacobian is zero)"
+        i = int(np.argmax(np.abs(vec[:, k])))
+        return (f"stiffest mode {abs(lam[k]):.3g} rad/s (time constant "
+                f"{1.0 / abs(lam[k]):.3g} s), mostly state '{self._state_name(i)}'")
+
+    def _state_name(self, i):
+        """The name of state ``i`` (``name[k]`` for an element of a vector state)."""
+        for name, a, b in self.x_names:
+            if a <= i < b:
+                return name if b - a == 1 else f"{name}[{i - a}]"
+        return f"x[{i}]"
 
 
 class PlainSystem:

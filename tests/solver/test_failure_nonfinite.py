@@ -2,6 +2,7 @@
 the last step (log or sqrt of a negative): DP54 and NDF reported only "required step size
 is less than spacing between numbers"; LSODA said "non-finite value". And the relative
 tolerance's valid range, refused by check, run and the API alike."""
+import numpy as np
 import pytest
 
 import spidersim
@@ -74,3 +75,20 @@ def test_rtol_outside_its_range_is_refused(tmp_path, capsys, rtol):
         d.simulate(rtol=float(rtol), jit=False)
     for ok in ("1e-14", "1"):
         spidersim.loads(SERVO.format(rtol=ok))
+
+
+def test_the_diagnosis_names_the_stiffest_mode_and_its_state():
+    """A run that fails on stiffness (a 1e-12 s lag beside a slow integrator): the
+    diagnosis names the eigenvalue of largest magnitude of d xdot / d x and the state
+    that carries it, not only the state with the largest derivative (which named an
+    unrelated current for a gear stiffness of 1e300)."""
+    d = spidersim.loads("blocks:\n  u: {type: Constant, value: 1}\n"
+                        "  lag: {type: TransferFunction, num: [1], den: [1e-12, 1]}\n"
+                        "  slow: {type: Integrator}\n"
+                        "connections: [u.y -> lag.u, u.y -> slow.u]\n"
+                        "simulation: {t_end: 1}\n")
+    s = d.compile()
+    x = np.array(s.x0, dtype=float)
+    text = s.diagnose(0.0, x)
+    assert "stiffest mode 1e+12 rad/s (time constant 1e-12 s)" in text, text
+    assert "mostly state 'lag." in text, text
