@@ -255,14 +255,9 @@ class CompiledSystem:
         entry = loop_entry(method)
         if self.compiled_entry is None or entry.overloads:
             return
-        import numba
-        from .loop import CompiledLoop
         from .loop_state import METHODS
-        method = method if method in METHODS else "DP54"
-        run = CompiledLoop(self.fn, self, 0.0, 1.0, 1e-6, 1e-8, np.inf, None, None,
-                           capacity=1, method=method, jacobian="fd")
-        args = (self.fn,) + run.arguments(1)
-        entry.compile(tuple(numba.typeof(a) for a in args))
+        from .loop_warm import loop_types
+        entry.compile(loop_types(method if method in METHODS else "DP54", self, self.fn))
 
     def _bind_entry_points(self):
         """Call the machine code of the hot Python-side calls directly: numba's dispatcher
