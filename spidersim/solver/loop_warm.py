@@ -75,7 +75,7 @@ def loop_types(method, system=None, fn=0):
 def compile_entry(method):
     """Compile (or load from numba's cache) the loop entry of ``method``; return
     ``"hit"`` when it was loaded from the cache, ``"compiled"`` otherwise."""
-    from .system import loop_entry
+    from .loop_body import entry as loop_entry    # (not .system: it imports this module)
     entry = loop_entry(method)
     entry.compile(loop_types(method))
     return "hit" if sum(entry.stats.cache_hits.values()) else "compiled"
